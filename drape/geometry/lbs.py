@@ -1,0 +1,42 @@
+"""Linear blend skinning, batched over frames."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drape.geometry.skeleton import PARENTS, forward_kinematics
+
+
+def linear_blend_skinning(
+    rest_vertices: np.ndarray, weights: np.ndarray, transforms: np.ndarray
+) -> np.ndarray:
+    """Skin rest vertices with per-joint transforms.
+
+    rest_vertices: (N, 3) or (T, N, 3) metres (per-frame rest shapes, e.g. with
+    pose-space blend shapes added); weights: (N, K), rows summing to 1;
+    transforms: (T, K, 4, 4) from `forward_kinematics`.
+    Returns (T, N, 3) float32 metres.
+    """
+    w = np.asarray(weights, dtype=np.float32)
+    tr = np.asarray(transforms, dtype=np.float32)
+    T, K = tr.shape[:2]
+    # blend the 3x4 affine parts: (T, N, 12) = (N, K) x (T, K, 12), one GEMM for all frames
+    blended = np.einsum("nk,tkc->tnc", w, tr[..., :3, :].reshape(T, K, 12), optimize=True)
+    blended = blended.reshape(T, -1, 3, 4)
+    v = np.asarray(rest_vertices, dtype=np.float32)
+    if v.ndim == 2:
+        v = np.broadcast_to(v, (T,) + v.shape)
+    return np.einsum("tnij,tnj->tni", blended[..., :3], v, optimize=True) + blended[..., 3]
+
+
+def pose_mesh(
+    rest_vertices: np.ndarray,
+    weights: np.ndarray,
+    rest_joints: np.ndarray,
+    poses: np.ndarray,
+    translation: np.ndarray | None = None,
+    parents: np.ndarray = PARENTS,
+) -> np.ndarray:
+    """Forward kinematics then LBS: (N, 3) rest mesh + (T, K, 3) poses -> (T, N, 3) float32."""
+    transforms, _ = forward_kinematics(poses, rest_joints, parents, translation)
+    return linear_blend_skinning(rest_vertices, weights, transforms)

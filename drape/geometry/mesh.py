@@ -1,0 +1,146 @@
+"""Triangle-mesh structure: normals, edges, Laplacians, the padded neighbour table.
+
+vertices: (N, 3) or (T, N, 3) float, metres; faces: (F, 3) integer indices.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray, normalize: bool = True) -> np.ndarray:
+    """(..., N, 3), (F, 3) -> (..., F, 3); area-weighted (2x area) when not normalised."""
+    v = np.asarray(vertices)
+    f = np.asarray(faces)
+    n = np.cross(v[..., f[:, 1], :] - v[..., f[:, 0], :], v[..., f[:, 2], :] - v[..., f[:, 0], :])
+    if normalize:
+        n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-20)
+    return n
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals: (..., N, 3), (F, 3) -> (..., N, 3)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    fn = face_normals(v, f, normalize=False)  # (..., F, 3)
+    N = v.shape[-2]
+    # (N, F) incidence matrix times face normals: a sparse GEMM instead of a scatter
+    rows = f.reshape(-1)
+    cols = np.repeat(np.arange(len(f)), 3)
+    inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(N, len(f)))
+    if fn.ndim == 2:
+        vn = inc @ fn
+    else:
+        lead = fn.shape[:-2]
+        flat = np.moveaxis(fn.reshape((-1,) + fn.shape[-2:]), 0, 1).reshape(len(f), -1)
+        vn = (inc @ flat).reshape(N, -1, 3)
+        vn = np.moveaxis(vn, 1, 0).reshape(lead + (N, 3))
+    return vn / np.maximum(np.linalg.norm(vn, axis=-1, keepdims=True), 1e-20)
+
+
+def unique_edges(faces: np.ndarray) -> np.ndarray:
+    """(F, 3) -> (E, 2) int64 edges, each once, with e[:, 0] < e[:, 1], sorted."""
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e.sort(axis=1)
+    return np.unique(e, axis=0)
+
+
+def edge_face_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique edges (E, 2) and how many faces use each (E,)."""
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e.sort(axis=1)
+    edges, counts = np.unique(e, axis=0, return_counts=True)
+    return edges, counts
+
+
+def is_edge_manifold(faces: np.ndarray) -> bool:
+    """True when every edge is used by one (boundary) or two faces."""
+    _, counts = edge_face_counts(faces)
+    return bool(np.all(counts <= 2))
+
+
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """(B, 2) edges used by exactly one face."""
+    edges, counts = edge_face_counts(faces)
+    return edges[counts == 1]
+
+
+def adjacency_matrix(faces: np.ndarray, num_vertices: int) -> sp.csr_matrix:
+    """Symmetric (N, N) 0/1 vertex adjacency."""
+    e = unique_edges(faces)
+    a = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num_vertices, num_vertices))
+    return (a + a.T).tocsr()
+
+
+def uniform_laplacian(faces: np.ndarray, num_vertices: int) -> sp.csr_matrix:
+    """L = I - D^-1 A: (L @ V)_i = v_i - mean of its neighbours. Isolated vertices get 0 rows."""
+    a = adjacency_matrix(faces, num_vertices)
+    deg = np.asarray(a.sum(axis=1)).ravel()
+    inv = np.where(deg > 0, 1.0 / np.maximum(deg, 1), 0.0)
+    return (sp.diags((deg > 0).astype(float)) - sp.diags(inv) @ a).tocsr()
+
+
+def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """Cotangent-weight Laplacian L (N, N), positive semi-definite, rows summing to 0.
+
+    L_ij = -(cot a_ij + cot b_ij) / 2 for edges, L_ii = -sum_j L_ij (no mass matrix).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    N = len(v)
+    rows, cols, vals = [], [], []
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        # angle at corner k, opposite edge (i, j)
+        u = v[f[:, i]] - v[f[:, k]]
+        w = v[f[:, j]] - v[f[:, k]]
+        cot = np.einsum("fc,fc->f", u, w) / np.maximum(np.linalg.norm(np.cross(u, w), axis=1), 1e-20)
+        rows += [f[:, i], f[:, j]]
+        cols += [f[:, j], f[:, i]]
+        vals += [-0.5 * cot, -0.5 * cot]
+    off = sp.coo_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(N, N)
+    ).tocsr()
+    diag = -np.asarray(off.sum(axis=1)).ravel()
+    return (off + sp.diags(diag)).tocsr()
+
+
+def neighbour_table(faces: np.ndarray, num_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Padded one-ring table for ONNX-safe graph convolution (gather + weighted sum).
+
+    Returns (indices (N, Kmax) int64, weights (N, Kmax) float32): row i lists
+    vertex i's neighbours with weight 1/deg(i); padding entries point at i itself
+    with weight 0, so `sum_k w[i, k] * x[idx[i, k]]` is the neighbour mean.
+    """
+    a = adjacency_matrix(faces, num_vertices).tocsr()
+    deg = np.diff(a.indptr)
+    kmax = max(int(deg.max(initial=0)), 1)
+    idx = np.repeat(np.arange(num_vertices)[:, None], kmax, axis=1).astype(np.int64)
+    wts = np.zeros((num_vertices, kmax), dtype=np.float32)
+    slot = np.arange(a.nnz) - np.repeat(a.indptr[:-1], deg)
+    row = np.repeat(np.arange(num_vertices), deg)
+    idx[row, slot] = a.indices
+    wts[row, slot] = 1.0 / deg[row]
+    return idx, wts
+
+
+def face_adjacency(faces: np.ndarray) -> np.ndarray:
+    """(A, 2) pairs of faces sharing an edge (interior edges of a manifold mesh)."""
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e.sort(axis=1)
+    face_id = np.tile(np.arange(len(f)), 3)
+    order = np.lexsort((e[:, 1], e[:, 0]))
+    e, face_id = e[order], face_id[order]
+    same = np.all(e[1:] == e[:-1], axis=1)
+    return np.stack([face_id[:-1][same], face_id[1:][same]], axis=1)
+
+
+def connected_components(faces: np.ndarray, num_vertices: int) -> np.ndarray:
+    """(N,) component label per vertex (vertices joined by edges)."""
+    from scipy.sparse.csgraph import connected_components as cc
+
+    _, labels = cc(adjacency_matrix(faces, num_vertices), directed=False)
+    return labels
