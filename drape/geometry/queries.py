@@ -154,3 +154,13 @@ class MeshDistance:
 def signed_distance_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Exact signed distance of points (P, 3) to the mesh (vertices (M, 3), faces (F, 3)): (P,) metres."""
     return MeshDistance(vertices, faces).signed_distance(points)
+
+
+def nearest_vertex_weights(points: np.ndarray, body_vertices: np.ndarray, body_weights: np.ndarray) -> np.ndarray:
+    """Skin weights copied from the nearest body vertex: (P, 3), (M, 3), (M, K) -> (P, K) float32.
+
+    The plain baseline for skinning a garment: cheap, but it tears loose cloth
+    (a skirt between the legs takes the left and right thighs' weights).
+    """
+    _, idx = cKDTree(body_vertices).query(points)
+    return np.asarray(body_weights, dtype=np.float32)[idx]
