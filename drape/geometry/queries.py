@@ -84,21 +84,37 @@ def closest_point_on_triangles(
 class MeshDistance:
     """Exact closest-point queries against one triangle mesh (e.g. a posed body).
 
-    vertices: (M, 3) metres; faces: (F, 3). Candidate triangles come from a
-    KD-tree on triangle centroids; a query is exact because every triangle whose
-    centroid lies farther than (best distance + largest centroid-to-corner radius)
-    cannot be closer, and points whose candidate list does not reach that bound
-    are re-queried with a ball of that radius.
+    vertices: (M, 3) metres; faces: (F, 3). Triangles are split into classes by
+    size (centroid-to-corner radius); each class has a KD-tree on its centroids.
+    A query is exact because, within a class, a triangle whose centroid lies
+    farther than (best distance + the class's largest radius) cannot be closer;
+    points whose candidate list does not reach that bound are re-queried with
+    more candidates. The answer is the best over the classes. Distances are exact
+    up to `exact_within` metres; a point farther away than that gets a distance
+    that is an upper bound, itself above `exact_within` (what collision and
+    clearance tests need, at a fraction of the cost).
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None):
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        normals: np.ndarray | None = None,
+        exact_within: float = 0.05,
+    ):
+        self.exact_within = exact_within
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self.faces = np.asarray(faces, dtype=np.int64)
         self.normals = vertex_normals(self.vertices, self.faces) if normals is None else normals
         tri = self.vertices[self.faces]  # (F, 3, 3)
-        self.centroids = tri.mean(axis=1)
-        self.radius = float(np.linalg.norm(tri - self.centroids[:, None], axis=2).max())
-        self.tree = cKDTree(self.centroids)
+        centroids = tri.mean(axis=1)
+        radius = np.linalg.norm(tri - centroids[:, None], axis=2).max(axis=1)
+        edges = np.unique(np.quantile(radius, [0.0, 0.5, 0.9, 1.0]))
+        cls = np.clip(np.searchsorted(edges, radius, side="left") - 1, 0, None)
+        self.classes = []
+        for c in np.unique(cls):
+            ids = np.nonzero(cls == c)[0]
+            self.classes.append((ids, cKDTree(centroids[ids]), float(radius[ids].max())))
 
     def _exact_for(self, points: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, ...]:
         P, C = cand.shape
@@ -110,41 +126,51 @@ class MeshDistance:
         d2 = np.einsum("pc,pc->p", pts - cp, pts - cp).reshape(P, C)
         best = np.argmin(d2, axis=1)
         rows = np.arange(P) * C + best
-        return cp[rows], bary[rows], cand[np.arange(P), best], np.sqrt(d2[np.arange(P), best])
+        return bary[rows], cand[np.arange(P), best], np.sqrt(d2[np.arange(P), best])
 
-    def project(self, points: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
-        """points: (P, 3) -> (closest face index (P,), barycentric coords of the closest point (P, 3))."""
+    def project(self, points: np.ndarray, k: int = 8, exact: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """points: (P, 3) -> (closest face index (P,), barycentric coords of the closest point (P, 3)).
+
+        exact=False stops after the k nearest centroids of each class: faster, and
+        right for all but a few points near large triangles.
+        """
         pts = np.asarray(points, dtype=np.float64)
-        P, F = len(pts), len(self.faces)
+        P = len(pts)
         bary = np.empty((P, 3))
         face = np.empty(P, dtype=np.int64)
-        todo = np.arange(P)
-        while len(todo):
-            kk = min(k, F)
-            cdist, cand = self.tree.query(pts[todo], k=kk)
-            cand = cand.reshape(len(todo), -1)
-            cdist = cdist.reshape(len(todo), -1)
-            r = self._exact_for(pts[todo], cand)
-            bary[todo], face[todo] = r[1], r[2]
-            # a farther centroid could still hide a closer triangle only within dist + radius
-            sure = (kk == F) | (cdist[:, -1] >= r[3] + self.radius)
-            todo = todo[~sure]
-            k *= 4
+        dist = np.full(P, np.inf)
+        for ids, tree, radius in self.classes:
+            todo = np.arange(P)
+            kk = k
+            while len(todo):
+                kk = min(kk, len(ids))
+                cdist, cand = tree.query(pts[todo], k=kk)
+                cand = ids[cand.reshape(len(todo), -1)]
+                cdist = cdist.reshape(len(todo), -1)
+                b_, f_, d_ = self._exact_for(pts[todo], cand)
+                better = d_ < dist[todo]
+                upd = todo[better]
+                bary[upd], face[upd], dist[upd] = b_[better], f_[better], d_[better]
+                # a farther centroid of this class could hide a closer triangle only within dist + radius
+                reach = np.minimum(dist[todo], self.exact_within) + radius
+                sure = (kk == len(ids)) | (cdist[:, -1] >= reach) | (not exact)
+                todo = todo[~sure]
+                kk *= 4
         return face, bary
 
-    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def closest(self, points: np.ndarray, exact: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """points: (P, 3) -> (closest points (P, 3), interpolated unit normals (P, 3), face index (P,))."""
-        face, bary = self.project(points)
+        face, bary = self.project(points, exact=exact)
         corners = self.faces[face]
         cp = np.einsum("pk,pkc->pc", bary, self.vertices[corners])
         n = np.einsum("pk,pkc->pc", bary, self.normals[corners])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
         return cp, n, face
 
-    def signed_distance(self, points: np.ndarray) -> np.ndarray:
+    def signed_distance(self, points: np.ndarray, exact: bool = True) -> np.ndarray:
         """(P, 3) -> (P,) metres: |x - p| signed by the side of the normal at p (negative inside)."""
         pts = np.asarray(points, dtype=np.float64)
-        cp, n, _ = self.closest(pts)
+        cp, n, _ = self.closest(pts, exact=exact)
         diff = pts - cp
         dist = np.linalg.norm(diff, axis=1)
         side = np.einsum("pc,pc->p", diff, n)
