@@ -23,24 +23,15 @@ import numpy as np
 
 from drape.geometry.lbs import pose_mesh
 from drape.geometry.queries import MeshDistance
-from drape.geometry.rotations import matrix_to_axis_angle
-from drape.geometry.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, forward_kinematics
-
-# CMU bone -> SMPL joint; the 7 extras are merged into the joint of their parent bone
-CMU_TO_SMPL = {
-    "Hips": "pelvis", "LeftUpLeg": "left_hip", "RightUpLeg": "right_hip", "LowerBack": "spine1",
-    "LeftLeg": "left_knee", "RightLeg": "right_knee", "Spine": "spine2", "LeftFoot": "left_ankle",
-    "RightFoot": "right_ankle", "Spine1": "spine3", "LeftToeBase": "left_foot",
-    "RightToeBase": "right_foot", "Neck": "neck", "LeftShoulder": "left_collar",
-    "RightShoulder": "right_collar", "Head": "head", "LeftArm": "left_shoulder",
-    "RightArm": "right_shoulder", "LeftForeArm": "left_elbow", "RightForeArm": "right_elbow",
-    "LeftHand": "left_wrist", "RightHand": "right_wrist", "LeftFingerBase": "left_hand",
-    "RightFingerBase": "right_hand",
-}
-CMU_EXTRAS = {
-    "LHipJoint": "Hips", "RHipJoint": "Hips", "Neck1": "Neck", "LThumb": "LeftHand",
-    "RThumb": "RightHand", "LeftHandFinger1": "LeftFingerBase", "RightHandFinger1": "RightFingerBase",
-}
+from drape.geometry.rotations import matrix_to_axis_angle, rotation_between
+from drape.geometry.skeleton import (
+    CMU_EXTRAS,
+    CMU_TO_SMPL,
+    JOINT_INDEX,
+    JOINT_NAMES,
+    PARENTS,
+    forward_kinematics,
+)
 
 PRESETS: dict[str, dict[str, float]] = {
     # anny phenotypes in [0, 1]; gender anchors are (male, female), age 0.75 = young adult
@@ -66,16 +57,6 @@ _T_POSE_TARGETS = {
 ANNY_TO_DRAPE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y, z) -> (x, z, -y)
 
 
-def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Smallest rotation matrix taking unit direction a to unit direction b."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    v = np.cross(a, b)
-    c = float(a @ b)
-    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + k + k @ k / (1.0 + c)
-
-
 def t_pose_rotations(joints: np.ndarray) -> np.ndarray:
     """Local axis-angle rotations (24, 3) that turn the A-pose skeleton `joints` (24, 3) into a T-pose."""
     poses = np.zeros((24, 3))
@@ -87,7 +68,7 @@ def t_pose_rotations(joints: np.ndarray) -> np.ndarray:
         _, posed = forward_kinematics(poses[None], joints)
         glob = forward_kinematics(poses[None], joints)[0][0, :, :3, :3]
         current = posed[0, c] - posed[0, j]
-        world = _rotation_between(current, np.asarray(target))
+        world = rotation_between(current, np.asarray(target))
         parent_rot = glob[PARENTS[j]] if PARENTS[j] >= 0 else np.eye(3)
         own = glob[j]
         # new global = world @ own; local = parent^T @ new global

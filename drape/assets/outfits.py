@@ -95,7 +95,12 @@ class _Builder:
         return sum(len(f) for f in self.faces)
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.concatenate(self.points), np.concatenate(self.faces).astype(np.int64)
+        """(vertices (N, 3), faces (F, 3)) without the vertices no face uses (e.g. inside armholes)."""
+        pts, faces = np.concatenate(self.points), np.concatenate(self.faces).astype(np.int64)
+        used = np.zeros(len(pts), dtype=bool)
+        used[faces] = True
+        new_index = np.cumsum(used) - 1
+        return pts[used], new_index[faces]
 
 
 # ----------------------------------------------------------------------------- envelopes

@@ -24,6 +24,23 @@ PARENTS: np.ndarray = np.array(
 NUM_JOINTS = 24
 JOINT_INDEX: dict[str, int] = {name: i for i, name in enumerate(JOINT_NAMES)}
 
+# CMU bone -> SMPL joint; the 7 extras are merged into the joint of their parent bone
+CMU_TO_SMPL: dict[str, str] = {
+    "Hips": "pelvis", "LeftUpLeg": "left_hip", "RightUpLeg": "right_hip", "LowerBack": "spine1",
+    "LeftLeg": "left_knee", "RightLeg": "right_knee", "Spine": "spine2", "LeftFoot": "left_ankle",
+    "RightFoot": "right_ankle", "Spine1": "spine3", "LeftToeBase": "left_foot",
+    "RightToeBase": "right_foot", "Neck": "neck", "LeftShoulder": "left_collar",
+    "RightShoulder": "right_collar", "Head": "head", "LeftArm": "left_shoulder",
+    "RightArm": "right_shoulder", "LeftForeArm": "left_elbow", "RightForeArm": "right_elbow",
+    "LeftHand": "left_wrist", "RightHand": "right_wrist", "LeftFingerBase": "left_hand",
+    "RightFingerBase": "right_hand",
+}
+CMU_EXTRAS: dict[str, str] = {
+    "LHipJoint": "Hips", "RHipJoint": "Hips", "Neck1": "Neck", "LThumb": "LeftHand",
+    "RThumb": "RightHand", "LeftHandFinger1": "LeftFingerBase", "RightHandFinger1": "RightFingerBase",
+}
+
+
 
 def as_pose_array(poses: np.ndarray) -> np.ndarray:
     """Accept (T, 24, 3), (T, 72) or SMPL-H/X-wide (T, 156) pose arrays -> (T, 24, 3) float64.

@@ -1,0 +1,187 @@
+"""The `drape` command line. Each subcommand imports what it needs only when it runs."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ASSETS = Path(__file__).parent / "assets"
+
+
+def _serve(args: argparse.Namespace) -> None:
+    import uvicorn
+
+    from drape.service.app import create_app
+    from drape.service.settings import Settings
+
+    settings = Settings(host=args.host, port=args.port)
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port)
+
+
+def _bake_body(args: argparse.Namespace) -> None:
+    from drape.assets.body_bake import bake_bodies
+
+    for path in bake_bodies(Path(args.out), args.presets or None):
+        print(path)
+
+
+def _import_deepmimic(args: argparse.Namespace) -> None:
+    from drape.assets import deepmimic
+    from drape.assets.body import load_body
+
+    body = load_body(args.body)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"{'clip':18s} {'frames':>6s} {'fps':>5s} {'lower-foot height median (mm)':>30s}")
+    for path in deepmimic.deepmimic_clip_paths():
+        motion = deepmimic.import_clip(path, body, fps=args.fps)
+        motion.save(out / f"{motion.name}.npz")
+        err = float(np.median(np.abs(deepmimic.foot_heights(motion, body)))) * 1e3
+        print(f"{motion.name:18s} {motion.num_frames:6d} {motion.fps:5.0f} {err:30.1f}")
+    (out / "ATTRIBUTION.md").write_text(deepmimic.ATTRIBUTION + "\n")
+
+
+def _motions_generate(args: argparse.Namespace) -> None:
+    from drape.assets.procedural import generate_motion
+
+    motion = generate_motion(args.frames, seed=args.seed, fps=args.fps, body=args.body, walk=args.walk)
+    motion.save(args.out)
+    print(f"{args.out}: {motion.num_frames} frames at {motion.fps:g} fps")
+
+
+def _motions_import(args: argparse.Namespace) -> None:
+    from drape.assets.body import load_body
+    from drape.assets.motion import load_motion_npz
+
+    src = Path(args.file)
+    if src.suffix.lower() == ".bvh":
+        from drape.assets.bvh import import_bvh
+
+        motion = import_bvh(src, load_body(args.body))
+    elif src.suffix.lower() == ".npz":
+        motion = load_motion_npz(src)
+    else:
+        raise SystemExit(f"{src}: expected a .bvh or an AMASS-style .npz file")
+    motion.save(args.out)
+    print(f"{args.out}: {motion.num_frames} frames at {motion.fps:g} fps")
+
+
+def _outfits_generate(args: argparse.Namespace) -> None:
+    from drape.assets.outfits import generate_outfit
+    from drape.geometry.mesh_io import save_mesh
+
+    outfit = generate_outfit(args.type, vertices=args.vertices, seed=args.seed, body=args.body,
+                             looseness=args.looseness, length=args.length)
+    save_mesh(args.out, outfit.vertices, outfit.faces)
+    print(f"{args.out}: {len(outfit.vertices)} vertices, {len(outfit.faces)} faces, garments {outfit.garments}")
+
+
+def _render(args: argparse.Namespace) -> None:
+    from drape.assets.body import load_body
+    from drape.assets.motion import load_clip, load_motion_npz
+    from drape.geometry.lbs import linear_blend_skinning
+    from drape.geometry.mesh_io import load_mesh
+    from drape.geometry.queries import nearest_vertex_weights
+    from drape.geometry.skeleton import forward_kinematics
+    from drape.render import Layer, render_frames
+
+    body = load_body(args.body)
+    if args.motion:
+        motion = load_motion_npz(args.motion)
+    elif args.clip:
+        motion = load_clip(args.clip)
+    else:
+        motion = None
+    frames = [int(f) for f in args.frames.split(",")] if motion is not None else [0]
+    if motion is not None:
+        bad = [f for f in frames if not 0 <= f < motion.num_frames]
+        if bad:
+            raise SystemExit(f"frames {bad} outside the clip's 0..{motion.num_frames - 1}")
+        poses, trans = motion.poses[frames], motion.trans[frames]
+    else:
+        poses, trans = np.zeros((1, 24, 3)), np.zeros((1, 3))
+    transforms, _ = forward_kinematics(poses, body.joints, body.parents, trans)
+    layers = [Layer(linear_blend_skinning(body.vertices, body.weights, transforms), body.faces, (0.86, 0.74, 0.62))]
+    if args.outfit:
+        verts, faces = load_mesh(args.outfit)
+        # plain LBS with nearest-body-vertex weights: enough to look at an outfit, not a cloth model
+        weights = nearest_vertex_weights(verts, body.vertices, body.weights)
+        layers.append(Layer(linear_blend_skinning(verts, weights, transforms), faces, (0.25, 0.45, 0.8)))
+    name = motion.name if motion is not None else "rest pose"
+    titles = [f"{body.name} - {name} - frame {f}" for f in frames]
+    print(render_frames(layers, list(range(len(frames))), args.out, azimuth=args.azimuth, titles=titles))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="drape", description="drape: neural garment animation service and tools")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("serve", help="run the HTTP service")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8000)
+    s.set_defaults(func=_serve)
+
+    assets = sub.add_parser("assets", help="re-create the embedded assets").add_subparsers(dest="what", required=True)
+    b = assets.add_parser("bake-body", help="bake body presets from anny (slow: ~2 min the first time)")
+    b.add_argument("--presets", nargs="*", help="presets to bake (default: all)")
+    b.add_argument("--out", default=str(ASSETS / "bodies"))
+    b.set_defaults(func=_bake_body)
+    d = assets.add_parser("import-deepmimic", help="retarget the DeepMimic clips from the pybullet wheel")
+    d.add_argument("--out", default=str(ASSETS / "motions"))
+    d.add_argument("--body", default="neutral")
+    d.add_argument("--fps", type=float, default=30.0)
+    d.set_defaults(func=_import_deepmimic)
+
+    motions = sub.add_parser("motions", help="make or convert motions").add_subparsers(dest="what", required=True)
+    g = motions.add_parser("generate", help="a seeded procedural motion (gait, reaching, turning)")
+    g.add_argument("--frames", type=int, required=True)
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--fps", type=float, default=30.0)
+    g.add_argument("--walk", type=float, default=0.6, help="share of time walking (0..1)")
+    g.add_argument("--body", default="neutral")
+    g.add_argument("--out", required=True)
+    g.set_defaults(func=_motions_generate)
+    i = motions.add_parser("import", help="convert a CMU-named BVH or an AMASS-style npz to a drape clip")
+    i.add_argument("file")
+    i.add_argument("--body", default="neutral")
+    i.add_argument("--out", required=True)
+    i.set_defaults(func=_motions_import)
+
+    outfits = sub.add_parser("outfits", help="template outfits").add_subparsers(dest="what", required=True)
+    o = outfits.add_parser("generate", help="generate an outfit in rest pose")
+    o.add_argument("--type", required=True,
+                   help="tshirt, tanktop, longsleeve, trousers, shorts, skirt, dress, jacket, or a comma list")
+    o.add_argument("--vertices", type=int, default=4000)
+    o.add_argument("--seed", type=int, default=0)
+    o.add_argument("--body", default="neutral")
+    o.add_argument("--looseness", type=float, default=None, help="0 (tight) .. 1 (loose); random if omitted")
+    o.add_argument("--length", type=float, default=None, help="0 (short) .. 1 (long); random if omitted")
+    o.add_argument("--out", required=True)
+    o.set_defaults(func=_outfits_generate)
+
+    r = sub.add_parser("render", help="PNG of a body (and outfit) at frames of a motion")
+    r.add_argument("--body", default="neutral")
+    r.add_argument("--outfit", help="mesh file of an outfit in the body's rest pose")
+    r.add_argument("--clip", help="embedded clip name")
+    r.add_argument("--motion", help="motion npz file")
+    r.add_argument("--frames", default="0,10,20,30")
+    r.add_argument("--azimuth", type=float, default=25.0, help="view angle about +Y from the front, degrees")
+    r.add_argument("--out", required=True)
+    r.set_defaults(func=_render)
+    return p
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except (ValueError, KeyError) as exc:
+        print(f"drape: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from exc
+
+
+if __name__ == "__main__":
+    main()

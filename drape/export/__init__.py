@@ -1,0 +1,1 @@
+"""torch -> ONNX export, parity checks, the model manifest. Filled by the network issues."""

@@ -1,0 +1,1 @@
+"""torch nn.Modules of the three networks. Filled by the network issues."""

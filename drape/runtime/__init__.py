@@ -1,0 +1,1 @@
+"""ONNX Runtime sessions, model registry and batching (no torch). Filled by the service issue."""

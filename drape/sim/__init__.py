@@ -1,0 +1,1 @@
+"""Ground-truth cloth simulation (MuJoCo) for datasets. Filled by the simulation issue."""

@@ -1,0 +1,84 @@
+"""Normals, edges, Laplacians and the padded neighbour table on meshes with known answers."""
+
+import numpy as np
+import trimesh
+
+from drape.geometry.mesh import (
+    boundary_edges,
+    connected_components,
+    cotangent_laplacian,
+    face_adjacency,
+    is_edge_manifold,
+    neighbour_table,
+    uniform_laplacian,
+    unique_edges,
+    vertex_normals,
+)
+
+
+def sphere(subdiv=3, radius=1.0):
+    m = trimesh.creation.icosphere(subdivisions=subdiv, radius=radius)
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+def test_sphere_normals_point_outward_radially():
+    v, f = sphere()
+    n = vertex_normals(v, f)
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+    assert np.min(np.einsum("nc,nc->n", n, v / np.linalg.norm(v, axis=1, keepdims=True))) > 0.995
+
+
+def test_edges_euler_and_manifold():
+    v, f = sphere(2)
+    e = unique_edges(f)
+    assert len(v) - len(e) + len(f) == 2  # Euler characteristic of a sphere
+    assert is_edge_manifold(f) and len(boundary_edges(f)) == 0
+    assert len(face_adjacency(f)) == len(e)
+    bad = np.vstack([f, f[:1]])  # a duplicated face makes three faces share its edges
+    assert not is_edge_manifold(bad)
+    two = np.vstack([f, f + len(v)])
+    assert len(np.unique(connected_components(two, 2 * len(v)))) == 2
+
+
+def test_uniform_laplacian_is_vertex_minus_neighbour_mean():
+    v, f = sphere(1)
+    lap = uniform_laplacian(f, len(v))
+    assert np.allclose(lap @ np.ones(len(v)), 0.0)
+    idx, w = neighbour_table(f, len(v))
+    mean = np.einsum("nk,nkc->nc", w, v[idx])
+    assert np.allclose(lap @ v, v - mean)
+
+
+def test_neighbour_table_padding_and_weights():
+    v, f = sphere(1)
+    idx, w = neighbour_table(f, len(v))
+    assert idx.dtype == np.int64 and w.dtype == np.float32
+    assert np.allclose(w.sum(axis=1), 1.0)
+    pad = w == 0
+    assert np.all(idx[pad] == np.nonzero(pad)[0])  # padding points at the vertex itself
+    e = {tuple(x) for x in unique_edges(f)}
+    for i in range(len(v)):
+        for j in idx[i][~pad[i]]:
+            assert (min(i, j), max(i, j)) in e
+
+
+def test_cotangent_laplacian_linear_precision_and_sphere_curvature():
+    # flat grid: the cotangent Laplacian of a linear function vanishes at interior vertices
+    xs, ys = np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 6))
+    v = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(36)])
+    f = []
+    for r in range(5):
+        for c in range(5):
+            a = r * 6 + c
+            f += [[a, a + 1, a + 7], [a, a + 7, a + 6]]
+    f = np.array(f)
+    lap = cotangent_laplacian(v, f)
+    fn = 2 * v[:, 0] - 3 * v[:, 1]
+    interior = (xs.ravel() > 0) & (xs.ravel() < 1) & (ys.ravel() > 0) & (ys.ravel() < 1)
+    assert np.allclose((lap @ fn)[interior], 0.0, atol=1e-12)
+    assert abs((lap - lap.T).max()) < 1e-12
+    # on a sphere, L x is parallel to the normal (mean curvature vector)
+    vs, fs = sphere(3)
+    hn = cotangent_laplacian(vs, fs) @ vs
+    cos = np.einsum("nc,nc->n", hn, vs) / (np.linalg.norm(hn, axis=1) * np.linalg.norm(vs, axis=1))
+    assert cos.min() > 0.99
