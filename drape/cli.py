@@ -82,7 +82,7 @@ def _outfits_generate(args: argparse.Namespace) -> None:
 def _render(args: argparse.Namespace) -> None:
     from drape.assets.body import load_body
     from drape.assets.motion import load_clip, load_motion_npz
-    from drape.geometry.lbs import linear_blend_skinning
+    from drape.geometry.lbs import linear_blend_skinning, smooth_weights
     from drape.geometry.mesh_io import load_mesh
     from drape.geometry.queries import nearest_vertex_weights
     from drape.geometry.skeleton import forward_kinematics
@@ -107,12 +107,16 @@ def _render(args: argparse.Namespace) -> None:
     layers = [Layer(linear_blend_skinning(body.vertices, body.weights, transforms), body.faces, (0.86, 0.74, 0.62))]
     if args.outfit:
         verts, faces = load_mesh(args.outfit)
-        # plain LBS with nearest-body-vertex weights: enough to look at an outfit, not a cloth model
-        weights = nearest_vertex_weights(verts, body.vertices, body.weights)
+        # LBS with nearest-body-vertex weights diffused over the cloth: a look, not a cloth model
+        weights = smooth_weights(nearest_vertex_weights(verts, body.vertices, body.weights), faces,
+                                 iterations=args.smooth)
         layers.append(Layer(linear_blend_skinning(verts, weights, transforms), faces, (0.25, 0.45, 0.8)))
     name = motion.name if motion is not None else "rest pose"
+    caption = (f"outfit posed by LBS with nearest-body-vertex weights diffused {args.smooth} steps "
+               "(a preview, not a cloth model)") if args.outfit else None
     titles = [f"{body.name} - {name} - frame {f}" for f in frames]
-    print(render_frames(layers, list(range(len(frames))), args.out, azimuth=args.azimuth, titles=titles))
+    print(render_frames(layers, list(range(len(frames))), args.out, azimuth=args.azimuth, titles=titles,
+                        caption=caption))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -169,6 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--motion", help="motion npz file")
     r.add_argument("--frames", default="0,10,20,30")
     r.add_argument("--azimuth", type=float, default=25.0, help="view angle about +Y from the front, degrees")
+    r.add_argument("--smooth", type=int, default=40, help="weight diffusion steps for the outfit's skinning")
     r.add_argument("--out", required=True)
     r.set_defaults(func=_render)
     return p

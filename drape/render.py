@@ -37,6 +37,7 @@ def render_frames(
     azimuth: float = 25.0,
     titles: Sequence[str] | None = None,
     panel_size: float = 3.0,
+    caption: str | None = None,
 ) -> Path:
     """Draw the chosen frames side by side into a PNG at `out`; each panel follows the first layer."""
     import matplotlib
@@ -53,22 +54,26 @@ def render_frames(
     for ax, t, k in zip(axes, frames, range(len(frames)), strict=True):
         polys, depth, colors = [], [], []
         centre = layers[0].vertices[t].mean(axis=0)
-        for layer in layers:
+        for rank, layer in enumerate(layers):
             v = (layer.vertices[t] - centre) @ view.T  # (N, 3) screen coords
             tri = v[layer.faces]
             n = face_normals(v, layer.faces)
             shade = 0.35 + 0.65 * np.abs(n @ light)  # two-sided: cloth has no inside
             polys.append(tri[:, :, :2])
-            depth.append(tri[:, :, 2].mean(axis=1))
+            # later layers (cloth over the body) win ties: a centroid sort alone interleaves
+            # triangles that lie a centimetre apart
+            depth.append(tri[:, :, 2].mean(axis=1) + 0.02 * rank)
             colors.append(np.clip(shade[:, None] * np.asarray(layer.color)[None], 0, 1))
         p, d, c = np.concatenate(polys), np.concatenate(depth), np.concatenate(colors)
         order = np.argsort(d)
-        ax.add_collection(PolyCollection(p[order], facecolors=c[order], edgecolors="none"))
+        ax.add_collection(PolyCollection(list(p[order]), facecolors=c[order], edgecolors="none"))
         ax.set_xlim(-1.0, 1.0)
         ax.set_ylim(-1.1, 1.1)
         ax.set_aspect("equal")
         ax.axis("off")
         ax.set_title(titles[k] if titles else f"frame {t}", fontsize=9)
+    if caption:
+        fig.suptitle(caption, fontsize=9, y=0.04)
     fig.tight_layout()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

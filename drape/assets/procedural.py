@@ -71,7 +71,6 @@ def generate_motion(
     b = load_body(body) if isinstance(body, str) else body
     rng = np.random.default_rng(seed)
     n = frames
-    t = np.arange(n) / fps
     ch: dict[str, list[np.ndarray]] = {j: [np.zeros(n), np.zeros(n), np.zeros(n)] for j in LIMITS}
 
     # gait: amplitude drifts between standing (0) and walking (1)

@@ -40,3 +40,18 @@ def pose_mesh(
     """Forward kinematics then LBS: (N, 3) rest mesh + (T, K, 3) poses -> (T, N, 3) float32."""
     transforms, _ = forward_kinematics(poses, rest_joints, parents, translation)
     return linear_blend_skinning(rest_vertices, weights, transforms)
+
+
+def smooth_weights(weights: np.ndarray, faces: np.ndarray, iterations: int = 20, step: float = 0.5) -> np.ndarray:
+    """Diffuse skin weights (N, K) over a mesh's edges (uniform Laplacian steps); rows stay summing to 1.
+
+    Used to soften weights copied from a body onto loose cloth (fewer tears between the legs).
+    """
+    from drape.geometry.mesh import uniform_laplacian
+
+    w = np.asarray(weights, dtype=np.float64)
+    lap = uniform_laplacian(faces, len(w))
+    for _ in range(iterations):
+        w = w - step * (lap @ w)
+    w = np.clip(w, 0.0, None)
+    return (w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)).astype(np.float32)

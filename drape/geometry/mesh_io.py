@@ -7,6 +7,7 @@ stored (no merging or reordering), so per-vertex results map back to the file.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -17,7 +18,7 @@ def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a triangle mesh; several meshes in one file (glTF scenes) are concatenated."""
     import trimesh
 
-    mesh = trimesh.load(str(path), process=False, force="mesh", maintain_order=True)
+    mesh = cast(trimesh.Trimesh, trimesh.load(str(path), process=False, force="mesh", maintain_order=True))
     return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.int32)
 
 

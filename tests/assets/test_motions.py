@@ -106,7 +106,6 @@ def _write_bvh(path, body, frames):
     """A CMU-named BVH whose rest skeleton is `body`'s, in centimetres, with Euler ZXY channels."""
     from drape.geometry.skeleton import CMU_EXTRAS, CMU_TO_SMPL
 
-    smpl_to_cmu = {v: k for k, v in CMU_TO_SMPL.items()}
     j = body.joints.astype(float) * 100.0
     # CMU hierarchy, with the extras in place (zero-length joints at their child's position)
     tree = [

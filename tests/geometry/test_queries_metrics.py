@@ -3,6 +3,7 @@
 import numpy as np
 import trimesh
 
+from drape.geometry.mesh import vertex_normals
 from drape.geometry.metrics import (
     bending,
     collision_share,
@@ -20,7 +21,6 @@ from drape.geometry.queries import (
     signed_distance_nearest_vertex,
     signed_distance_to_mesh,
 )
-from drape.geometry.mesh import vertex_normals
 
 
 def sphere(r=1.0, subdiv=4):

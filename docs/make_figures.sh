@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Re-creates the figures under docs/ (each body preset in a generated outfit, walking).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DRAPE=${DRAPE:-.venv/bin/drape}
+tmp=$(mktemp -d)
+$DRAPE outfits generate --type tshirt,trousers --vertices 8000 --seed 11 --body neutral --looseness 0.4 --length 0.8 --out "$tmp/neutral.obj"
+$DRAPE outfits generate --type dress --vertices 8000 --seed 12 --body female --looseness 0.5 --length 0.4 --out "$tmp/female.obj"
+$DRAPE outfits generate --type longsleeve,trousers,jacket --vertices 12000 --seed 13 --body male --looseness 0.0 --length 0.5 --out "$tmp/male.obj"
+for body in neutral female male; do
+  $DRAPE render --body "$body" --outfit "$tmp/$body.obj" --clip walk --frames 0,10,20,30 --azimuth 35 \
+    --out "docs/render_${body}_walk.png"
+done
+$DRAPE render --body neutral --frames 0 --azimuth 0 --out docs/render_neutral_rest.png
+rm -rf "$tmp"
