@@ -1,7 +1,7 @@
 """Normals, edges, Laplacians and the padded neighbour table on meshes with known answers."""
 
 import numpy as np
-import trimesh
+from shapes import sphere
 
 from drape.geometry.mesh import (
     boundary_edges,
@@ -16,11 +16,6 @@ from drape.geometry.mesh import (
 )
 
 
-def sphere(subdiv=3, radius=1.0):
-    m = trimesh.creation.icosphere(subdivisions=subdiv, radius=radius)
-    return np.asarray(m.vertices), np.asarray(m.faces)
-
-
 def test_sphere_normals_point_outward_radially():
     v, f = sphere()
     n = vertex_normals(v, f)
@@ -29,7 +24,7 @@ def test_sphere_normals_point_outward_radially():
 
 
 def test_edges_euler_and_manifold():
-    v, f = sphere(2)
+    v, f = sphere(subdiv=2)
     e = unique_edges(f)
     assert len(v) - len(e) + len(f) == 2  # Euler characteristic of a sphere
     assert is_edge_manifold(f) and len(boundary_edges(f)) == 0
@@ -41,7 +36,7 @@ def test_edges_euler_and_manifold():
 
 
 def test_uniform_laplacian_is_vertex_minus_neighbour_mean():
-    v, f = sphere(1)
+    v, f = sphere(subdiv=1)
     lap = uniform_laplacian(f, len(v))
     assert np.allclose(lap @ np.ones(len(v)), 0.0)
     idx, w = neighbour_table(f, len(v))
@@ -50,7 +45,7 @@ def test_uniform_laplacian_is_vertex_minus_neighbour_mean():
 
 
 def test_neighbour_table_padding_and_weights():
-    v, f = sphere(1)
+    v, f = sphere(subdiv=1)
     idx, w = neighbour_table(f, len(v))
     assert idx.dtype == np.int64 and w.dtype == np.float32
     assert np.allclose(w.sum(axis=1), 1.0)
@@ -78,7 +73,7 @@ def test_cotangent_laplacian_linear_precision_and_sphere_curvature():
     assert np.allclose((lap @ fn)[interior], 0.0, atol=1e-12)
     assert abs((lap - lap.T).max()) < 1e-12
     # on a sphere, L x is parallel to the normal (mean curvature vector)
-    vs, fs = sphere(3)
+    vs, fs = sphere(subdiv=3)
     hn = cotangent_laplacian(vs, fs) @ vs
     cos = np.einsum("nc,nc->n", hn, vs) / (np.linalg.norm(hn, axis=1) * np.linalg.norm(vs, axis=1))
     assert cos.min() > 0.99

@@ -1,7 +1,7 @@
 """Body-garment queries and metrics on analytic cases."""
 
 import numpy as np
-import trimesh
+from shapes import sphere
 
 from drape.geometry.mesh import vertex_normals
 from drape.geometry.metrics import (
@@ -21,11 +21,6 @@ from drape.geometry.queries import (
     signed_distance_nearest_vertex,
     signed_distance_to_mesh,
 )
-
-
-def sphere(r=1.0, subdiv=4):
-    m = trimesh.creation.icosphere(subdivisions=subdiv, radius=r)
-    return np.asarray(m.vertices), np.asarray(m.faces)
 
 
 def test_closest_point_on_triangle_regions():
@@ -51,7 +46,7 @@ def test_exact_distance_matches_brute_force():
 
 
 def test_signed_distance_sphere_inside_outside():
-    v, f = sphere(1.0)
+    v, f = sphere(1.0, 4)
     radii = np.array([0.5, 0.95, 0.999, 1.01, 1.2, 2.0])
     dirs = np.random.default_rng(1).normal(size=(len(radii), 3))
     pts = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * radii[:, None]
