@@ -119,6 +119,35 @@ def _render(args: argparse.Namespace) -> None:
                         caption=caption))
 
 
+def _train_deepsd(args: argparse.Namespace) -> None:
+    import json
+
+    from drape.training.deepsd import load_config, train
+
+    config = load_config(args.config)
+    _, _, summary = train(config, args.checkpoints)
+    out = Path(args.checkpoints) / "summary.json"
+    out.write_text(json.dumps({"config_file": str(args.config), **summary}, indent=2) + "\n")
+    print(json.dumps(summary, indent=2))
+
+
+def _export_deepsd(args: argparse.Namespace) -> None:
+    from drape.export.deepsd import export_deepsd_from_checkpoints
+
+    for path in export_deepsd_from_checkpoints(args.checkpoints, args.out, init=args.init):
+        print(path)
+
+
+def _eval_deepsd(args: argparse.Namespace) -> None:
+    from drape.training.deepsd_eval import evaluate, format_table, write_results
+
+    results = evaluate(args.config, args.model)
+    print(format_table(results))
+    if args.write:
+        for path in write_results(results, args.model):
+            print(path)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="drape", description="drape: neural garment animation service and tools")
     sub = p.add_subparsers(dest="command", required=True)
@@ -165,6 +194,27 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--length", type=float, default=None, help="0 (short) .. 1 (long); random if omitted")
     o.add_argument("--out", required=True)
     o.set_defaults(func=_outfits_generate)
+
+    from drape.training import DEFAULT_DEEPSD_CONFIG
+
+    models_dir = ASSETS / "models" / "deepsd"
+    t = sub.add_parser("train", help="train a network").add_subparsers(dest="what", required=True)
+    td = t.add_parser("deepsd", help="train DeePSD by physics on generated outfits (resumes from checkpoints)")
+    td.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
+    td.add_argument("--checkpoints", default="checkpoints/deepsd")
+    td.set_defaults(func=_train_deepsd)
+    e = sub.add_parser("export", help="export a network to ONNX").add_subparsers(dest="what", required=True)
+    ed = e.add_parser("deepsd", help="export the latest DeePSD checkpoint to ONNX + manifest")
+    ed.add_argument("--checkpoints", default="checkpoints/deepsd")
+    ed.add_argument("--init", action="store_true", help="export a freshly initialised (untrained) model")
+    ed.add_argument("--out", default=str(models_dir))
+    ed.set_defaults(func=_export_deepsd)
+    ev = sub.add_parser("eval", help="evaluate a shipped network").add_subparsers(dest="what", required=True)
+    evd = ev.add_parser("deepsd", help="held-out outfits x held-out clips: collisions, edge error, bending")
+    evd.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
+    evd.add_argument("--model", default=str(models_dir))
+    evd.add_argument("--write", action="store_true", help="store the table in the manifest and docs/")
+    evd.set_defaults(func=_eval_deepsd)
 
     r = sub.add_parser("render", help="PNG of a body (and outfit) at frames of a motion")
     r.add_argument("--body", default="neutral")

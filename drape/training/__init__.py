@@ -1,1 +1,5 @@
-"""Datasets, physics losses, trainers and the `drape train` command. Filled by the network issues."""
+"""Datasets, physics losses, trainers and the `drape train` command (needs the [train] extra)."""
+
+from pathlib import Path
+
+DEFAULT_DEEPSD_CONFIG = Path(__file__).parent / "configs" / "deepsd.json"

@@ -1,0 +1,112 @@
+"""Export DeePSD to two ONNX files and write its manifest.
+
+outfit.onnx: features (N, 6) float32, nbr_idx (N, K) int64, nbr_w (N, K) float32
+             -> weights (N, 24) float32, blend_shapes (P, N, 3) float32 (= D_data + D_phys),
+                blend_shapes_data (P, N, 3) float32 (D_data alone)   (N, K dynamic)
+pose.onnx:   poses (T, 72) float32 axis-angle radians -> pose_keys (T, P) float32 (T dynamic)
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from drape.export.onnx_export import export_onnx, io_spec, sha256
+from drape.models.deepsd import DeployedOutfitNet, OutfitNet, PoseNet
+
+DEFAULT_DIR = Path(__file__).resolve().parents[1] / "assets" / "models" / "deepsd"
+
+
+def example_inputs(n: int = 64, k: int = 6) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(n, 6, generator=g)
+    idx = torch.randint(0, n, (n, k), generator=g)
+    w = torch.full((n, k), 1.0 / k)
+    return x, idx, w
+
+
+def export_deepsd(outfit: OutfitNet, pose: PoseNet, out_dir: str | Path) -> dict[str, Path]:
+    """Write outfit.onnx and pose.onnx into out_dir; returns their paths."""
+    out_dir = Path(out_dir)
+    n, k, t = torch.export.Dim("num_vertices", min=4), torch.export.Dim("max_neighbours", min=2), torch.export.Dim("frames", min=1)
+    outfit_path = export_onnx(
+        DeployedOutfitNet(outfit).eval(), example_inputs(), out_dir / "outfit.onnx",
+        ["features", "nbr_idx", "nbr_w"], ["weights", "blend_shapes", "blend_shapes_data"],
+        ({0: n}, {0: n, 1: k}, {0: n, 1: k}),
+    )
+    pose_path = export_onnx(
+        pose.eval(), (torch.zeros(3, 72),), out_dir / "pose.onnx", ["poses"], ["pose_keys"], ({0: t},),
+    )
+    return {"outfit": outfit_path, "pose": pose_path}
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def write_manifest(out_dir: str | Path, version: str, config: dict, evaluation: dict | None, trained: bool) -> Path:
+    """manifest.json beside the ONNX files: version, sha256, I/O specs, training config and commit, eval table."""
+    out_dir = Path(out_dir)
+    files = {}
+    for name in ("outfit", "pose"):
+        path = out_dir / f"{name}.onnx"
+        files[name] = {"file": path.name, "sha256": sha256(path), "bytes": path.stat().st_size, **io_spec(path)}
+    manifest = {
+        "name": "deepsd",
+        "version": version,
+        "trained": trained,
+        "files": files,
+        "training": {"config": config, "commit": git_commit()},
+        "evaluation": evaluation,
+    }
+    path = out_dir / "manifest.json"
+    path.write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
+    return path
+
+
+def _json_default(o: object) -> object:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, tuple):
+        return list(o)
+    raise TypeError(type(o).__name__)
+
+
+def load_checkpoint(ckpt_dir: str | Path) -> tuple[OutfitNet, PoseNet, dict]:
+    """The latest checkpoint's networks and its training config."""
+    found = sorted(Path(ckpt_dir).glob("step_*.pt"))
+    if not found:
+        raise FileNotFoundError(f"no checkpoint in {ckpt_dir}; run `drape train deepsd` first")
+    state = torch.load(found[-1], weights_only=True)
+    outfit, pose = OutfitNet(), PoseNet()
+    outfit.load_state_dict(state["outfit"])
+    pose.load_state_dict(state["pose"])
+    config = json.loads(state["config"])
+    config["_checkpoint"] = {"file": found[-1].name, "steps_done": state["done"].tolist(),
+                             "train_seconds": round(float(state["elapsed"]), 1)}
+    return outfit, pose, config
+
+
+def export_deepsd_from_checkpoints(ckpt_dir: str | Path, out_dir: str | Path, init: bool = False) -> list[Path]:
+    """Export the latest checkpoint (or, with init, a freshly initialised model) and write the manifest.
+
+    An existing evaluation table in the manifest is dropped: it belonged to other weights.
+    """
+    if init:
+        torch.manual_seed(0)
+        outfit, pose, config = OutfitNet(), PoseNet(), {"untrained": True}
+    else:
+        outfit, pose, config = load_checkpoint(ckpt_dir)
+    paths = export_deepsd(outfit, pose, out_dir)
+    manifest = write_manifest(out_dir, version=VERSION, config=config, evaluation=None, trained=not init)
+    return [paths["outfit"], paths["pose"], manifest]
+
+
+VERSION = "0.1.0"

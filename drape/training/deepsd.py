@@ -1,0 +1,143 @@
+"""`drape train deepsd`: DeePSD trained by physics on generated outfits and motions.
+
+Three phases, each a number of steps of one outfit x `batch_frames` poses:
+
+1. prior (the paper's first epoch): blend weights -> the nearest body vertex's
+   weights, blend shapes -> small;
+2. physics: Omega, Psi, the pose network and the graph layers, by the physics
+   losses (edge length vs template, bending, collision with a 5 mm margin, L2 on
+   D) on poses from the training motions. Psi learns "prior + physics" here
+   (no simulated ground truth yet);
+3. chi: Chi alone, by the physics losses only, on augmented poses (training
+   poses plus noise), the rest frozen.
+
+Checkpoints go to `checkpoints/deepsd/` (git-ignored); a rerun resumes from the
+latest one. The run is seeded; the config is recorded in every checkpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from drape.models.deepsd import DeePSDConfig, OutfitNet, PoseNet
+from drape.training import DEFAULT_DEEPSD_CONFIG as DEFAULT_CONFIG
+from drape.training import physics
+from drape.training.deepsd_data import TrainOutfit, pose_pool, prepare_outfits, train_specs
+
+PHASES = ("prior", "physics", "chi")
+
+
+def load_config(path: str | Path = DEFAULT_CONFIG) -> dict:
+    return json.loads(Path(path).read_text())
+
+
+def _trainable(phase: str, net: OutfitNet, pose: PoseNet) -> list[torch.nn.Parameter]:
+    if phase == "chi":
+        return list(net.chi.parameters())
+    chi = {id(p) for p in net.chi.parameters()}
+    return [p for p in net.parameters() if id(p) not in chi] + list(pose.parameters())
+
+
+def step_loss(phase: str, outfit: TrainOutfit, poses: torch.Tensor, net: OutfitNet, pose: PoseNet,
+              cfg: dict) -> tuple[torch.Tensor, dict[str, float]]:
+    """Loss of one outfit under a batch of poses (B, 24, 3) for the given phase."""
+    lw = cfg["loss"]
+    weights, d_data, d_phys = net(outfit.features, outfit.nbr_idx, outfit.nbr_w)
+    if phase == "prior":
+        l_w = ((weights - outfit.prior_weights) ** 2).sum(-1).mean()
+        l_d = (d_data**2).sum(-1).mean() + (d_phys**2).sum(-1).mean()
+        loss = lw["prior_weights"] * l_w + lw["prior_blend"] * l_d
+        return loss, {"prior_w": float(l_w.detach()), "prior_d": float(l_d.detach())}
+    blend = d_data + d_phys if phase == "chi" else d_data
+    keys = pose(poses.reshape(len(poses), -1))
+    offsets = torch.einsum("bp,pnc->bnc", keys, blend)
+    transforms = physics.skinning_transforms(poses, outfit.joints)
+    v = physics.lbs(outfit.rest + offsets, weights, transforms)
+    l_edge = physics.edge_loss(v, outfit.edges, outfit.rest_len)
+    l_bend = physics.bending_loss(v, outfit.faces, outfit.nbr_idx, outfit.nbr_w)
+    sd = outfit.collider.signed_distance(v, transforms)
+    l_coll = physics.collision_loss(sd, lw["eps"])
+    l_d = (blend**2).sum(-1).mean()
+    loss = 1e3 * (lw["edge"] * l_edge + lw["bend"] * l_bend + lw["collision"] * l_coll + lw["blend_l2"] * l_d)
+    stats = {"edge_mm": float(l_edge.detach()) * 1e3, "inside": float((sd < 0).float().mean()),
+             "bend": float(l_bend.detach())}
+    return loss, stats
+
+
+def _latest(ckpt_dir: Path) -> Path | None:
+    found = sorted(ckpt_dir.glob("step_*.pt"))
+    return found[-1] if found else None
+
+
+def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) -> tuple[OutfitNet, PoseNet, dict]:
+    """Train (or resume) and return the networks and a summary."""
+    from tqdm import tqdm
+
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    ckpt_dir = Path(ckpt_dir)
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(config["seed"])
+    net, pose = OutfitNet(DeePSDConfig()), PoseNet(DeePSDConfig())
+    done = {p: 0 for p in PHASES}
+    elapsed = 0.0
+    latest = _latest(ckpt_dir)
+    state = None
+    if latest is not None:
+        state = torch.load(latest, weights_only=True)
+        net.load_state_dict(state["outfit"])
+        pose.load_state_dict(state["pose"])
+        done = dict(zip(PHASES, state["done"].tolist(), strict=True))
+        elapsed = float(state["elapsed"])
+        log(f"resuming from {latest.name}: {done}")
+    specs = train_specs(config)
+    prepare_outfits(specs)
+    outfits = [TrainOutfit(s) for s in specs]
+    pool = torch.as_tensor(pose_pool(config))
+    summary: dict = {"phases": {}}
+    for phase in PHASES:
+        total = int(config["steps"][phase])
+        if done[phase] >= total:
+            continue
+        params = _trainable(phase, net, pose)
+        opt = torch.optim.Adam(params, lr=config["lr"])
+        if state is not None and state.get("opt_phase") == phase:
+            opt.load_state_dict(state["opt"])
+        for p in net.parameters():
+            p.requires_grad_(False)
+        for p in pose.parameters():
+            p.requires_grad_(False)
+        for p in params:
+            p.requires_grad_(True)
+        bar = tqdm(range(done[phase], total), desc=phase, initial=done[phase], total=total)
+        t0 = time.time()
+        for step in bar:
+            rng = np.random.default_rng([config["seed"], PHASES.index(phase), step])
+            outfit = outfits[int(rng.integers(len(outfits)))]
+            poses = pool[torch.as_tensor(rng.integers(len(pool), size=config["batch_frames"]))]
+            if phase == "chi":
+                noise = torch.as_tensor(rng.normal(0, config["pose_noise"], poses.shape), dtype=torch.float32)
+                noise[:, 0] = 0.0
+                poses = poses + noise
+            loss, stats = step_loss(phase, outfit, poses, net, pose, config)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            bar.set_postfix({k: round(v, 4) for k, v in stats.items()})
+            done[phase] = step + 1
+            if done[phase] % config["checkpoint_every"] == 0 or done[phase] == total:
+                torch.save(
+                    {"outfit": net.state_dict(), "pose": pose.state_dict(), "opt": opt.state_dict(),
+                     "opt_phase": phase, "done": torch.tensor([done[p] for p in PHASES]),
+                     "elapsed": torch.tensor(elapsed + time.time() - t0), "config": json.dumps(config)},
+                    ckpt_dir / f"step_{sum(done.values()):07d}.pt",
+                )
+        elapsed += time.time() - t0
+        summary["phases"][phase] = {"steps": total, "last": stats}
+        state = None
+    summary["seconds"] = round(elapsed, 1)
+    return net, pose, summary

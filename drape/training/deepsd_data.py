@@ -1,0 +1,126 @@
+"""Training and evaluation data for DeePSD: generated outfits (cached) and pose pools.
+
+Outfits are generated on demand and cached under data/deepsd/outfits/ (git-ignored,
+reproducible from the config's seeds). Poses come from procedural motions and the
+embedded clips minus the held-out ones; the root rotation and translation are
+zeroed (physics losses are measured in the body's frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from drape.assets.body import load_body
+from drape.assets.motion import list_clips, load_clip
+from drape.assets.outfits import generate_outfit
+from drape.assets.procedural import generate_motion
+from drape.geometry.mesh import unique_edges
+from drape.geometry.queries import nearest_vertex_weights
+from drape.runtime.deepsd import network_inputs
+
+CACHE = Path("data/deepsd/outfits")
+
+
+@dataclass(frozen=True)
+class OutfitSpec:
+    types: str
+    vertices: int
+    seed: int
+    body: str
+
+    @property
+    def key(self) -> str:
+        return f"{self.types.replace(',', '+')}_{self.vertices}_{self.seed}_{self.body}"
+
+
+def train_specs(cfg: dict) -> list[OutfitSpec]:
+    rng = np.random.default_rng(cfg["seed"])
+    lo, hi = cfg["train_vertices"]
+    types, bodies = cfg["train_types"], cfg["bodies"]
+    return [
+        OutfitSpec(types[i % len(types)], int(rng.integers(lo, hi)), 1000 + i, bodies[i % len(bodies)])
+        for i in range(cfg["train_outfits"])
+    ]
+
+
+def eval_specs(cfg: dict) -> list[OutfitSpec]:
+    """Held-out outfits: seeds never used in training, and combinations never trained on."""
+    bodies = cfg["bodies"]
+    return [
+        OutfitSpec(t, cfg["eval_vertices"], 90000 + i, bodies[i % len(bodies)])
+        for i, t in enumerate(cfg["eval_outfits"])
+    ]
+
+
+def load_outfit(spec: OutfitSpec) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (N, 3) float32, faces (F, 3) int32), generated once and cached under CACHE."""
+    cache = CACHE
+    path = cache / f"{spec.key}.npz"
+    if path.exists():
+        with np.load(path, allow_pickle=False) as z:
+            return z["vertices"], z["faces"]
+    o = generate_outfit(spec.types, vertices=spec.vertices, seed=spec.seed, body=spec.body)
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, vertices=o.vertices, faces=o.faces)
+    tmp.replace(path)
+    return o.vertices, o.faces
+
+
+def _generate(spec: OutfitSpec) -> str:
+    load_outfit(spec)
+    return spec.key
+
+
+def prepare_outfits(specs: list[OutfitSpec], workers: int = 2) -> None:
+    """Generate every missing outfit, in parallel, with a progress bar."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm import tqdm
+
+    missing = [s for s in specs if not (CACHE / f"{s.key}.npz").exists()]
+    if not missing:
+        return
+    with ProcessPoolExecutor(workers) as pool:
+        for _ in tqdm(pool.map(_generate, missing), total=len(missing), desc="outfits"):
+            pass
+
+
+class TrainOutfit:
+    """One outfit's tensors for training, built once."""
+
+    def __init__(self, spec: OutfitSpec):
+        from drape.training.physics import BodyCollider
+
+        v, f = load_outfit(spec)
+        body = load_body(spec.body)
+        inputs = network_inputs(v, f)
+        self.spec = spec
+        self.rest = torch.as_tensor(v)
+        self.faces = torch.as_tensor(f, dtype=torch.int64)
+        self.features = torch.as_tensor(inputs["features"])
+        self.nbr_idx = torch.as_tensor(inputs["nbr_idx"])
+        self.nbr_w = torch.as_tensor(inputs["nbr_w"])
+        e = unique_edges(f)
+        self.edges = torch.as_tensor(e)
+        self.rest_len = (self.rest[self.edges[:, 0]] - self.rest[self.edges[:, 1]]).norm(dim=-1)
+        self.prior_weights = torch.as_tensor(nearest_vertex_weights(v, body.vertices, body.weights))
+        self.joints = torch.as_tensor(body.joints)
+        self.collider = BodyCollider(body, load_body(spec.body, proxy=True), v)
+
+
+def pose_pool(cfg: dict) -> np.ndarray:
+    """(P, 24, 3) float32 training poses: procedural motions + non-held-out clips, root zeroed."""
+    poses = []
+    for i in range(cfg["procedural_motions"]):
+        poses.append(generate_motion(cfg["procedural_frames"], seed=cfg["seed"] + 500 + i).poses)
+    for name in list_clips():
+        if name not in cfg["heldout_clips"]:
+            poses.append(load_clip(name).poses)
+    pool = np.concatenate(poses).astype(np.float32)
+    pool[:, 0] = 0.0
+    return pool

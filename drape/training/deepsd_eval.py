@@ -1,0 +1,118 @@
+"""`drape eval deepsd`: the shipped DeePSD (ONNX) on held-out outfits x held-out clips.
+
+Methods, per outfit:
+  baseline: LBS with blend weights copied from the nearest body vertex, no PSD;
+  no_chi:   drape's weights + D_data only (the model without its physics branch);
+  model:    drape's weights + D = D_data + D_phys (what the service deploys).
+Metrics over the evaluated frames: collision share (garment vertices inside the
+body, signed distance < 0; nearest-vertex and closest-triangle variants), mean
+edge-length error vs the template (mm), bending (1 - cos of neighbouring face normals).
+Runs on numpy + ONNX Runtime only.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.geometry.lbs import pose_mesh
+from drape.geometry.mesh import vertex_normals
+from drape.geometry.metrics import bending, edge_length_error_mm
+from drape.geometry.queries import (
+    MeshDistance,
+    nearest_vertex_weights,
+    signed_distance_nearest_vertex,
+)
+from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
+from drape.training.deepsd_data import eval_specs, load_outfit
+
+METHODS = ("baseline", "no_chi", "model")
+LOOSE = ("skirt", "dress")
+
+
+def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=print) -> dict:
+    """Evaluate and return {"rows": [...], "settings": {...}}; each row: outfit, method, metrics."""
+    cfg = json.loads(Path(config_path).read_text())
+    model = DeePSDModel(model_dir)
+    rows = []
+    for spec in eval_specs(cfg):
+        verts, faces = load_outfit(spec)
+        body = load_body(spec.body)
+        rig = model.rig(verts, faces)
+        rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces))}
+        base_w = nearest_vertex_weights(verts, body.vertices, body.weights)
+        acc: dict[str, dict[str, list[float]]] = {m: {"inside_nv": [], "inside_tri": [], "edge": [], "bend": []}
+                                                  for m in METHODS}
+        for clip in cfg["heldout_clips"]:
+            motion = load_clip(clip)
+            frames = np.linspace(0, motion.num_frames - 1, cfg["eval_frames_per_clip"]).round().astype(int)
+            poses, trans = motion.poses[frames].astype(np.float64), motion.trans[frames].astype(np.float64)
+            keys = model.pose_keys(poses)
+            posed = {
+                "baseline": pose_mesh(verts, base_w, body.joints, poses, trans),
+                **{m: pose_outfit(verts, r, keys, body.joints, poses, trans) for m, r in rigs.items()},
+            }
+            body_frames = body.pose(poses, trans)
+            for t in range(len(frames)):
+                bt = body_frames[t].astype(np.float64)
+                normals = vertex_normals(bt, body.faces)
+                dist = MeshDistance(bt, body.faces, normals)
+                for m in METHODS:
+                    g = posed[m][t].astype(np.float64)
+                    acc[m]["inside_tri"].append(float(np.mean(dist.signed_distance(g) < 0)))
+                    sd_nv, _ = signed_distance_nearest_vertex(g, bt, normals)
+                    acc[m]["inside_nv"].append(float(np.mean(sd_nv < 0)))
+            for m in METHODS:
+                acc[m]["edge"].append(edge_length_error_mm(posed[m], verts, faces))
+                acc[m]["bend"].append(bending(posed[m], faces))
+        for m in METHODS:
+            rows.append({
+                "outfit": spec.types, "body": spec.body, "vertices": int(len(verts)), "method": m,
+                "collision_nearest_vertex_pct": 100 * float(np.mean(acc[m]["inside_nv"])),
+                "collision_triangle_pct": 100 * float(np.mean(acc[m]["inside_tri"])),
+                "edge_error_mm": float(np.mean(acc[m]["edge"])),
+                "bending": float(np.mean(acc[m]["bend"])),
+            })
+        log(f"{spec.types:18s} done")
+    return {
+        "settings": {"heldout_clips": cfg["heldout_clips"], "frames_per_clip": cfg["eval_frames_per_clip"],
+                     "outfits": [s.key for s in eval_specs(cfg)]},
+        "rows": rows,
+        "mean": {m: {k: float(np.mean([r[k] for r in rows if r["method"] == m]))
+                     for k in ("collision_nearest_vertex_pct", "collision_triangle_pct", "edge_error_mm", "bending")}
+                 for m in METHODS},
+    }
+
+
+def format_table(results: dict) -> str:
+    """Markdown table: one row per outfit and method, then the means."""
+    head = ("| outfit | method | inside, nearest vertex (%) | inside, closest triangle (%) "
+            "| edge error (mm) | bending |\n|---|---|---|---|---|---|")
+    lines = [head]
+    for r in results["rows"]:
+        lines.append(f"| {r['outfit']} | {r['method']} | {r['collision_nearest_vertex_pct']:.2f} "
+                     f"| {r['collision_triangle_pct']:.2f} | {r['edge_error_mm']:.2f} | {r['bending']:.4f} |")
+    for m, v in results["mean"].items():
+        lines.append(f"| **mean** | {m} | {v['collision_nearest_vertex_pct']:.2f} | {v['collision_triangle_pct']:.2f} "
+                     f"| {v['edge_error_mm']:.2f} | {v['bending']:.4f} |")
+    s = results["settings"]
+    lines.append(f"\nHeld-out clips {', '.join(s['heldout_clips'])}, {s['frames_per_clip']} frames each; "
+                 f"held-out outfits {', '.join(s['outfits'])}.")
+    return "\n".join(lines)
+
+
+def write_results(results: dict, model_dir: str | Path = MODEL_DIR,
+                  doc: str | Path = Path("docs") / "deepsd_eval.md") -> list[Path]:
+    """Store the table in the model's manifest and in docs/."""
+    manifest_path = Path(model_dir) / "manifest.json"
+    manifest = json.loads(manifest_path.read_text())
+    manifest["evaluation"] = results
+    manifest_path.write_text(json.dumps(manifest, indent=2) + "\n")
+    doc = Path(doc)
+    doc.parent.mkdir(parents=True, exist_ok=True)
+    doc.write_text("# DeePSD evaluation (`drape eval deepsd --write`)\n\n" + format_table(results) + "\n")
+    return [manifest_path, doc]

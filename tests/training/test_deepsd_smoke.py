@@ -1,0 +1,32 @@
+"""The short smoke path: a few training steps on tiny outfits -> export -> ORT parity."""
+
+import numpy as np
+import onnxruntime as ort
+import torch
+
+from drape.export.deepsd import export_deepsd
+from drape.models.deepsd import DeployedOutfitNet
+from drape.runtime.deepsd import network_inputs
+from drape.training import deepsd_data
+from drape.training.deepsd import load_config, train
+
+
+def test_train_export_parity(tmp_path, monkeypatch):
+    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
+    cfg = load_config()
+    cfg.update(train_outfits=2, train_vertices=[300, 420], procedural_motions=1, procedural_frames=30,
+               steps={"prior": 4, "physics": 4, "chi": 4}, checkpoint_every=4)
+    net, pose, summary = train(cfg, tmp_path / "ckpt", log=lambda *_: None)
+    assert set(summary["phases"]) == {"prior", "physics", "chi"}
+    assert len(list((tmp_path / "ckpt").glob("step_*.pt"))) == 3
+    # a rerun resumes from the last checkpoint and does no more steps
+    _, _, again = train(cfg, tmp_path / "ckpt", log=lambda *_: None)
+    assert again["phases"] == {}
+    paths = export_deepsd(net, pose, tmp_path / "onnx")
+    spec = deepsd_data.train_specs(cfg)[0]
+    v, f = deepsd_data.load_outfit(spec)
+    inputs = network_inputs(v, f)
+    w, d, _ = ort.InferenceSession(str(paths["outfit"])).run(None, inputs)
+    with torch.no_grad():
+        tw, td, _ = DeployedOutfitNet(net)(*(torch.from_numpy(inputs[k]) for k in ("features", "nbr_idx", "nbr_w")))
+    assert np.abs(w - tw.numpy()).max() <= 1e-4 and np.abs(d - td.numpy()).max() <= 1e-4
