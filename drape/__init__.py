@@ -2,6 +2,6 @@
 
 __version__ = "0.1.0"
 
-from drape.client import Client  # noqa: E402  (the client needs only numpy, pydantic, httpx)
+from drape.client import AsyncClient, Client, DrapeAPIError  # noqa: E402  (numpy, pydantic, httpx only)
 
-__all__ = ["Client", "__version__"]
+__all__ = ["AsyncClient", "Client", "DrapeAPIError", "__version__"]

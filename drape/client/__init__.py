@@ -1,38 +1,18 @@
-"""Python client for the drape service (httpx; depends on drape.schemas only)."""
+"""Python client for the drape service (httpx; depends on drape.schemas only).
 
-from __future__ import annotations
+    import drape
+    with drape.Client("http://127.0.0.1:8000") as client:
+        rig = client.rig("outfit.obj")                           # weights, blend shapes, outfit_id
+        verts = client.animate(outfit_id=rig.outfit_id, motion="walk")   # (T, N, 3) float32
+        for frame in client.animate_stream(outfit_id=rig.outfit_id, motion="walk"):
+            ...                                                   # (N, 3) float32, as it arrives
 
-import httpx
+Outfits: a mesh file path (OBJ, PLY, GLB), a (vertices, faces) pair of arrays, or any
+object with `.vertices` and `.faces` (a trimesh.Trimesh). Motions: an embedded clip
+name, a poses array (T, 24, 3) or (T, 72), or an object/mapping with poses, trans or
+translation, fps. Answers travel as npz or the binary frame stream by default.
+"""
 
-from drape.schemas.catalog import BodyList, Health, MotionList
+from drape.client.client import AsyncClient, Client, DrapeAPIError, RigResult
 
-
-class Client:
-    """Synchronous client. `Client("http://127.0.0.1:8000")`; use as a context manager or call close()."""
-
-    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = 30.0,
-                 transport: httpx.BaseTransport | None = None) -> None:
-        self._http = httpx.Client(base_url=base_url, timeout=timeout, transport=transport)
-
-    def __enter__(self) -> Client:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self._http.close()
-
-    def _get(self, path: str) -> dict:
-        r = self._http.get(path)
-        r.raise_for_status()
-        return r.json()
-
-    def health(self) -> Health:
-        return Health.model_validate(self._get("/healthz"))
-
-    def bodies(self) -> BodyList:
-        return BodyList.model_validate(self._get("/v1/bodies"))
-
-    def motions(self) -> MotionList:
-        return MotionList.model_validate(self._get("/v1/motions"))
+__all__ = ["AsyncClient", "Client", "DrapeAPIError", "RigResult"]

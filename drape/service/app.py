@@ -1,36 +1,84 @@
-"""The FastAPI application."""
+"""The FastAPI application: routers, problem documents, limits, auth, metrics, start-up."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI, Request, Response
+from fastapi.concurrency import run_in_threadpool
 from fastapi.middleware.cors import CORSMiddleware
+from fastapi.openapi.utils import get_openapi
 
 from drape import __version__
-from drape.service import catalog
+from drape.runtime.engine import Engine
+from drape.schemas.outfits import AnimateRequest, AnimateResponse, Problem, RigRequest, RigResponse
+from drape.service import catalog, problems
+from drape.service.http import require_api_key
+from drape.service.metrics import Metrics
 from drape.service.routers import catalog as catalog_router
-from drape.service.routers import health
+from drape.service.routers import health, models, outfits
 from drape.service.settings import Settings
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
+    metrics = Metrics()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        catalog.bodies()  # load and validate the embedded assets before declaring ready
-        catalog.motions()
+        def start() -> None:
+            catalog.bodies()
+            catalog.motions()
+            engine = Engine(settings.model_dir, settings.ort_threads, settings.outfit_cache_bytes,
+                            observe=metrics.observe_inference)
+            engine.warm_up()
+            app.state.engine = engine
+
+        await run_in_threadpool(start)
         app.state.ready = True
         yield
 
-    app = FastAPI(title="drape", version=__version__, lifespan=lifespan,
-                  description="Neural garment animation: outfit rigging, posed vertex streams, refinement.")
+    app = FastAPI(
+        title="drape", version=__version__, lifespan=lifespan,
+        description="Neural garment animation: outfit rigging (DeePSD) and posed vertex streams. "
+                    "Errors are RFC 9457 problem documents. Units: metres, +Y up, 24-joint SMPL skeleton.",
+    )
     app.state.ready = False
     app.state.settings = settings
+    app.state.metrics = metrics
+    problems.install(app)
     if settings.cors_origins:
-        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"], allow_headers=["*"])
+        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
+                           allow_headers=["*"])
+
+    @app.middleware("http")
+    async def count_requests(request: Request, call_next) -> Response:  # noqa: ANN001
+        start = time.perf_counter()
+        response = await call_next(request)
+        route = request.scope.get("route")
+        path = getattr(route, "path", "unmatched")
+        metrics.requests.labels(route=path, method=request.method, status=str(response.status_code)).inc()
+        metrics.latency.labels(route=path, method=request.method).observe(time.perf_counter() - start)
+        return response
+
     app.include_router(health.router)
-    app.include_router(catalog_router.router)
+    auth = [Depends(require_api_key)]
+    for router in (catalog_router.router, models.router, outfits.router):
+        app.include_router(router, dependencies=auth)
+
+    def openapi() -> dict:
+        if app.openapi_schema:
+            return app.openapi_schema
+        schema = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
+        comps = schema.setdefault("components", {}).setdefault("schemas", {})
+        for model in (RigRequest, RigResponse, AnimateRequest, AnimateResponse, Problem):
+            js = model.model_json_schema(ref_template="#/components/schemas/{model}")
+            comps.update(js.pop("$defs", {}))
+            comps[model.__name__] = js
+        app.openapi_schema = schema
+        return schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
     return app

@@ -6,8 +6,11 @@ Three phases, each a number of steps of one outfit x `batch_frames` poses:
    weights, blend shapes -> small;
 2. physics: Omega, Psi, the pose network and the graph layers, by the physics
    losses (edge length vs template, bending, collision with a 5 mm margin, L2 on
-   D) on poses from the training motions. Psi learns "prior + physics" here
-   (no simulated ground truth yet);
+   D) on poses from the training motions, plus a "follow" term (no vertex drifts
+   more than a margin farther from the body than at rest) and a weak pull of the
+   weights toward the prior: physics alone is also satisfied by a rigid garment
+   that stops following the body. Psi learns "prior + physics" here (no
+   simulated ground truth yet);
 3. chi: Chi alone, by the physics losses only, on augmented poses (training
    poses plus noise), the rest frozen.
 
@@ -63,8 +66,13 @@ def step_loss(phase: str, outfit: TrainOutfit, poses: torch.Tensor, net: OutfitN
     sd = outfit.collider.signed_distance(v, transforms)
     l_coll = physics.collision_loss(sd, lw["eps"])
     l_d = (blend**2).sum(-1).mean()
-    loss = 1e3 * (lw["edge"] * l_edge + lw["bend"] * l_bend + lw["collision"] * l_coll + lw["blend_l2"] * l_d)
-    stats = {"edge_mm": float(l_edge.detach()) * 1e3, "inside": float((sd < 0).float().mean()),
+    # cloth hangs on the body: a vertex may not drift farther from it than at rest (+ margin);
+    # without this, a garment that stops following the body has no stretch and no collision
+    l_follow = torch.relu(sd - outfit.rest_distance - lw["follow_margin"]).mean()
+    l_prior = ((weights - outfit.prior_weights) ** 2).sum(-1).mean()
+    loss = 1e3 * (lw["edge"] * l_edge + lw["bend"] * l_bend + lw["collision"] * l_coll + lw["blend_l2"] * l_d
+                  + lw["follow"] * l_follow) + lw["prior_weights_physics"] * l_prior
+    stats = {"follow_mm": float(l_follow.detach()) * 1e3, "edge_mm": float(l_edge.detach()) * 1e3, "inside": float((sd < 0).float().mean()),
              "bend": float(l_bend.detach())}
     return loss, stats
 

@@ -111,6 +111,11 @@ class TrainOutfit:
         self.prior_weights = torch.as_tensor(nearest_vertex_weights(v, body.vertices, body.weights))
         self.joints = torch.as_tensor(body.joints)
         self.collider = BodyCollider(body, load_body(spec.body, proxy=True), v)
+        identity = torch.zeros(1, 24, 3)
+        from drape.training.physics import skinning_transforms
+
+        rest = skinning_transforms(identity, self.joints)
+        self.rest_distance = self.collider.signed_distance(self.rest[None], rest)[0]  # (N,) m
 
 
 def pose_pool(cfg: dict) -> np.ndarray:

@@ -1,14 +1,10 @@
 """The service skeleton: health, readiness, catalogue, through the real client and a real server."""
 
-import socket
 import subprocess
 import sys
-import threading
-import time
 
 import httpx
 import pytest
-import uvicorn
 from fastapi.testclient import TestClient
 
 from drape import Client
@@ -16,10 +12,9 @@ from drape.geometry.skeleton import JOINT_NAMES
 from drape.service.app import create_app
 
 
-@pytest.fixture(scope="module")
-def client():
-    with TestClient(create_app()) as c:
-        yield c
+@pytest.fixture
+def client(http):
+    return http
 
 
 def test_health_and_ready(client):
@@ -27,8 +22,8 @@ def test_health_and_ready(client):
     assert client.get("/readyz").json() == {"status": "ready"}
 
 
-def test_readyz_is_503_before_startup():
-    app = create_app()  # lifespan not run: assets not loaded yet
+def test_readyz_is_503_before_startup(settings):
+    app = create_app(settings)  # lifespan not run: model and assets not loaded yet
     r = TestClient(app).get("/readyz")
     assert r.status_code == 503
 
@@ -51,39 +46,24 @@ def test_motions_list(client):
 
 def test_openapi_names_the_routes(client):
     paths = client.get("/openapi.json").json()["paths"]
-    assert {"/healthz", "/readyz", "/v1/bodies", "/v1/motions"} <= set(paths)
+    assert {"/healthz", "/readyz", "/metrics", "/v1/bodies", "/v1/motions", "/v1/models", "/v1/models/{name}",
+            "/v1/outfits/rig", "/v1/outfits/animate"} <= set(paths)
 
 
-def _free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def test_real_server_through_the_client():
-    port = _free_port()
-    server = uvicorn.Server(uvicorn.Config(create_app(), host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    try:
-        deadline = time.time() + 20
-        while not server.started and time.time() < deadline:
-            time.sleep(0.05)
-        with Client(f"http://127.0.0.1:{port}") as c:
-            assert c.health().status == "ok"
-            assert [b.name for b in c.bodies().bodies] == ["female", "male", "neutral"]
-            assert any(m.name == "walk" for m in c.motions().motions)
-        with pytest.raises(httpx.HTTPStatusError):
-            httpx.get(f"http://127.0.0.1:{port}/v1/nothing").raise_for_status()
-    finally:
-        server.should_exit = True
-        thread.join(timeout=10)
+def test_real_server_through_the_client(server_url):
+    with Client(server_url) as c:
+        assert c.health().status == "ok"
+        assert [b.name for b in c.bodies().bodies] == ["female", "male", "neutral"]
+        assert any(m.name == "walk" for m in c.motions().motions)
+        assert c.models().models[0].name == "deepsd"
+    with pytest.raises(httpx.HTTPStatusError):
+        httpx.get(f"{server_url}/v1/nothing").raise_for_status()
 
 
 def test_serving_path_imports_no_torch():
     code = (
-        "import sys; import drape.service.app, drape.client, drape.geometry.metrics, drape.assets.outfits;"
-        "drape.service.app.create_app();"
+        "import sys; import drape.service.app, drape.client, drape.runtime.engine, drape.geometry.metrics,"
+        " drape.assets.outfits; drape.service.app.create_app();"
         "bad = [m for m in sys.modules if m == 'torch' or m.startswith('torch.')];"
         "print(bad); sys.exit(1 if bad else 0)"
     )

@@ -1,8 +1,8 @@
-"""Liveness and readiness."""
+"""Liveness, readiness and metrics."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
 
 from drape.schemas.catalog import Health
@@ -18,7 +18,14 @@ def healthz() -> Health:
 
 @router.get("/readyz", response_model=Health, responses={503: {"model": Health}})
 def readyz(request: Request) -> Health | JSONResponse:
-    """Assets loaded; 503 until start-up has finished."""
+    """Models loaded and warmed up, assets loaded; 503 until then."""
     if not getattr(request.app.state, "ready", False):
         return JSONResponse(status_code=503, content={"status": "starting"})
     return Health(status="ready")
+
+
+@router.get("/metrics", response_class=Response,
+            responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}}})
+def metrics(request: Request) -> Response:
+    """Prometheus text: requests and latencies per route, inference time, frames and vertices served."""
+    return Response(request.app.state.metrics.render(), media_type="text/plain; version=0.0.4")

@@ -1,0 +1,237 @@
+"""drape.Client and drape.AsyncClient: the same calls, one blocking, one async; shared request logic."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import AsyncIterator, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, decode_npz
+from drape.schemas.catalog import BodyList, Health, MotionList
+from drape.schemas.models import ModelList
+
+OutfitLike = Any  # path | (vertices, faces) | object with .vertices/.faces
+MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps
+
+
+class DrapeAPIError(Exception):
+    """An error answer from the service, carrying its RFC 9457 problem details."""
+
+    def __init__(self, status: int, type: str, title: str, detail: str):
+        super().__init__(f"{status} {title}: {detail}")
+        self.status, self.type, self.title, self.detail = status, type, title, detail
+
+
+@dataclass(frozen=True)
+class RigResult:
+    """outfit_id; skinning_weights (N, 24); blend_shapes (P, N, 3) m; the skeleton (names, parents, rest joints (24, 3))."""
+
+    outfit_id: str
+    skinning_weights: np.ndarray
+    blend_shapes: np.ndarray
+    joint_names: list[str]
+    parents: np.ndarray
+    rest_joints: np.ndarray
+
+
+def _raise_for(response: httpx.Response) -> None:
+    if response.status_code < 400:
+        return
+    try:
+        p = response.json()
+        raise DrapeAPIError(response.status_code, p.get("type", ""), p.get("title", ""), p.get("detail", ""))
+    except ValueError:
+        raise DrapeAPIError(response.status_code, "", response.reason_phrase, response.text[:500]) from None
+
+
+def _mesh_arrays(outfit: OutfitLike) -> tuple[np.ndarray, np.ndarray] | None:
+    """Arrays of an in-memory outfit, or None for a file path."""
+    if isinstance(outfit, str | os.PathLike):
+        return None
+    if hasattr(outfit, "vertices") and hasattr(outfit, "faces"):
+        return np.asarray(outfit.vertices, np.float32), np.asarray(outfit.faces, np.int64)
+    vertices, faces = outfit
+    return np.asarray(vertices, np.float32), np.asarray(faces, np.int64)
+
+
+def _motion_json(motion: MotionLike) -> dict:
+    if isinstance(motion, str):
+        return {"clip": motion}
+    if isinstance(motion, np.ndarray):
+        return {"poses": motion.tolist()}
+    get = motion.get if isinstance(motion, Mapping) else (lambda k, d=None: getattr(motion, k, d))
+    poses = np.asarray(get("poses"), np.float64)
+    trans = get("translation", None)
+    trans = get("trans", None) if trans is None else trans
+    out: dict = {"poses": poses.tolist(), "fps": float(get("fps", 30.0) or 30.0)}
+    if trans is not None:
+        out["translation"] = np.asarray(trans, np.float64).tolist()
+    return out
+
+
+def _rig_request(outfit: OutfitLike, body: str) -> dict:
+    arrays = _mesh_arrays(outfit)
+    if arrays is None:
+        path = Path(outfit)
+        return {"files": {"mesh": (path.name, path.read_bytes())}, "data": {"body": body}}
+    return {"json": {"vertices": arrays[0].tolist(), "faces": arrays[1].tolist(), "body": body}}
+
+
+def _rig_result(response: httpx.Response) -> RigResult:
+    _raise_for(response)
+    z = decode_npz(response.content)
+    return RigResult(str(z["outfit_id"]), z["skinning_weights"], z["blend_shapes"],
+                     [str(n) for n in z["joint_names"]], z["parents"], z["rest_joints"])
+
+
+def _animate_json(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
+                  refine: bool) -> dict:
+    req: dict = {"motion": _motion_json(motion), "refine": refine}
+    if outfit_id is not None:
+        req["outfit_id"] = outfit_id
+    elif arrays is not None:
+        req["outfit"] = {"vertices": arrays[0].tolist(), "faces": arrays[1].tolist()}
+    if body is not None:
+        req["body"] = body
+    return req
+
+
+def _animate_vertices(response: httpx.Response) -> np.ndarray:
+    _raise_for(response)
+    return decode_npz(response.content)["vertices"]
+
+
+class _Base:
+    def __init__(self, base_url: str, api_key: str | None) -> None:
+        self.base_url = base_url.rstrip("/")
+        self.headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
+
+    def _prepare(self, outfit: OutfitLike | None, outfit_id: str | None) -> tuple[tuple | None, bool]:
+        """(arrays, needs_rig): file paths are uploaded through rig first to get an outfit_id."""
+        if (outfit is None) == (outfit_id is None):
+            raise ValueError("give exactly one of outfit= and outfit_id=")
+        if outfit is None:
+            return None, False
+        arrays = _mesh_arrays(outfit)
+        return arrays, arrays is None
+
+
+class Client(_Base):
+    """Blocking client. Keyword-only options; `retries` re-tries failed connections."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
+                 timeout: float = 120.0, retries: int = 2, transport: httpx.BaseTransport | None = None) -> None:
+        super().__init__(base_url, api_key)
+        self._http = httpx.Client(base_url=self.base_url, timeout=timeout, headers=self.headers,
+                                  transport=transport or httpx.HTTPTransport(retries=retries))
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._http.close()
+
+    def _get(self, path: str) -> Any:
+        r = self._http.get(path)
+        _raise_for(r)
+        return r.json()
+
+    def health(self) -> Health:
+        return Health.model_validate(self._get("/healthz"))
+
+    def bodies(self) -> BodyList:
+        return BodyList.model_validate(self._get("/v1/bodies"))
+
+    def motions(self) -> MotionList:
+        return MotionList.model_validate(self._get("/v1/motions"))
+
+    def models(self) -> ModelList:
+        return ModelList.model_validate(self._get("/v1/models"))
+
+    def rig(self, outfit: OutfitLike, *, body: str = "neutral") -> RigResult:
+        """Rig an outfit: blend weights, blend shapes, skeleton and its outfit_id."""
+        return _rig_result(self._http.post("/v1/outfits/rig", headers={"Accept": NPZ}, **_rig_request(outfit, body)))
+
+    def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
+        arrays, needs_rig = self._prepare(outfit, outfit_id)
+        if needs_rig:
+            outfit_id, body = self.rig(outfit, body=body or "neutral").outfit_id, None
+        return _animate_json(outfit_id, arrays, motion, body, refine)
+
+    def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
+                body: str | None = None, refine: bool = False) -> np.ndarray:
+        """Posed outfit vertices (T, N, 3) float32 metres."""
+        req = self._animate_body(outfit, outfit_id, motion, body, refine)
+        return _animate_vertices(self._http.post("/v1/outfits/animate", json=req, headers={"Accept": NPZ}))
+
+    def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
+                       motion: MotionLike, body: str | None = None, refine: bool = False) -> Iterator[np.ndarray]:
+        """Posed frames (N, 3) float32, yielded as they arrive."""
+        req = self._animate_body(outfit, outfit_id, motion, body, refine)
+        with self._http.stream("POST", "/v1/outfits/animate", json=req, headers={"Accept": FRAMES}) as r:
+            if r.status_code >= 400:
+                r.read()
+                _raise_for(r)
+            dec = FrameDecoder()
+            for data in r.iter_bytes():
+                yield from dec.feed(data)
+            if not dec.done:
+                raise DrapeAPIError(r.status_code, "", "Truncated stream", "the frame stream ended early")
+
+
+class AsyncClient(_Base):
+    """The async twin of Client, on httpx.AsyncClient."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
+                 timeout: float = 120.0, retries: int = 2,
+                 transport: httpx.AsyncBaseTransport | None = None) -> None:
+        super().__init__(base_url, api_key)
+        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=timeout, headers=self.headers,
+                                       transport=transport or httpx.AsyncHTTPTransport(retries=retries))
+
+    async def __aenter__(self) -> AsyncClient:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def rig(self, outfit: OutfitLike, *, body: str = "neutral") -> RigResult:
+        r = await self._http.post("/v1/outfits/rig", headers={"Accept": NPZ}, **_rig_request(outfit, body))
+        return _rig_result(r)
+
+    async def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
+        arrays, needs_rig = self._prepare(outfit, outfit_id)
+        if needs_rig:
+            outfit_id, body = (await self.rig(outfit, body=body or "neutral")).outfit_id, None
+        return _animate_json(outfit_id, arrays, motion, body, refine)
+
+    async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
+                      motion: MotionLike, body: str | None = None, refine: bool = False) -> np.ndarray:
+        req = await self._animate_body(outfit, outfit_id, motion, body, refine)
+        return _animate_vertices(await self._http.post("/v1/outfits/animate", json=req, headers={"Accept": NPZ}))
+
+    async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
+                             motion: MotionLike, body: str | None = None,
+                             refine: bool = False) -> AsyncIterator[np.ndarray]:
+        req = await self._animate_body(outfit, outfit_id, motion, body, refine)
+        async with self._http.stream("POST", "/v1/outfits/animate", json=req, headers={"Accept": FRAMES}) as r:
+            if r.status_code >= 400:
+                await r.aread()
+                _raise_for(r)
+            dec = FrameDecoder()
+            async for data in r.aiter_bytes():
+                for frame in dec.feed(data):
+                    yield frame
+            if not dec.done:
+                raise DrapeAPIError(r.status_code, "", "Truncated stream", "the frame stream ended early")

@@ -1,0 +1,75 @@
+"""Requests and answers of the outfit routes (rig, animate), and the problem document."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Tri = Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=3, max_length=3)]
+
+
+class Mesh(BaseModel):
+    """A triangle mesh in the body's rest pose: vertices (N, 3) metres, faces (F, 3) indices into vertices."""
+
+    model_config = ConfigDict(extra="forbid")
+    vertices: list[Vec3] = Field(min_length=3)
+    faces: list[Tri] = Field(min_length=1)
+
+
+class RigRequest(Mesh):
+    body: str = Field("neutral", description="body preset the outfit is dressed on (GET /v1/bodies)")
+
+
+class Skeleton(BaseModel):
+    joint_names: list[str]
+    parents: list[int]
+    rest_joints: list[list[float]] = Field(description="(24, 3) metres")
+
+
+class RigResponse(BaseModel):
+    """What an engine needs to pose the outfit: W (N, 24), D (P, N, 3) metres, the skeleton."""
+
+    outfit_id: str = Field(description="content hash of the mesh + body + model version; reuse with animate")
+    num_vertices: int
+    skinning_weights: list[list[float]]
+    blend_shapes: list[list[list[float]]]
+    skeleton: Skeleton
+
+
+class MotionInput(BaseModel):
+    """Either an embedded clip name, or poses (T, 24, 3) / (T, 72) axis-angle radians + translation (T, 3) m."""
+
+    model_config = ConfigDict(extra="forbid")
+    clip: str | None = Field(None, description="name of an embedded clip (GET /v1/motions)")
+    poses: list[list[float]] | list[list[Vec3]] | None = None
+    translation: list[Vec3] | None = None
+    fps: float = Field(30.0, gt=0, le=1000)
+
+
+class AnimateRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    outfit: Mesh | None = None
+    outfit_id: str | None = Field(None, max_length=128)
+    motion: MotionInput
+    body: str | None = Field(None, description="body preset; defaults to the rigged outfit's, else neutral")
+    refine: bool = Field(False, description="collision refinement post step (not available yet: 501)")
+
+
+class AnimateResponse(BaseModel):
+    """Posed vertices (T, N, 3) metres, the faces (F, 3), frames per second."""
+
+    outfit_id: str
+    fps: float
+    vertices: list[list[Vec3]]
+    faces: list[list[int]]
+
+
+class Problem(BaseModel):
+    """RFC 9457 problem details."""
+
+    type: str
+    title: str
+    status: int
+    detail: str

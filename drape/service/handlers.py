@@ -1,0 +1,165 @@
+"""Request handling that knows nothing of HTTP: validation, rigging, animation plans."""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from typing import Any, cast
+
+import numpy as np
+
+from drape.assets.body import list_bodies
+from drape.assets.motion import list_clips, load_clip
+from drape.runtime.engine import Engine, RiggedOutfit
+from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotAvailable, NotFound
+from drape.service.settings import Settings
+
+MESH_FILE_TYPES = {".obj": "obj", ".ply": "ply", ".glb": "glb", ".gltf": "gltf"}
+
+
+def _array(value: Any, field: str, dtype: type, ndim: int) -> np.ndarray:
+    try:
+        arr: np.ndarray = np.asarray(value, dtype=dtype)
+    except (ValueError, TypeError, OverflowError) as exc:
+        raise InvalidInput(f"not a rectangular numeric array ({exc})", field) from exc
+    if arr.ndim != ndim:
+        raise InvalidInput(f"expected {ndim} dimensions, got shape {arr.shape}", field)
+    return arr
+
+
+def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """-> (vertices (N, 3) float32, faces (F, 3) int32), or a domain error naming the field."""
+    pre = f"{field}." if field else ""
+    if isinstance(faces, np.ndarray) and faces.dtype.kind not in "iu":
+        raise InvalidInput(f"must be integer indices, got dtype {faces.dtype}", f"{pre}faces")
+    v = _array(vertices, f"{pre}vertices", np.float64, 2)
+    f = _array(faces, f"{pre}faces", np.int64, 2)
+    if v.shape[1] != 3 or len(v) < 3:
+        raise InvalidInput(f"expected (N, 3) with N >= 3, got {v.shape}", f"{pre}vertices")
+    if f.shape[1] != 3 or len(f) < 1:
+        raise InvalidInput(f"expected (F, 3) with F >= 1, got {f.shape}", f"{pre}faces")
+    if len(v) > settings.max_vertices:
+        raise LimitExceeded(f"{len(v)} vertices exceed the limit of {settings.max_vertices}", f"{pre}vertices")
+    if len(f) > settings.max_faces:
+        raise LimitExceeded(f"{len(f)} faces exceed the limit of {settings.max_faces}", f"{pre}faces")
+    if not np.isfinite(v).all():
+        raise InvalidInput("contains NaN or infinite values", f"{pre}vertices")
+    if np.abs(v).max() > 100.0:
+        raise InvalidInput("coordinates beyond 100 m: the mesh must be in metres", f"{pre}vertices")
+    if f.min() < 0 or f.max() >= len(v):
+        raise InvalidInput(f"indices must lie in [0, {len(v) - 1}], got [{f.min()}, {f.max()}]", f"{pre}faces")
+    if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])):
+        raise InvalidInput("a face repeats a vertex index", f"{pre}faces")
+    area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    if not np.any(area > 1e-12):
+        raise InvalidInput("every face has zero area (degenerate mesh)", f"{pre}faces")
+    return v.astype(np.float32), f.astype(np.int32)
+
+
+def check_body(name: str | None, field: str = "body") -> str:
+    name = name or "neutral"
+    if name not in list_bodies():
+        raise InvalidInput(f"unknown body preset {name!r}; presets: {', '.join(list_bodies())}", field)
+    return name
+
+
+def mesh_from_file(data: bytes, filename: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read an uploaded OBJ/PLY/GLB/glTF mesh (by its file name's suffix) into plain arrays."""
+    import trimesh
+
+    suffix = "." + filename.rsplit(".", 1)[-1].lower() if "." in filename else ""
+    if suffix not in MESH_FILE_TYPES:
+        raise InvalidInput(f"file name must end in one of {sorted(MESH_FILE_TYPES)}, got {filename!r}", "mesh")
+    try:
+        mesh = cast(trimesh.Trimesh, trimesh.load(io.BytesIO(data), file_type=MESH_FILE_TYPES[suffix],
+                                                  process=False, force="mesh", maintain_order=True))
+        v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    except Exception as exc:  # trimesh raises many kinds on broken files
+        raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: {exc})", "mesh") from exc
+    if len(v) == 0 or len(f) == 0:
+        raise InvalidInput("the file holds no triangles", "mesh")
+    return v, f
+
+
+@dataclass(frozen=True)
+class AnimationPlan:
+    """What to compute: an outfit and a motion (poses (T, 24, 3) rad, translation (T, 3) m)."""
+
+    outfit: RiggedOutfit
+    poses: np.ndarray
+    translation: np.ndarray
+    fps: float
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.poses)
+
+
+def check_motion(motion: dict, settings: Settings) -> tuple[np.ndarray, np.ndarray, float]:
+    """motion: {"clip": name} or {"poses": ..., "translation": ..., "fps": ...} -> (poses, translation, fps)."""
+    clip, poses = motion.get("clip"), motion.get("poses")
+    if (clip is None) == (poses is None):
+        raise InvalidInput("give exactly one of 'clip' and 'poses'", "motion")
+    if clip is not None:
+        if clip not in list_clips():
+            raise NotFound(f"unknown clip {clip!r}; see GET /v1/motions", "motion.clip")
+        m = load_clip(clip)
+        p, tr, fps = m.poses.astype(np.float64), m.trans.astype(np.float64), m.fps
+    else:
+        try:
+            p = np.asarray(poses, dtype=np.float64)
+        except (ValueError, TypeError, OverflowError) as exc:
+            raise InvalidInput(f"not a rectangular numeric array ({exc})", "motion.poses") from exc
+        if p.ndim == 3 and p.shape[1:] == (24, 3):
+            pass
+        elif p.ndim == 2 and p.shape[1] in (72, 156):
+            p = p[:, :72].reshape(-1, 24, 3)
+        else:
+            raise InvalidInput(f"expected (T, 24, 3), (T, 72) or (T, 156), got {p.shape}", "motion.poses")
+        fps = float(motion.get("fps", 30.0))
+        tr_in = motion.get("translation")
+        tr = np.zeros((len(p), 3)) if tr_in is None else _array(tr_in, "motion.translation", np.float64, 2)
+        if tr.shape != (len(p), 3):
+            raise InvalidInput(f"expected ({len(p)}, 3) to match the poses, got {tr.shape}", "motion.translation")
+    if len(p) < 1:
+        raise InvalidInput("needs at least one frame", "motion.poses")
+    if len(p) > settings.max_frames:
+        raise LimitExceeded(f"{len(p)} frames exceed the limit of {settings.max_frames}", "motion.poses")
+    if not (np.isfinite(p).all() and np.isfinite(tr).all()):
+        raise InvalidInput("contains NaN or infinite values", "motion")
+    if np.abs(tr).max(initial=0.0) > 1e4:
+        raise InvalidInput("translation beyond 10 km", "motion.translation")
+    if not (0 < fps <= 1000):
+        raise InvalidInput(f"must be in (0, 1000], got {fps}", "motion.fps")
+    return p, tr, fps
+
+
+def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str | None) -> RiggedOutfit:
+    v, f = check_mesh(vertices, faces, settings)
+    return engine.rig(v, f, check_body(body))
+
+
+def plan_animation(engine: Engine, settings: Settings, request: dict, streaming: bool) -> AnimationPlan:
+    """Validate an animate request (a dict shaped like AnimateRequest) into a plan."""
+    if request.get("refine"):
+        raise NotAvailable("collision refinement is not available in this build yet; send refine: false", "refine")
+    outfit_in, outfit_id = request.get("outfit"), request.get("outfit_id")
+    if (outfit_in is None) == (outfit_id is None):
+        raise InvalidInput("give exactly one of 'outfit' and 'outfit_id'", "outfit")
+    if outfit_id is not None:
+        outfit = engine.lookup(outfit_id)
+        if outfit is None:
+            raise NotFound(f"unknown outfit_id {outfit_id!r}: rig the outfit again (ids expire from the cache)",
+                           "outfit_id")
+        if request.get("body") not in (None, outfit.body):
+            raise InvalidInput(f"outfit {outfit_id} was rigged on body {outfit.body!r}", "body")
+    else:
+        assert outfit_in is not None
+        v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
+        outfit = engine.rig(v, f, check_body(request.get("body")))
+    poses, trans, fps = check_motion(request["motion"], settings)
+    if not streaming and len(poses) * len(outfit.vertices) > settings.max_posed_values:
+        raise LimitExceeded(
+            f"{len(poses)} frames x {len(outfit.vertices)} vertices exceed the limit of {settings.max_posed_values} "
+            f"for one answer; ask for the frame stream (Accept: application/x-drape-frames)", "motion")
+    return AnimationPlan(outfit, poses, trans, fps)

@@ -1,0 +1,35 @@
+"""The shipped (trained) DeePSD: manifest integrity, size, and consistency across topologies."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from drape.assets.outfits import generate_outfit
+from drape.runtime.deepsd import MODEL_DIR, DeePSDModel
+
+pytestmark = pytest.mark.skipif(not (MODEL_DIR / "manifest.json").exists(), reason="no shipped model")
+
+
+@pytest.fixture(scope="module")
+def model():
+    return DeePSDModel(MODEL_DIR)
+
+
+def test_manifest_is_trained_small_and_evaluated(model):
+    m = json.loads((MODEL_DIR / "manifest.json").read_text())
+    assert m["trained"] is True and m["training"]["config"]["steps"]
+    assert sum(f["bytes"] for f in m["files"].values()) <= 10 * 2**20
+    assert m["evaluation"] and {r["method"] for r in m["evaluation"]["rows"]} == {"baseline", "no_chi", "model"}
+
+
+def test_two_resolutions_of_one_garment_get_consistent_weights(model):
+    """Same shirt, two vertex counts (other topology and vertex order): weights agree at nearby points."""
+    a = generate_outfit("tshirt", vertices=2000, seed=5, looseness=0.3, length=0.5)
+    b = generate_outfit("tshirt", vertices=5000, seed=5, looseness=0.3, length=0.5)
+    wa, wb = model.rig(a.vertices, a.faces).weights, model.rig(b.vertices, b.faces).weights
+    _, near = cKDTree(b.vertices).query(a.vertices)
+    l1 = np.abs(wa - wb[near]).sum(axis=1)
+    assert np.median(l1) < 0.3, np.median(l1)
+    assert np.mean(wa.argmax(1) == wb[near].argmax(1)) > 0.8

@@ -1,0 +1,16 @@
+"""One freshly initialised exported model per test session, and the small-limit settings around it."""
+
+import functools
+import tempfile
+from pathlib import Path
+
+from drape.export.deepsd import export_deepsd_from_checkpoints
+from drape.service.settings import Settings
+
+
+@functools.cache
+def test_settings() -> Settings:
+    out = Path(tempfile.mkdtemp(prefix="drape-model-"))
+    export_deepsd_from_checkpoints("unused", out, init=True)
+    return Settings(model_dir=out, max_vertices=3000, max_faces=6000, max_frames=200,
+                    max_posed_values=300_000, max_body_bytes=4 * 2**20, outfit_cache_bytes=64 * 2**20)

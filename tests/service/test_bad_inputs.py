@@ -1,0 +1,133 @@
+"""Every bad input of the contract answers a 4xx problem+json naming the field; never a 500."""
+
+import io
+import pickle
+
+import numpy as np
+import pytest
+
+PROBLEM = "application/problem+json"
+V = [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]]
+F = [[0, 1, 2], [1, 3, 2]]
+
+
+def problem(r, status, *words):
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith(PROBLEM)
+    p = r.json()
+    assert p["status"] == status and p["type"].startswith("https://drape.dev/problems/") and p["title"]
+    for w in words:
+        assert w in p["detail"], p["detail"]
+    return p
+
+
+def rig(http, **body):
+    return http.post("/v1/outfits/rig", json={"vertices": V, "faces": F, **body})
+
+
+def animate(http, **body):
+    return http.post("/v1/outfits/animate", json={"outfit": {"vertices": V, "faces": F}, "motion": {"clip": "kick"},
+                                                  **body})
+
+
+def test_nan_and_inf(http):
+    r = http.post("/v1/outfits/rig", content=b'{"vertices": [[0,1,0.2],[NaN,1,0.2],[0,1.1,0.2]], "faces": [[0,1,2]]}',
+                  headers={"content-type": "application/json"})
+    problem(r, 422, "vertices", "NaN")
+    poses = "[[" + ",".join(["0"] * 71 + ["Infinity"]) + "]]"
+    body = f'{{"outfit": {{"vertices": {V}, "faces": {F}}}, "motion": {{"poses": {poses}}}}}'
+    r = http.post("/v1/outfits/animate", content=body.encode(), headers={"content-type": "application/json"})
+    problem(r, 422, "motion")
+
+
+def test_wrong_shapes(http):
+    problem(http.post("/v1/outfits/rig", json={"vertices": [[0, 1], [1, 0], [0, 0]], "faces": F}), 422, "vertices")
+    problem(animate(http, motion={"poses": [[0.0] * 70]}), 422, "motion.poses")
+    problem(animate(http, motion={"poses": [[0.0] * 72] * 3, "translation": [[0, 0, 0]]}), 422, "motion.translation")
+
+
+def test_faces_out_of_range(http):
+    problem(rig(http, faces=[[0, 1, 7]]), 422, "faces", "[0, 3]")
+    problem(rig(http, faces=[[0, 0, 1]]), 422, "faces", "repeats")
+
+
+def test_empty_and_degenerate_mesh(http):
+    problem(http.post("/v1/outfits/rig", json={"vertices": [], "faces": []}), 422, "vertices")
+    flat = [[0, 0, 0], [1, 1, 1], [2, 2, 2]]
+    problem(http.post("/v1/outfits/rig", json={"vertices": flat, "faces": [[0, 1, 2]]}), 422, "zero area")
+
+
+def test_too_many_vertices_and_frames(http, settings):
+    n = settings.max_vertices + 1
+    verts = np.random.default_rng(0).normal(size=(n, 3)).round(3).tolist()
+    problem(http.post("/v1/outfits/rig", json={"vertices": verts, "faces": [[0, 1, 2]]}), 413,
+            str(settings.max_vertices))
+    poses = [[0.0] * 72] * (settings.max_frames + 1)
+    problem(animate(http, motion={"poses": poses}), 413, str(settings.max_frames))
+
+
+def test_too_large_body(http, settings):
+    r = http.post("/v1/outfits/rig", content=b"0" * (settings.max_body_bytes + 1),
+                  headers={"content-type": "application/json"})
+    problem(r, 413, str(settings.max_body_bytes))
+
+
+def test_malformed_json_obj_glb_npz(http):
+    problem(http.post("/v1/outfits/rig", content=b"{not json", headers={"content-type": "application/json"}),
+            400, "JSON")
+    problem(http.post("/v1/outfits/rig", files={"mesh": ("a.obj", b"v 0 0 zzz\nf 1 2 9\n")}), 400, "mesh")
+    problem(http.post("/v1/outfits/rig", files={"mesh": ("a.glb", b"glTF\x02\x00\x00\x00garbage")}), 400, "mesh")
+    problem(http.post("/v1/outfits/rig", content=b"PK\x03\x04 not a zip",
+                      headers={"content-type": "application/x-npz"}), 400, "npz")
+    problem(http.post("/v1/outfits/rig", files={"mesh": ("a.stl", b"solid x")}), 422, "mesh")
+
+
+def test_pickled_npz_is_refused_and_nothing_unpickles(http):
+    class Boom:
+        def __reduce__(self):
+            return (exec, ("raise SystemExit('unpickled!')",))
+
+    buf = io.BytesIO()
+    np.savez(buf, vertices=np.array([Boom()], dtype=object), faces=np.array(F))
+    problem(http.post("/v1/outfits/rig", content=buf.getvalue(), headers={"content-type": "application/x-npz"}),
+            400, "npz")
+    raw = pickle.dumps({"vertices": V, "faces": F})
+    problem(http.post("/v1/outfits/rig", content=raw, headers={"content-type": "application/x-npz"}), 400)
+
+
+def test_unknown_outfit_id_clip_body_model(http):
+    problem(http.post("/v1/outfits/animate", json={"outfit_id": "deadbeef", "motion": {"clip": "kick"}}), 404,
+            "outfit_id")
+    problem(animate(http, motion={"clip": "moonwalk"}), 404, "motion.clip")
+    problem(rig(http, body="giant"), 422, "body")
+    problem(http.get("/v1/models/nope"), 404, "name")
+
+
+def test_unsupported_accept_and_content_type(http):
+    problem(http.post("/v1/outfits/rig", json={"vertices": V, "faces": F}, headers={"accept": "text/csv"}), 406,
+            "Accept")
+    problem(http.post("/v1/outfits/animate", content=b"x", headers={"content-type": "text/plain"}), 415,
+            "Content-Type")
+
+
+def test_refine_is_a_clear_501_until_it_lands(http):
+    problem(animate(http, refine=True), 501, "refine")
+
+
+def test_exactly_one_outfit_and_one_motion_source(http):
+    problem(http.post("/v1/outfits/animate", json={"motion": {"clip": "kick"}}), 422, "outfit")
+    problem(animate(http, motion={"clip": "kick", "poses": [[0.0] * 72]}), 422, "motion")
+
+
+@pytest.mark.parametrize("path", ["/v1/bodies", "/v1/motions", "/v1/models"])
+def test_api_key_guards_v1(settings, path):
+    from fastapi.testclient import TestClient
+
+    from drape.service.app import create_app
+
+    app = create_app(settings.model_copy(update={"api_key": "s3cret"}))
+    with TestClient(app) as c:
+        problem(c.get(path), 401, "Authorization")
+        problem(c.get(path, headers={"authorization": "Bearer wrong"}), 401)
+        assert c.get(path, headers={"authorization": "Bearer s3cret"}).status_code == 200
+        assert c.get("/healthz").status_code == 200  # liveness stays open
