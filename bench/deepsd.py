@@ -4,7 +4,7 @@
    same weights (a freshly initialised model: speed does not depend on training).
 2. Posing 300 frames of a 10k-vertex outfit: the batched path (pose keys for all frames,
    one GEMM for the PSD offsets, batched LBS) vs a per-frame loop over the same functions.
-Run: .venv/bin/python bench/deepsd.py   (needs the [train] extra for the torch side)
+Run: .venv/bin/python -m bench.deepsd   (needs the [train] extra for the torch side)
 """
 
 from __future__ import annotations

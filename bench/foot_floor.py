@@ -3,7 +3,7 @@
 Per clip: the median over frames of the lower foot's height above the floor
 (|lowest ankle/foot vertex y|, mm), for all clips and for the upright ones
 (clips where the body lies, crawls, rolls or cartwheels keep feet off the floor
-by design). Run: .venv/bin/python bench/foot_floor.py [--body neutral]
+by design). Run: .venv/bin/python -m bench.foot_floor [--body neutral]
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 A 10k-vertex outfit posed for 300 frames (36 MB of float32) is fetched three ways from a
 real uvicorn server on 127.0.0.1; each time includes posing, encoding, transfer and decoding
 into a numpy array on the client. Prints MB/s (of float32 payload), frames/s and the ratio to JSON.
-Run: .venv/bin/python bench/http.py [--repeat 3]
+Run: .venv/bin/python -m bench.http [--repeat 3]
 """
 
 from __future__ import annotations
