@@ -101,6 +101,11 @@ def _animate_json(outfit_id: str | None, arrays: tuple | None, motion: MotionLik
     return req
 
 
+def _refine_json(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float) -> dict:
+    return {"vertices": np.asarray(vertices, np.float32).tolist(), "faces": np.asarray(faces, np.int64).tolist(),
+            "motion": _motion_json(motion), "body": body, "options": {"eps": eps}}
+
+
 def _animate_vertices(response: httpx.Response) -> np.ndarray:
     _raise_for(response)
     return decode_npz(response.content)["vertices"]
@@ -172,6 +177,12 @@ class Client(_Base):
         req = self._animate_body(outfit, outfit_id, motion, body, refine)
         return _animate_vertices(self._http.post("/v1/outfits/animate", json=req, headers={"Accept": NPZ}))
 
+    def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
+               eps: float = 0.003) -> np.ndarray:
+        """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion`."""
+        req = _refine_json(vertices, faces, motion, body, eps)
+        return _animate_vertices(self._http.post("/v1/refine", json=req, headers={"Accept": NPZ}))
+
     def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                        motion: MotionLike, body: str | None = None, refine: bool = False) -> Iterator[np.ndarray]:
         """Posed frames (N, 3) float32, yielded as they arrive."""
@@ -220,6 +231,11 @@ class AsyncClient(_Base):
                       motion: MotionLike, body: str | None = None, refine: bool = False) -> np.ndarray:
         req = await self._animate_body(outfit, outfit_id, motion, body, refine)
         return _animate_vertices(await self._http.post("/v1/outfits/animate", json=req, headers={"Accept": NPZ}))
+
+    async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
+                     eps: float = 0.003) -> np.ndarray:
+        req = _refine_json(vertices, faces, motion, body, eps)
+        return _animate_vertices(await self._http.post("/v1/refine", json=req, headers={"Accept": NPZ}))
 
     async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                              motion: MotionLike, body: str | None = None,

@@ -6,11 +6,13 @@ import hashlib
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from drape.assets.body import load_body
+from drape.geometry.refine import BodySurface, Refiner, RefineReport
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 
@@ -28,6 +30,30 @@ class RiggedOutfit:
     @property
     def nbytes(self) -> int:
         return self.vertices.nbytes + self.faces.nbytes + self.rig.weights.nbytes + self.rig.blend_shapes.nbytes
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """eps: metres kept from the body surface; max_iterations: fast-path iterations per frame."""
+
+    eps: float = 0.003
+    max_iterations: int = 3
+
+
+@lru_cache(maxsize=8)
+def body_surface(body: str) -> BodySurface:
+    b = load_body(body)
+    return BodySurface(b.faces, len(b.vertices))
+
+
+def refine_frames(frames: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray, translation: np.ndarray,
+                  refiner: Refiner) -> np.ndarray:
+    """Refine posed garment frames (n, N, 3) against the body posed by (poses, translation): (n, N, 3) float32."""
+    posed_body = load_body(body).pose(poses, translation).astype(np.float64)
+    surface = body_surface(body)
+    report = RefineReport()
+    return np.stack([refiner.refine_frame(f, b, surface, report) for f, b in zip(frames, posed_body, strict=True)]
+                    ).astype(np.float32)
 
 
 class Engine:
@@ -67,9 +93,11 @@ class Engine:
         return self.cache.get(outfit_id)
 
     def pose_chunks(self, outfit: RiggedOutfit, poses: np.ndarray, translation: np.ndarray,
-                    chunk: int = 32) -> Iterator[np.ndarray]:
-        """Posed vertices in chunks of up to `chunk` frames: (n, N, 3) float32 each."""
+                    chunk: int = 32, refine: RefineSettings | None = None) -> Iterator[np.ndarray]:
+        """Posed vertices in chunks of up to `chunk` frames: (n, N, 3) float32 each, refined if asked."""
         joints = load_body(outfit.body).joints
+        refiner = (Refiner(outfit.faces, len(outfit.vertices), eps=refine.eps, max_iterations=refine.max_iterations)
+                   if refine else None)
         for start in range(0, len(poses), chunk):
             p, tr = poses[start : start + chunk], translation[start : start + chunk]
             t = time.perf_counter()
@@ -78,7 +106,21 @@ class Engine:
             t = time.perf_counter()
             frames = pose_outfit(outfit.vertices, outfit.rig, keys, joints, p, tr)
             self._observe("posing", time.perf_counter() - t)
+            if refiner is not None:
+                t = time.perf_counter()
+                frames = refine_frames(frames, outfit.faces, outfit.body, p, tr, refiner)
+                self._observe("refine", time.perf_counter() - t)
             yield frames
+
+    def refine_chunks(self, vertices: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray,
+                      translation: np.ndarray, options: RefineSettings, chunk: int = 32) -> Iterator[np.ndarray]:
+        """A given garment stream (T, N, 3), refined against the body in chunks: (n, N, 3) float32 each."""
+        refiner = Refiner(faces, vertices.shape[1], eps=options.eps, max_iterations=options.max_iterations)
+        for start in range(0, len(vertices), chunk):
+            t = time.perf_counter()
+            s = slice(start, start + chunk)
+            yield refine_frames(vertices[s], faces, body, poses[s], translation[s], refiner)
+            self._observe("refine", time.perf_counter() - t)
 
     def warm_up(self) -> None:
         """One small rig and pose, so the first request does not pay ORT's start-up."""

@@ -48,13 +48,32 @@ class MotionInput(BaseModel):
     fps: float = Field(30.0, gt=0, le=1000)
 
 
+class RefineOptions(BaseModel):
+    """Collision refinement: push vertices out of the body by eps (m), keeping the local shape."""
+
+    model_config = ConfigDict(extra="forbid")
+    eps: float = Field(0.003, gt=0, le=0.05, description="distance kept from the body surface, metres")
+    max_iterations: int = Field(3, ge=1, le=20, description="fast-path iterations before the progressive pass")
+
+
 class AnimateRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     outfit: Mesh | None = None
     outfit_id: str | None = Field(None, max_length=128)
     motion: MotionInput
     body: str | None = Field(None, description="body preset; defaults to the rigged outfit's, else neutral")
-    refine: bool = Field(False, description="collision refinement post step (not available yet: 501)")
+    refine: bool | RefineOptions = Field(False, description="collision refinement post step: true or options")
+
+
+class RefineRequest(BaseModel):
+    """A garment stream (T, N, 3) m with its faces, the body motion that goes with it, the body preset."""
+
+    model_config = ConfigDict(extra="forbid")
+    vertices: list[list[Vec3]] = Field(min_length=1)
+    faces: list[Tri] = Field(min_length=1)
+    motion: MotionInput
+    body: str = "neutral"
+    options: RefineOptions | None = Field(None, description="defaults: eps 3 mm, 3 iterations")
 
 
 class AnimateResponse(BaseModel):

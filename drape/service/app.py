@@ -13,7 +13,14 @@ from fastapi.openapi.utils import get_openapi
 
 from drape import __version__
 from drape.runtime.engine import Engine
-from drape.schemas.outfits import AnimateRequest, AnimateResponse, Problem, RigRequest, RigResponse
+from drape.schemas.outfits import (
+    AnimateRequest,
+    AnimateResponse,
+    Problem,
+    RefineRequest,
+    RigRequest,
+    RigResponse,
+)
 from drape.service import catalog, problems
 from drape.service.http import require_api_key
 from drape.service.metrics import Metrics
@@ -65,7 +72,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(health.router)
     auth = [Depends(require_api_key)]
-    for router in (catalog_router.router, models.router, outfits.router):
+    for router in (catalog_router.router, models.router, outfits.router, outfits.refine_router):
         app.include_router(router, dependencies=auth)
 
     def openapi() -> dict:
@@ -73,7 +80,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             return app.openapi_schema
         schema = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
         comps = schema.setdefault("components", {}).setdefault("schemas", {})
-        for model in (RigRequest, RigResponse, AnimateRequest, AnimateResponse, Problem):
+        for model in (RigRequest, RigResponse, AnimateRequest, AnimateResponse, RefineRequest, Problem):
             js = model.model_json_schema(ref_template="#/components/schemas/{model}")
             comps.update(js.pop("$defs", {}))
             comps[model.__name__] = js

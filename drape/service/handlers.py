@@ -10,8 +10,8 @@ import numpy as np
 
 from drape.assets.body import list_bodies
 from drape.assets.motion import list_clips, load_clip
-from drape.runtime.engine import Engine, RiggedOutfit
-from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotAvailable, NotFound
+from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
+from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotFound
 from drape.service.settings import Settings
 
 MESH_FILE_TYPES = {".obj": "obj", ".ply": "ply", ".glb": "glb", ".gltf": "gltf"}
@@ -89,6 +89,7 @@ class AnimationPlan:
     poses: np.ndarray
     translation: np.ndarray
     fps: float
+    refine: RefineSettings | None = None
 
     @property
     def num_frames(self) -> int:
@@ -139,10 +140,17 @@ def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str
     return engine.rig(v, f, check_body(body))
 
 
+def check_refine(value: Any) -> RefineSettings | None:
+    """refine: false/None -> None, true -> defaults, {eps, max_iterations} -> those (validated upstream)."""
+    if not value:
+        return None
+    if value is True:
+        return RefineSettings()
+    return RefineSettings(eps=float(value["eps"]), max_iterations=int(value["max_iterations"]))
+
+
 def plan_animation(engine: Engine, settings: Settings, request: dict, streaming: bool) -> AnimationPlan:
     """Validate an animate request (a dict shaped like AnimateRequest) into a plan."""
-    if request.get("refine"):
-        raise NotAvailable("collision refinement is not available in this build yet; send refine: false", "refine")
     outfit_in, outfit_id = request.get("outfit"), request.get("outfit_id")
     if (outfit_in is None) == (outfit_id is None):
         raise InvalidInput("give exactly one of 'outfit' and 'outfit_id'", "outfit")
@@ -162,4 +170,37 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, streaming:
         raise LimitExceeded(
             f"{len(poses)} frames x {len(outfit.vertices)} vertices exceed the limit of {settings.max_posed_values} "
             f"for one answer; ask for the frame stream (Accept: application/x-drape-frames)", "motion")
-    return AnimationPlan(outfit, poses, trans, fps)
+    return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")))
+
+
+@dataclass(frozen=True)
+class RefinePlan:
+    """A garment stream (T, N, 3) float32 + faces to refine against `body` posed by (poses, translation)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    body: str
+    poses: np.ndarray
+    translation: np.ndarray
+    fps: float
+    options: RefineSettings
+
+
+def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, body: str | None,
+                options: dict | None, streaming: bool) -> RefinePlan:
+    """Validate a refine request: the stream's shape, the faces, the motion (same frame count)."""
+    v = _array(vertices, "vertices", np.float64, 3)
+    if v.shape[2] != 3 or v.shape[1] < 3:
+        raise InvalidInput(f"expected (T, N, 3) with N >= 3, got {v.shape}", "vertices")
+    _, f = check_mesh(v[0], faces, settings)
+    if not np.isfinite(v).all():
+        raise InvalidInput("contains NaN or infinite values", "vertices")
+    poses, trans, fps = check_motion(motion, settings)
+    if len(poses) != len(v):
+        raise InvalidInput(f"the motion has {len(poses)} frames, the stream {len(v)}", "motion")
+    if not streaming and v.shape[0] * v.shape[1] > settings.max_posed_values:
+        raise LimitExceeded(f"{v.shape[0]} frames x {v.shape[1]} vertices exceed the limit of "
+                            f"{settings.max_posed_values} for one answer; ask for the frame stream", "vertices")
+    opts = check_refine(options or True)
+    assert opts is not None
+    return RefinePlan(v.astype(np.float32), f, check_body(body), poses, trans, fps, opts)

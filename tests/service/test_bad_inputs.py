@@ -110,8 +110,14 @@ def test_unsupported_accept_and_content_type(http):
             "Content-Type")
 
 
-def test_refine_is_a_clear_501_until_it_lands(http):
-    problem(animate(http, refine=True), 501, "refine")
+def test_refine_bad_inputs(http):
+    frames = [V] * 2
+    body = {"vertices": frames, "faces": F, "motion": {"poses": [[0.0] * 72] * 3}}
+    problem(http.post("/v1/refine", json=body), 422, "motion", "3 frames")
+    problem(http.post("/v1/refine", json={**body, "vertices": [[[0, 0], [1, 1], [2, 2]]]}), 422, "vertices")
+    problem(http.post("/v1/refine", json={**body, "faces": [[0, 1, 9]], "motion": {"poses": [[0.0] * 72] * 2}}),
+            422, "faces")
+    problem(animate(http, refine={"eps": -1.0}), 422, "eps")
 
 
 def test_exactly_one_outfit_and_one_motion_source(http):

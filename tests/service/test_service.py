@@ -47,7 +47,7 @@ def test_motions_list(client):
 def test_openapi_names_the_routes(client):
     paths = client.get("/openapi.json").json()["paths"]
     assert {"/healthz", "/readyz", "/metrics", "/v1/bodies", "/v1/motions", "/v1/models", "/v1/models/{name}",
-            "/v1/outfits/rig", "/v1/outfits/animate"} <= set(paths)
+            "/v1/outfits/rig", "/v1/outfits/animate", "/v1/refine"} <= set(paths)
 
 
 def test_real_server_through_the_client(server_url):

@@ -2,19 +2,20 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from functools import partial
 from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, StreamingResponse
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
 from drape.schemas.binary import FRAMES, NPZ, decode_npz, encode_npz, stream_chunk, stream_header
-from drape.schemas.outfits import AnimateRequest, RigRequest
+from drape.schemas.outfits import AnimateRequest, RefineRequest, RigRequest
 from drape.service import handlers
 from drape.service.errors import InvalidInput, MalformedInput, UnsupportedMediaType
 from drape.service.http import engine_of, media_type, parse_json, read_body, settings_of
@@ -102,43 +103,92 @@ async def rig_outfit(request: Request) -> Response:
     })
 
 
-@router.post(
-    "/animate",
-    responses={200: {"description": "posed vertices (T, N, 3)", "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY}},
-        **problem_responses(501), **ERRORS},
-    openapi_extra={"requestBody": {"required": True, "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}}}}},
-)
-async def animate_outfit(request: Request) -> Response:
-    """Outfit (or outfit_id) + motion -> posed vertices (T, N, 3): JSON, npz or a frame stream."""
-    answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
-    kind = media_type(request)
-    if kind not in (JSON, ""):
-        raise UnsupportedMediaType(f"send {JSON}, not {kind!r}", "Content-Type")
-    try:
-        req = AnimateRequest.model_validate(parse_json(await read_body(request)))
-    except ValidationError as exc:
-        raise InvalidInput(_validation_detail(exc)) from exc
-    settings, engine = settings_of(request), engine_of(request)
-    metrics = request.app.state.metrics
-    plan = await run_in_threadpool(handlers.plan_animation, engine, settings, req.model_dump(), answer == FRAMES)
-    n = len(plan.outfit.vertices)
+def _frames_answer(answer: str, chunks: Callable[[], Iterator[np.ndarray]], faces: np.ndarray, n: int,
+                   num_frames: int, fps: float, outfit_id: str, metrics: Any) -> Response:
+    """Posed or refined frames as JSON, npz or the frame stream; every format from the same chunks."""
     if answer == FRAMES:
         def frames() -> Iterator[bytes]:
-            yield stream_header(plan.num_frames, plan.outfit.faces, n, plan.fps, plan.outfit.outfit_id)
-            for chunk in engine.pose_chunks(plan.outfit, plan.poses, plan.translation, settings.stream_chunk_frames):
+            yield stream_header(num_frames, faces, n, fps, outfit_id)
+            for chunk in chunks():
                 metrics.served(len(chunk), n)
                 yield stream_chunk(chunk)
             yield stream_chunk(np.zeros((0, n, 3), np.float32))
 
         return StreamingResponse(frames(), media_type=FRAMES)
-    # the same chunking as the stream, so every format carries bit-identical frames
-    verts = await run_in_threadpool(lambda: np.concatenate(list(
-        engine.pose_chunks(plan.outfit, plan.poses, plan.translation, settings.stream_chunk_frames))))
+    verts = np.concatenate(list(chunks()))
     metrics.served(len(verts), n)
     if answer == NPZ:
-        return Response(encode_npz({"vertices": verts, "faces": plan.outfit.faces, "fps": np.array(plan.fps, np.float32),
-                                    "outfit_id": np.array(plan.outfit.outfit_id)}), media_type=NPZ)
-    return JSONResponse({"outfit_id": plan.outfit.outfit_id, "fps": plan.fps, "vertices": verts.tolist(),
-                         "faces": plan.outfit.faces.tolist()})
+        return Response(encode_npz({"vertices": verts, "faces": faces, "fps": np.array(fps, np.float32),
+                                    "outfit_id": np.array(outfit_id)}), media_type=NPZ)
+    return JSONResponse({"outfit_id": outfit_id, "fps": fps, "vertices": verts.tolist(), "faces": faces.tolist()})
+
+
+def _parse(model: type[BaseModel], data: bytes) -> BaseModel:
+    try:
+        return model.model_validate(parse_json(data))
+    except ValidationError as exc:
+        raise InvalidInput(_validation_detail(exc)) from exc
+
+
+FRAME_ANSWERS = {200: {"description": "frames (T, N, 3)", "content": {
+    JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY}}, **ERRORS}
+
+
+@router.post("/animate", responses=FRAME_ANSWERS, openapi_extra={"requestBody": {"required": True, "content": {
+    JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}}}}})
+async def animate_outfit(request: Request) -> Response:
+    """Outfit (or outfit_id) + motion (+ refine) -> posed vertices (T, N, 3): JSON, npz or a frame stream."""
+    answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
+    if media_type(request) not in (JSON, ""):
+        raise UnsupportedMediaType(f"send {JSON}, not {media_type(request)!r}", "Content-Type")
+    req = _parse(AnimateRequest, await read_body(request))
+    settings, engine = settings_of(request), engine_of(request)
+    plan = await run_in_threadpool(handlers.plan_animation, engine, settings, req.model_dump(), answer == FRAMES)
+
+    def chunks() -> Iterator[np.ndarray]:
+        return engine.pose_chunks(plan.outfit, plan.poses, plan.translation, settings.stream_chunk_frames,
+                                  refine=plan.refine)
+
+    build = partial(_frames_answer, answer, chunks, plan.outfit.faces, len(plan.outfit.vertices), plan.num_frames,
+                    plan.fps, plan.outfit.outfit_id, request.app.state.metrics)
+    return build() if answer == FRAMES else await run_in_threadpool(build)
+
+
+refine_router = APIRouter(prefix="/v1", tags=["refine"])
+
+
+@refine_router.post("/refine", responses=FRAME_ANSWERS, openapi_extra={"requestBody": {"required": True, "content": {
+    JSON: {"schema": {"$ref": "#/components/schemas/RefineRequest"}},
+    NPZ: {"schema": {"type": "string", "format": "binary", "description":
+                     "npz: vertices (T, N, 3), faces (F, 3), poses (T, 24, 3) or (T, 72), optional translation "
+                     "(T, 3), fps, body"}}}}})
+async def refine_stream(request: Request) -> Response:
+    """Garment stream + faces + body motion -> the stream with body penetration removed (same formats as animate)."""
+    answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
+    kind = media_type(request)
+    settings, engine = settings_of(request), engine_of(request)
+    if kind == NPZ:
+        try:
+            z = decode_npz(await read_body(request))
+        except ValueError as exc:
+            raise MalformedInput(str(exc), "body") from exc
+        missing = [k for k in ("vertices", "faces", "poses") if k not in z]
+        if missing:
+            raise InvalidInput(f"the archive lacks {missing}", "body")
+        motion = {"poses": z["poses"], "translation": z.get("translation"), "fps": float(z.get("fps", 30.0))}
+        args = (z["vertices"], z["faces"], motion, str(z["body"]) if "body" in z else None, None)
+    elif kind in (JSON, ""):
+        req = _parse(RefineRequest, await read_body(request))
+        d = req.model_dump()
+        args = (d["vertices"], d["faces"], d["motion"], d["body"], d["options"])
+    else:
+        raise UnsupportedMediaType(f"send {JSON} or {NPZ}, not {kind!r}", "Content-Type")
+    plan = await run_in_threadpool(handlers.plan_refine, settings, *args, answer == FRAMES)
+
+    def chunks() -> Iterator[np.ndarray]:
+        return engine.refine_chunks(plan.vertices, plan.faces, plan.body, plan.poses, plan.translation, plan.options,
+                                    settings.stream_chunk_frames)
+
+    build = partial(_frames_answer, answer, chunks, plan.faces, plan.vertices.shape[1], len(plan.vertices), plan.fps,
+                    "", request.app.state.metrics)
+    return build() if answer == FRAMES else await run_in_threadpool(build)

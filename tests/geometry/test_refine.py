@@ -1,0 +1,65 @@
+"""Collision refinement: penetration removed, shape kept, heavy penetration resolved on the right side."""
+
+import numpy as np
+import pytest
+
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.assets.outfits import generate_outfit
+from drape.geometry.lbs import pose_mesh
+from drape.geometry.queries import MeshDistance, nearest_vertex_weights
+from drape.geometry.refine import refine
+
+BODY = load_body("neutral")
+
+
+def inside_share(garment, body):
+    return float(np.mean([np.mean(MeshDistance(b, BODY.faces).signed_distance(g) < 0)
+                          for g, b in zip(garment, body, strict=True)]))
+
+
+@pytest.fixture(scope="module")
+def penetrating():
+    """The nearest-body-weights LBS baseline on a held-out clip: it penetrates."""
+    o = generate_outfit("longsleeve", vertices=1500, seed=77)
+    w = nearest_vertex_weights(o.vertices, BODY.vertices, BODY.weights)
+    clip = load_clip("dance_b")
+    frames = np.arange(0, clip.num_frames, 30)
+    p, t = clip.poses[frames].astype(float), clip.trans[frames].astype(float)
+    return o, pose_mesh(o.vertices, w, BODY.joints, p, t), BODY.pose(p, t)
+
+
+def test_refinement_leaves_almost_nothing_inside(penetrating):
+    o, g, b = penetrating
+    before = inside_share(g, b)
+    refined, report = refine(g, o.faces, b, BODY.faces)
+    after = inside_share(refined, b)
+    assert before > 0.002, "the test input should penetrate"
+    assert after <= 0.001, after
+    assert report.inside_before and len(report.inside_after) == len(g)
+    # vertices that were outside and far from the collisions do not move
+    moved = np.linalg.norm(refined - g, axis=2) > 1e-6
+    assert moved.mean() < 0.5
+
+
+def test_untouched_when_nothing_is_inside():
+    o = generate_outfit("tshirt", vertices=1000, seed=3)
+    refined, report = refine(o.vertices[None], o.faces, BODY.vertices[None], BODY.faces)
+    assert report.iterations == [0] and report.inside_before == [0]
+    assert np.array_equal(refined[0], o.vertices.astype(np.float32))
+
+
+def test_heavy_penetration_ends_outside_on_the_near_side():
+    """A shirt shifted 3 cm back into the torso: its front comes out at the front, not through the back."""
+    o = generate_outfit("tshirt", vertices=1500, seed=4, looseness=0.0)
+    shifted = o.vertices + np.array([0.0, 0.0, -0.03], np.float32)
+    before = MeshDistance(BODY.vertices, BODY.faces).signed_distance(shifted)
+    assert np.mean(before < 0) > 0.05
+    refined, report = refine(shifted[None], o.faces, BODY.vertices[None], BODY.faces)
+    after = MeshDistance(BODY.vertices, BODY.faces).signed_distance(refined[0])
+    assert np.mean(after < 0) <= 0.001
+    front = (o.vertices[:, 2] > 0.05) & (before < 0)  # front vertices that went inside
+    assert front.sum() > 10
+    # they end up in front of the torso, near where they started, not behind it
+    assert np.all(refined[0][front, 2] > 0.0)
+    assert np.abs(refined[0][front] - o.vertices[front]).max() < 0.05
