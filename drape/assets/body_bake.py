@@ -66,8 +66,8 @@ def t_pose_rotations(joints: np.ndarray) -> np.ndarray:
             continue
         child, target = _T_POSE_TARGETS[name]
         j, c = JOINT_INDEX[name], JOINT_INDEX[child]
-        _, posed = forward_kinematics(poses[None], joints)
-        glob = forward_kinematics(poses[None], joints)[0][0, :, :3, :3]
+        transforms, posed = forward_kinematics(poses[None], joints)
+        glob = transforms[0, :, :3, :3]
         current = posed[0, c] - posed[0, j]
         world = rotation_between(current, np.asarray(target))
         parent_rot = glob[PARENTS[j]] if PARENTS[j] >= 0 else np.eye(3)

@@ -307,8 +307,10 @@ class _Generator:
         C = self._columns(perim)
         C -= C % 4  # the sides (90 and 270 degrees) fall on columns
         gap = 0.03 if style.open_front else 0.0
-        phase = float(self.rng.uniform(0, 2 * np.pi / C)) * 0.0
-        thetas = self._ring_dirs(C, phase, gap)
+        # this draw is unused but kept: removing it would change every seed's outfit, including
+        # the cached training and evaluation outfits behind the published DeePSD table
+        self.rng.uniform(0, 2 * np.pi / C)
+        thetas = self._ring_dirs(C, 0.0, gap)
         hip_flare = self.y_waist if style.hem_y < self.y_crotch else None
         rows = self.tube(torso_pts, style.hem_y, self.y_shoulder, style, thetas, hip_flare)
         neck_r = 0.075 + (0.02 if kind in ("tanktop", "dress") else 0.0) + (0.02 if style.open_front else 0.0)
