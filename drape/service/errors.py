@@ -36,9 +36,5 @@ class NotAcceptable(DrapeError):
     """No answer format matches the Accept header."""
 
 
-class NotAvailable(DrapeError):
-    """A feature that exists in the API but not yet in this build."""
-
-
 class Unauthorized(DrapeError):
     """Missing or wrong API key."""

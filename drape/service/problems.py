@@ -22,7 +22,6 @@ MAPPING: dict[type[errors.DrapeError], tuple[int, str, str]] = {
     errors.LimitExceeded: (413, "limit-exceeded", "Request exceeds a limit"),
     errors.UnsupportedMediaType: (415, "unsupported-media-type", "Unsupported request format"),
     errors.InvalidInput: (422, "invalid-input", "Invalid input"),
-    errors.NotAvailable: (501, "not-available", "Not available in this build"),
 }
 
 
