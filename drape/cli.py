@@ -88,6 +88,9 @@ def _render(args: argparse.Namespace) -> None:
     from drape.geometry.skeleton import forward_kinematics
     from drape.render import Layer, render_frames
 
+    if args.sim:
+        _render_sim(args)
+        return
     body = load_body(args.body)
     if args.motion:
         motion = load_motion_npz(args.motion)
@@ -95,7 +98,7 @@ def _render(args: argparse.Namespace) -> None:
         motion = load_clip(args.clip)
     else:
         motion = None
-    frames = [int(f) for f in args.frames.split(",")] if motion is not None else [0]
+    frames = [int(f) for f in (args.frames or "0,10,20,30").split(",")] if motion is not None else [0]
     if motion is not None:
         bad = [f for f in frames if not 0 <= f < motion.num_frames]
         if bad:
@@ -115,6 +118,33 @@ def _render(args: argparse.Namespace) -> None:
     caption = (f"outfit posed by LBS with nearest-body-vertex weights diffused {args.smooth} steps "
                "(a preview, not a cloth model)") if args.outfit else None
     titles = [f"{body.name} - {name} - frame {f}" for f in frames]
+    print(render_frames(layers, list(range(len(frames))), args.out, azimuth=args.azimuth, titles=titles,
+                        caption=caption))
+
+
+def _render_sim(args: argparse.Namespace) -> None:
+    """A simulated sequence (an `drape sim run` / dataset item npz) next to the posed body."""
+    import json
+
+    from drape.assets.body import load_body
+    from drape.render import Layer, render_frames
+
+    with np.load(args.sim, allow_pickle=False) as z:
+        seq = {k: z[k] for k in z.files}
+    body = load_body(str(seq["body"]))
+    T = len(seq["vertices"])
+    frames = [int(f) for f in args.frames.split(",")] if args.frames else list(np.linspace(0, T - 1, 6).astype(int))
+    bad = [f for f in frames if not 0 <= f < T]
+    if bad:
+        raise SystemExit(f"frames {bad} outside the sequence's 0..{T - 1}")
+    posed = body.pose(seq["poses"][frames], seq["trans"][frames])
+    layers = [Layer(posed, body.faces, (0.86, 0.74, 0.62)),
+              Layer(seq["vertices"][frames], seq["faces"], (0.25, 0.45, 0.8))]
+    params = json.loads(str(seq["params"]))
+    caption = (f"MuJoCo simulation: {seq['garment']} on {body.name}, clip {seq['motion']}; "
+               f"young {params['young']:.3g} Pa, density {params['density']:.3g} kg/m2, "
+               f"thickness {1000 * params['thickness']:.2g} mm")
+    titles = [f"frame {f}" for f in frames]
     print(render_frames(layers, list(range(len(frames))), args.out, azimuth=args.azimuth, titles=titles,
                         caption=caption))
 
@@ -146,6 +176,72 @@ def _eval_deepsd(args: argparse.Namespace) -> None:
     if args.write:
         for path in write_results(results, args.model):
             print(path)
+
+
+def _motion_arg(name: str):  # noqa: ANN202 - Motion
+    """An embedded clip name or a motion npz path."""
+    from drape.assets.motion import load_clip, load_motion_npz
+
+    return load_motion_npz(name) if name.endswith(".npz") else load_clip(name)
+
+
+def _sim_run(args: argparse.Namespace) -> None:
+    import json
+
+    from drape.assets.body import load_body
+    from drape.geometry.mesh_io import load_mesh
+    from drape.sim.params import SimParams
+    from drape.sim.quality import QualityGate
+    from drape.sim.simulate import simulate
+
+    params = SimParams.from_file(args.params) if args.params else SimParams()
+    verts, faces = load_mesh(args.garment)
+    motion = _motion_arg(args.clip)
+    from tqdm import tqdm
+
+    with tqdm(desc="frames", unit="frame") as bar:
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        r = simulate(verts, faces, load_body(args.body), motion, params, frames=args.frames, progress=progress)
+    failures = QualityGate().failures(r.stats)
+    np.savez_compressed(
+        args.out, vertices=r.vertices, faces=faces.astype(np.int32), poses=r.poses, trans=r.trans,
+        fps=np.float32(motion.fps), params=np.array(params.to_json()), stats=np.array(json.dumps(r.stats)),
+        garment=np.array(Path(args.garment).stem), body=np.array(args.body), motion=np.array(motion.name),
+    )
+    print(json.dumps(r.stats, indent=1))
+    if failures:
+        print(f"{args.out}: FAILS the quality gate: {'; '.join(failures)}", file=sys.stderr)
+        raise SystemExit(1)
+    print(f"{args.out}: {r.vertices.shape[0]} frames, {r.seconds_per_frame:.3f} s per simulated frame")
+
+
+def _sim_dataset(args: argparse.Namespace) -> None:
+    from drape.geometry.mesh_io import load_mesh
+    from drape.sim.dataset import build_dataset
+    from drape.sim.params import sample_params
+
+    garments = {Path(g).stem: load_mesh(g) for g in args.garment}
+    motions = [_motion_arg(m) for m in args.motions.split(",")]
+    manifest = build_dataset(
+        args.out, garments, sample_params(args.params, seed=args.seed), motions, args.frames, body=args.body,
+        holdout_params=args.holdout_params, holdout_motions=args.holdout_motions, workers=args.workers,
+        ray_address=args.ray,
+    )
+    summ = manifest["summary"]
+    print(f"{args.out}: {summ['items']} sequences accepted, {len(manifest['rejected'])} rejected, "
+          f"{manifest['last_run']['simulated']} simulated in this run ({manifest['last_run']['seconds']} s)")
+    import json
+
+    print(json.dumps(summ, indent=1))
+
+
+def _sim_sweep(args: argparse.Namespace) -> None:
+    from drape.sim.sweep import run_sweep
+
+    run_sweep(args.out, workers=args.workers, frames=args.frames, vertices=args.vertices)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -216,12 +312,42 @@ def build_parser() -> argparse.ArgumentParser:
     evd.add_argument("--write", action="store_true", help="store the table in the manifest and docs/")
     evd.set_defaults(func=_eval_deepsd)
 
+    sim = sub.add_parser("sim", help="ground-truth cloth simulation (MuJoCo)").add_subparsers(dest="what", required=True)
+    sr = sim.add_parser("run", help="simulate one garment on a body along a clip")
+    sr.add_argument("--garment", required=True, help="garment mesh (OBJ/PLY/GLB) in the body's rest pose")
+    sr.add_argument("--body", default="neutral", help="body preset")
+    sr.add_argument("--clip", required=True, help="embedded clip name or a motion npz")
+    sr.add_argument("--frames", type=int, default=None, help="motion frames to simulate (default: all)")
+    sr.add_argument("--params", help="intrinsic parameters JSON (default: drape.sim.params.SimParams())")
+    sr.add_argument("--out", required=True)
+    sr.set_defaults(func=_sim_run)
+    sd = sim.add_parser("dataset", help="garments x sampled parameter sets x motions -> npz per sequence + manifest")
+    sd.add_argument("--garment", required=True, nargs="+", help="garment mesh file(s)")
+    sd.add_argument("--params", type=int, default=8, help="number of parameter sets to sample")
+    sd.add_argument("--seed", type=int, default=0, help="seed of the parameter sampler")
+    sd.add_argument("--motions", required=True, help="comma list of clip names or motion npz files")
+    sd.add_argument("--frames", type=int, default=90)
+    sd.add_argument("--body", default="neutral")
+    sd.add_argument("--holdout-params", type=int, default=2)
+    sd.add_argument("--holdout-motions", type=int, default=1)
+    sd.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    sd.add_argument("--ray", metavar="ADDRESS", default=None, help="run the items as tasks on this Ray cluster")
+    sd.add_argument("--out", required=True)
+    sd.set_defaults(func=_sim_dataset)
+    sw = sim.add_parser("sweep", help="vary one parameter at a time from the base (Wang 2019 Sec. 3.6)")
+    sw.add_argument("--out", default="docs/sim_sweep.json")
+    sw.add_argument("--workers", type=int, default=None)
+    sw.add_argument("--frames", type=int, default=45)
+    sw.add_argument("--vertices", type=int, default=1200)
+    sw.set_defaults(func=_sim_sweep)
+
     r = sub.add_parser("render", help="PNG of a body (and outfit) at frames of a motion")
     r.add_argument("--body", default="neutral")
     r.add_argument("--outfit", help="mesh file of an outfit in the body's rest pose")
     r.add_argument("--clip", help="embedded clip name")
     r.add_argument("--motion", help="motion npz file")
-    r.add_argument("--frames", default="0,10,20,30")
+    r.add_argument("--sim", help="a simulated sequence npz (drape sim run / dataset item): cloth next to the body")
+    r.add_argument("--frames", default=None, help="comma list (default 0,10,20,30; six spread frames with --sim)")
     r.add_argument("--azimuth", type=float, default=25.0, help="view angle about +Y from the front, degrees")
     r.add_argument("--smooth", type=int, default=40, help="weight diffusion steps for the outfit's skinning")
     r.add_argument("--out", required=True)

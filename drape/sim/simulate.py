@@ -39,7 +39,11 @@ from drape.assets.motion import Motion
 from drape.geometry.lbs import linear_blend_skinning
 from drape.geometry.mesh import boundary_edges
 from drape.geometry.queries import nearest_vertex_weights
-from drape.geometry.rotations import matrix_to_quaternion, quaternion_multiply, quaternion_to_axis_angle
+from drape.geometry.rotations import (
+    matrix_to_quaternion,
+    quaternion_multiply,
+    quaternion_to_axis_angle,
+)
 from drape.geometry.skeleton import forward_kinematics
 from drape.sim.collider import Hull, fit_hulls, garment_bones
 from drape.sim.params import SimParams
