@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: serve test test-slow lint typecheck clean
+.PHONY: serve test test-slow sim-dataset lint typecheck clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -31,6 +31,14 @@ test: $(VENV)/.dev-installed
 
 test-slow: $(VENV)/.dev-installed
 	$(BIN)/pytest -m slow
+
+# the small ground-truth dataset of the simulation issue: a knee-length skirt x 8 parameter sets x 3 clips x 90 frames
+SIM_DIR ?= data/sim/skirt
+sim-dataset: $(VENV)/.dev-installed
+	mkdir -p $(SIM_DIR)
+	$(BIN)/drape outfits generate --type skirt --vertices 2000 --seed 3 --length 0.6 --out $(SIM_DIR)/skirt.obj
+	$(BIN)/drape sim dataset --garment $(SIM_DIR)/skirt.obj --params 8 --motions walk,dance_a,run \
+		--frames 90 --out $(SIM_DIR)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache

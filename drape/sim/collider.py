@@ -8,11 +8,10 @@ hulls are stored in rest-pose world coordinates; a kinematic body per bone carri
 them with the bone's skinning transform, so x_posed = R_k x_rest + t_k.
 
 Chosen by measurement over capsules (one or several per bone) on the neutral
-body's pelvis, spine and legs: slab hulls cover 100% of the body's vertices and
-contain only ~8% of points 5 mm outside the skin; fitted capsules containing
-the same vertices also contained ~97% of those points (they are far fatter than
-the body), so cloth would hang centimetres off it. Measured by
-`tests/sim/test_collider.py`.
+body's pelvis, spine and legs: slab hulls cover the body's vertices and contain
+only 7.8% of points 5 mm outside the skin; one fitted capsule per bone contains
+99.6% of those points (capsules are far fatter than the body), so cloth would
+hang centimetres off it. Printed by `tests/sim/test_collider.py`.
 """
 
 from __future__ import annotations

@@ -21,10 +21,10 @@ class QualityGate(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    max_penetration_p99: float = Field(0.005, ge=0, description="99th percentile penetration into the body, m")
-    max_penetration: float = Field(0.03, ge=0, description="largest penetration into the body, m")
-    max_mean_strain: float = Field(0.05, ge=0, description="mean |l / l_rest - 1| over edges and frames")
-    max_strain_p99: float = Field(0.25, ge=0, description="99th percentile edge strain")
+    max_penetration_p99: float = Field(default=0.005, ge=0, description="99th percentile penetration into the body, m")
+    max_penetration: float = Field(default=0.03, ge=0, description="largest penetration into the body, m")
+    max_mean_strain: float = Field(default=0.05, ge=0, description="mean |l / l_rest - 1| over edges and frames")
+    max_strain_p99: float = Field(default=0.25, ge=0, description="99th percentile edge strain")
 
     def failures(self, stats: dict) -> list[str]:
         """Reasons the sequence fails (empty when it passes)."""

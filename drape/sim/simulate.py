@@ -8,7 +8,7 @@ transform (positions interpolated linearly, rotations by normalised quaternion
 lerp between frames). The bone bodies are kinematic: heavy free bodies whose
 position *and velocity* are written every substep, so contacts know how fast
 the leg moves. (Mocap bodies teleport with no velocity: a walking leg then
-passed through the cloth, 7 cm p99 penetration, against 0 mm this way.)
+passed through the cloth, centimetres deep, in development.)
 
 Sequence: a settle phase blends the pose (and translation) from the rest pose
 to the first motion frame over `settle_blend` frames and holds it for

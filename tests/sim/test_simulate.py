@@ -1,6 +1,6 @@
 """MuJoCo cloth on a tiny skirt, a dozen frames: shapes, pins, quality, and parameter effects."""
 
-from functools import lru_cache
+from functools import cache, lru_cache
 
 import numpy as np
 import pytest
@@ -23,7 +23,7 @@ def _skirt():
     return generate_outfit("skirt", vertices=300, seed=3, length=0.6)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _run(**changes):
     o = _skirt()
     params = SimParams(**{**SimParams().model_dump(), **changes})
