@@ -37,7 +37,7 @@ SIM_DIR ?= data/sim/skirt
 sim-dataset: $(VENV)/.dev-installed
 	mkdir -p $(SIM_DIR)
 	$(BIN)/drape outfits generate --type skirt --vertices 2000 --seed 3 --length 0.6 --out $(SIM_DIR)/skirt.obj
-	$(BIN)/drape sim dataset --garment $(SIM_DIR)/skirt.obj --params 8 --motions walk,dance_a,run \
+	$(BIN)/drape sim dataset --garment $(SIM_DIR)/skirt.obj --params 8 --motions walk,dance_a,dance_b \
 		--frames 90 --out $(SIM_DIR)
 
 clean:

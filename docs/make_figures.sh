@@ -13,3 +13,8 @@ for body in neutral female male; do
 done
 $DRAPE render --body neutral --frames 0 --azimuth 0 --out docs/render_neutral_rest.png
 rm -rf "$tmp"
+
+# a simulated sequence of the small dataset (builds it first if needed: make sim-dataset, ~13 min)
+make sim-dataset
+$DRAPE render --sim data/sim/skirt/items/skirt__p02__walk.npz --frames 0,15,30,45,60,75,89 \
+  --out docs/sim_skirt_walk.png
