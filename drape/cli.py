@@ -79,6 +79,15 @@ def _outfits_generate(args: argparse.Namespace) -> None:
     print(f"{args.out}: {len(outfit.vertices)} vertices, {len(outfit.faces)} faces, garments {outfit.garments}")
 
 
+def _frames_arg(text: str, num_frames: int) -> list[int]:
+    """A comma list of frame indices, each checked against 0..num_frames - 1."""
+    frames = [int(f) for f in text.split(",")]
+    bad = [f for f in frames if not 0 <= f < num_frames]
+    if bad:
+        raise SystemExit(f"frames {bad} outside 0..{num_frames - 1}")
+    return frames
+
+
 def _render(args: argparse.Namespace) -> None:
     from drape.assets.body import load_body
     from drape.assets.motion import load_clip, load_motion_npz
@@ -98,13 +107,11 @@ def _render(args: argparse.Namespace) -> None:
         motion = load_clip(args.clip)
     else:
         motion = None
-    frames = [int(f) for f in (args.frames or "0,10,20,30").split(",")] if motion is not None else [0]
     if motion is not None:
-        bad = [f for f in frames if not 0 <= f < motion.num_frames]
-        if bad:
-            raise SystemExit(f"frames {bad} outside the clip's 0..{motion.num_frames - 1}")
+        frames = _frames_arg(args.frames or "0,10,20,30", motion.num_frames)
         poses, trans = motion.poses[frames], motion.trans[frames]
     else:
+        frames = [0]
         poses, trans = np.zeros((1, 24, 3)), np.zeros((1, 3))
     transforms, _ = forward_kinematics(poses, body.joints, body.parents, trans)
     layers = [Layer(linear_blend_skinning(body.vertices, body.weights, transforms), body.faces, (0.86, 0.74, 0.62))]
@@ -133,10 +140,7 @@ def _render_sim(args: argparse.Namespace) -> None:
         seq = {k: z[k] for k in z.files}
     body = load_body(str(seq["body"]))
     T = len(seq["vertices"])
-    frames = [int(f) for f in args.frames.split(",")] if args.frames else list(np.linspace(0, T - 1, 6).astype(int))
-    bad = [f for f in frames if not 0 <= f < T]
-    if bad:
-        raise SystemExit(f"frames {bad} outside the sequence's 0..{T - 1}")
+    frames = _frames_arg(args.frames, T) if args.frames else [int(f) for f in np.linspace(0, T - 1, 6)]
     posed = body.pose(seq["poses"][frames], seq["trans"][frames])
     layers = [Layer(posed, body.faces, (0.86, 0.74, 0.62)),
               Layer(seq["vertices"][frames], seq["faces"], (0.25, 0.45, 0.8))]
@@ -190,6 +194,7 @@ def _sim_run(args: argparse.Namespace) -> None:
 
     from drape.assets.body import load_body
     from drape.geometry.mesh_io import load_mesh
+    from drape.sim.dataset import save_sequence
     from drape.sim.params import SimParams
     from drape.sim.quality import QualityGate
     from drape.sim.simulate import simulate
@@ -206,11 +211,9 @@ def _sim_run(args: argparse.Namespace) -> None:
 
         r = simulate(verts, faces, load_body(args.body), motion, params, frames=args.frames, progress=progress)
     failures = QualityGate().failures(r.stats)
-    np.savez_compressed(
-        args.out, vertices=r.vertices, faces=faces.astype(np.int32), poses=r.poses, trans=r.trans,
-        fps=np.float32(motion.fps), params=np.array(params.to_json()), stats=np.array(json.dumps(r.stats)),
-        garment=np.array(Path(args.garment).stem), body=np.array(args.body), motion=np.array(motion.name),
-    )
+    save_sequence(args.out, vertices=r.vertices, faces=faces, poses=r.poses, trans=r.trans, fps=motion.fps,
+                  params=params, stats=r.stats, garment=Path(args.garment).stem, body=args.body,
+                  motion=motion.name)
     print(json.dumps(r.stats, indent=1))
     if failures:
         print(f"{args.out}: FAILS the quality gate: {'; '.join(failures)}", file=sys.stderr)

@@ -74,23 +74,36 @@ def run_item(item: Item) -> dict:
     }
 
 
-def write_item(path: Path, item: Item, result: dict) -> None:
-    """Write one accepted item atomically (temporary file, then rename)."""
+def save_sequence(
+    path: str | Path, *, vertices: np.ndarray, faces: np.ndarray, poses: np.ndarray, trans: np.ndarray,
+    fps: float, params: SimParams, stats: dict, garment: str, body: str, motion: str,
+) -> Path:
+    """Write one simulated sequence (the item npz layout above) atomically: temporary file, then rename."""
+    path = Path(path)
     tmp = path.with_name(path.name + ".tmp.npz")
     np.savez_compressed(
         tmp,
-        vertices=result["vertices"].astype(np.float32),
-        faces=item.faces.astype(np.int32),
-        poses=result["poses"].astype(np.float32),
-        trans=result["trans"].astype(np.float32),
-        fps=np.float32(item.motion.fps),
-        params=np.array(item.params.to_json()),
-        stats=np.array(json.dumps(_stable_stats(result["stats"]), sort_keys=True)),
-        garment=np.array(item.garment),
-        body=np.array(item.body),
-        motion=np.array(item.motion.name),
+        vertices=np.asarray(vertices, dtype=np.float32),
+        faces=np.asarray(faces, dtype=np.int32),
+        poses=np.asarray(poses, dtype=np.float32),
+        trans=np.asarray(trans, dtype=np.float32),
+        fps=np.float32(fps),
+        params=np.array(params.to_json()),
+        stats=np.array(json.dumps(stats, sort_keys=True)),
+        garment=np.array(garment),
+        body=np.array(body),
+        motion=np.array(motion),
     )
     os.replace(tmp, path)
+    return path
+
+
+def write_item(path: Path, item: Item, result: dict) -> None:
+    """Write one accepted item (its stats without the wall-clock fields, so reruns write the same bytes)."""
+    save_sequence(path, vertices=result["vertices"], faces=item.faces, poses=result["poses"],
+                  trans=result["trans"], fps=item.motion.fps, params=item.params,
+                  stats=_stable_stats(result["stats"]), garment=item.garment, body=item.body,
+                  motion=item.motion.name)
 
 
 def _stable_stats(stats: dict) -> dict:

@@ -13,7 +13,6 @@ measured table is in docs/sim.md (raw rows: docs/sim_sweep.json).
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -72,10 +71,3 @@ def sample_params(n: int, seed: int = 0, base: SimParams | None = None) -> list[
             values[name] = math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo))) if log else lo + u * (hi - lo)
         out.append(SimParams(**values))
     return out
-
-
-def params_key(params: SimParams) -> str:
-    """A short stable id of a parameter set (for file names)."""
-    import hashlib
-
-    return hashlib.sha256(json.dumps(params.model_dump(), sort_keys=True).encode()).hexdigest()[:10]

@@ -3,7 +3,7 @@ import json
 import pytest
 from pydantic import ValidationError
 
-from drape.sim.params import SAMPLE_RANGES, SimParams, params_key, sample_params
+from drape.sim.params import SAMPLE_RANGES, SimParams, sample_params
 
 
 def test_params_are_validated():
@@ -29,4 +29,4 @@ def test_sampler_is_seeded_and_in_range():
     for p in a:
         for name, (lo, hi, _) in SAMPLE_RANGES.items():
             assert lo <= getattr(p, name) <= hi
-    assert len({params_key(p) for p in a}) == 16
+    assert len({p.to_json() for p in a}) == 16

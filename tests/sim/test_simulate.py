@@ -110,3 +110,26 @@ def test_too_many_frames_is_an_error():
     clip = load_clip("walk")
     with pytest.raises(ValueError, match="frames"):
         simulate(o.vertices, o.faces, load_body("neutral"), clip, frames=clip.num_frames + 1)
+
+
+def test_sim_run_command_writes_the_contract_and_renders(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    def drape(*args):
+        r = subprocess.run([sys.executable, "-m", "drape.cli", *args], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+
+    mesh, seq, png = tmp_path / "skirt.obj", tmp_path / "seq.npz", tmp_path / "seq.png"
+    drape("outfits", "generate", "--type", "skirt", "--vertices", "300", "--seed", "3", "--length", "0.6",
+          "--out", str(mesh))
+    drape("sim", "run", "--garment", str(mesh), "--body", "neutral", "--clip", "walk", "--frames", "4",
+          "--out", str(seq))
+    with np.load(seq, allow_pickle=False) as z:
+        assert z["vertices"].shape[0] == 4 and z["vertices"].dtype == np.float32
+        assert z["poses"].shape == (4, 24, 3) and z["trans"].shape == (4, 3)
+        assert SimParams.model_validate_json(str(z["params"])) == SimParams()
+        assert "penetration_p99_m" in json.loads(str(z["stats"]))
+    drape("render", "--sim", str(seq), "--out", str(png))
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
