@@ -175,7 +175,7 @@ def _export_deepsd(args: argparse.Namespace) -> None:
 def _eval_deepsd(args: argparse.Namespace) -> None:
     from drape.training.deepsd_eval import evaluate, format_table, write_results
 
-    results = evaluate(args.config, args.model)
+    results = evaluate(args.config, args.model, ground_truth=args.ground_truth or None)
     print(format_table(results))
     if args.write:
         for path in write_results(results, args.model):
@@ -313,6 +313,8 @@ def build_parser() -> argparse.ArgumentParser:
     evd.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     evd.add_argument("--model", default=str(models_dir))
     evd.add_argument("--write", action="store_true", help="store the table in the manifest and docs/")
+    evd.add_argument("--ground-truth", default="data/sim/skirt",
+                     help="a `drape sim dataset` directory; mean vertex error against its sequences when it exists")
     evd.set_defaults(func=_eval_deepsd)
 
     sim = sub.add_parser("sim", help="ground-truth cloth simulation (MuJoCo)").add_subparsers(dest="what", required=True)

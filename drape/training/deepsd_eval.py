@@ -7,7 +7,10 @@ Methods, per outfit:
 Metrics over the evaluated frames: collision share (garment vertices inside the
 body, signed distance < 0; nearest-vertex and closest-triangle variants), mean
 edge-length error vs the template (mm), bending (1 - cos of neighbouring face normals).
-Runs on numpy + ONNX Runtime only.
+When a simulated dataset exists (`make sim-dataset` writes `data/sim/skirt`), each method
+also poses the dataset's garment along its sequences on held-out clips, and the mean vertex
+error (mm) against the simulated vertices is reported per clip. Runs on numpy + ONNX Runtime
+(and trimesh to read the dataset's garment).
 """
 
 from __future__ import annotations
@@ -32,9 +35,11 @@ from drape.training.deepsd_data import eval_specs, load_outfit
 
 METHODS = ("baseline", "no_chi", "model")
 LOOSE = ("skirt", "dress")
+GROUND_TRUTH = Path("data") / "sim" / "skirt"
 
 
-def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=print) -> dict:
+def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=print,
+             ground_truth: str | Path | None = GROUND_TRUTH) -> dict:
     """Evaluate and return {"rows": [...], "settings": {...}}; each row: outfit, method, metrics."""
     cfg = json.loads(Path(config_path).read_text())
     model = DeePSDModel(model_dir)
@@ -78,13 +83,59 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
                 "bending": float(np.mean(acc[m]["bend"])),
             })
         log(f"{spec.types:18s} done")
+    gt = ground_truth_error(ground_truth, cfg["heldout_clips"], model) if ground_truth else None
     return {
+        **({"ground_truth": gt} if gt else {}),
         "settings": {"heldout_clips": cfg["heldout_clips"], "frames_per_clip": cfg["eval_frames_per_clip"],
                      "outfits": [s.key for s in eval_specs(cfg)]},
         "rows": rows,
         "mean": {m: {k: float(np.mean([r[k] for r in rows if r["method"] == m]))
                      for k in ("collision_nearest_vertex_pct", "collision_triangle_pct", "edge_error_mm", "bending")}
                  for m in METHODS},
+    }
+
+
+def ground_truth_error(sim_dir: str | Path, clips: list[str], model: DeePSDModel) -> dict | None:
+    """Mean vertex error (mm) of each method against simulated sequences on the given clips.
+
+    sim_dir holds a `drape sim dataset` output: manifest.json, items/*.npz with vertices (T, N, 3)
+    float32 m, poses (T, 24, 3), trans (T, 3), and the garment mesh `<garment>.obj` beside them.
+    Returns None when there is no dataset or no accepted item on these clips.
+    """
+    from drape.geometry.mesh_io import load_mesh
+
+    sim_dir = Path(sim_dir)
+    manifest_path = sim_dir / "manifest.json"
+    if not manifest_path.exists():
+        return None
+    manifest = json.loads(manifest_path.read_text())
+    body = load_body(manifest["body"])
+    items = [it for it in manifest["items"] if it["motion"] in clips]
+    if not items:
+        return None
+    errors: dict[str, dict[str, list[float]]] = {}
+    for garment in sorted({it["garment"] for it in items}):
+        verts, faces = load_mesh(sim_dir / f"{garment}.obj")
+        rig = model.rig(verts, faces)
+        rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces))}
+        base_w = nearest_vertex_weights(verts, body.vertices, body.weights)
+        for it in (i for i in items if i["garment"] == garment):
+            with np.load(sim_dir / it["file"], allow_pickle=False) as z:
+                truth, poses, trans = z["vertices"], z["poses"].astype(np.float64), z["trans"].astype(np.float64)
+                if not np.array_equal(z["faces"], faces):
+                    raise ValueError(f"{it['file']}: faces differ from {garment}.obj")
+            keys = model.pose_keys(poses)
+            posed = {
+                "baseline": pose_mesh(verts, base_w, body.joints, poses, trans),
+                **{m: pose_outfit(verts, r, keys, body.joints, poses, trans) for m, r in rigs.items()},
+            }
+            for m in METHODS:
+                err = float(np.linalg.norm(posed[m] - truth, axis=-1).mean() * 1e3)
+                errors.setdefault(it["motion"], {k: [] for k in METHODS})[m].append(err)
+    return {
+        "dataset": str(sim_dir), "garments": sorted({it["garment"] for it in items}), "body": manifest["body"],
+        "rows": [{"clip": c, "sequences": len(e["model"]), **{m: float(np.mean(e[m])) for m in METHODS}}
+                 for c, e in sorted(errors.items())],
     }
 
 
@@ -99,6 +150,13 @@ def format_table(results: dict) -> str:
     for m, v in results["mean"].items():
         lines.append(f"| **mean** | {m} | {v['collision_nearest_vertex_pct']:.2f} | {v['collision_triangle_pct']:.2f} "
                      f"| {v['edge_error_mm']:.2f} | {v['bending']:.4f} |")
+    gt = results.get("ground_truth")
+    if gt:
+        lines.append(f"\nMean vertex error (mm) against simulated sequences ({', '.join(gt['garments'])} on "
+                     f"{gt['body']}, `{gt['dataset']}`, every accepted parameter set):\n")
+        lines.append("| clip | sequences | " + " | ".join(METHODS) + " |\n|---|---|" + "---|" * len(METHODS))
+        for r in gt["rows"]:
+            lines.append(f"| {r['clip']} | {r['sequences']} | " + " | ".join(f"{r[m]:.1f}" for m in METHODS) + " |")
     s = results["settings"]
     lines.append(f"\nHeld-out clips {', '.join(s['heldout_clips'])}, {s['frames_per_clip']} frames each; "
                  f"held-out outfits {', '.join(s['outfits'])}.")

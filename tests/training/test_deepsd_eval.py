@@ -4,7 +4,13 @@ import json
 
 import numpy as np
 
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.assets.outfits import generate_outfit
 from drape.export.deepsd import export_deepsd_from_checkpoints
+from drape.geometry.lbs import pose_mesh
+from drape.geometry.mesh_io import load_mesh, save_mesh
+from drape.geometry.queries import nearest_vertex_weights
 from drape.training import deepsd_data
 from drape.training.deepsd import load_config
 from drape.training.deepsd_eval import METHODS, evaluate, format_table, write_results
@@ -19,7 +25,8 @@ def test_eval_rows_and_written_table(tmp_path, monkeypatch):
     config_path.write_text(json.dumps(cfg))
     model = tmp_path / "model"
     export_deepsd_from_checkpoints("unused", model, init=True)
-    results = evaluate(config_path, model, log=lambda *_: None)
+    results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None)
+    assert "ground_truth" not in results
     assert len(results["rows"]) == 2 * len(METHODS)
     for r in results["rows"]:
         assert 0.0 <= r["collision_triangle_pct"] <= 100.0 and r["edge_error_mm"] >= 0.0
@@ -31,3 +38,40 @@ def test_eval_rows_and_written_table(tmp_path, monkeypatch):
     manifest, doc = write_results(results, model, tmp_path / "eval.md")
     assert json.loads(manifest.read_text())["evaluation"]["rows"] == results["rows"]
     assert doc.read_text().startswith("# DeePSD evaluation")
+
+
+def fake_sim_dataset(root):
+    """A `drape sim dataset`-shaped directory whose 'simulated' kick sequence is the baseline's posing."""
+    o = generate_outfit("skirt", vertices=600, seed=5)
+    save_mesh(root / "skirt.obj", o.vertices, o.faces)
+    verts, faces = load_mesh(root / "skirt.obj")
+    body = load_body("neutral")
+    items = []
+    for clip in ("kick", "dance_a"):  # dance_a is not a held-out clip: ignored
+        m = load_clip(clip)
+        poses, trans = m.poses[:4], m.trans[:4]
+        truth = pose_mesh(verts, nearest_vertex_weights(verts, body.vertices, body.weights), body.joints,
+                          poses.astype(np.float64), trans.astype(np.float64)).astype(np.float32)
+        (root / "items").mkdir(exist_ok=True)
+        np.savez(root / "items" / f"skirt__{clip}.npz", vertices=truth, faces=faces, poses=poses, trans=trans)
+        items.append({"file": f"items/skirt__{clip}.npz", "garment": "skirt", "motion": clip})
+    (root / "manifest.json").write_text(json.dumps({"body": "neutral", "items": items}))
+
+
+def test_ground_truth_error_against_simulated_sequences(tmp_path, monkeypatch):
+    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
+    cfg = load_config()
+    cfg.update(eval_outfits=["skirt"], eval_vertices=400, heldout_clips=["kick"], eval_frames_per_clip=1)
+    config_path = tmp_path / "cfg.json"
+    config_path.write_text(json.dumps(cfg))
+    model = tmp_path / "model"
+    export_deepsd_from_checkpoints("unused", model, init=True)
+    fake_sim_dataset(tmp_path / "sim")
+    gt = evaluate(config_path, model, log=lambda *_: None, ground_truth=tmp_path / "sim")["ground_truth"]
+    assert [r["clip"] for r in gt["rows"]] == ["kick"] and gt["rows"][0]["sequences"] == 1
+    row = gt["rows"][0]
+    assert row["baseline"] < 1e-2  # the 'simulation' is the baseline itself
+    assert row["model"] > 1.0  # an untrained model's weights and blend shapes are not the baseline's
+    assert "| kick | 1 |" in format_table({"rows": [], "mean": {}, "ground_truth": gt,
+                                           "settings": {"heldout_clips": ["kick"], "frames_per_clip": 1,
+                                                        "outfits": []}})
