@@ -69,9 +69,15 @@ def step_loss(phase: str, outfit: TrainOutfit, poses: torch.Tensor, net: OutfitN
     # cloth hangs on the body: a vertex may not drift farther from it than at rest (+ margin);
     # without this, a garment that stops following the body has no stretch and no collision
     l_follow = torch.relu(sd - outfit.rest_distance - lw["follow_margin"]).mean()
-    l_prior = ((weights - outfit.prior_weights) ** 2).sum(-1).mean()
+    l_prior_v = ((weights - outfit.prior_weights) ** 2).sum(-1)  # (N,)
+    l_prior = l_prior_v.mean()
+    # optional: cloth that lies on the skin at rest keeps the skin's weights more strongly
+    # (weight * exp(-rest distance / scale)); loose cloth is left to the physics
+    near = lw.get("prior_weights_near")
+    l_near = ((l_prior_v * torch.exp(-outfit.rest_distance.clamp_min(0) / near["scale"])).mean()
+              * near["weight"]) if near else torch.zeros(())
     loss = 1e3 * (lw["edge"] * l_edge + lw["bend"] * l_bend + lw["collision"] * l_coll + lw["blend_l2"] * l_d
-                  + lw["follow"] * l_follow) + lw["prior_weights_physics"] * l_prior
+                  + lw["follow"] * l_follow) + lw["prior_weights_physics"] * l_prior + l_near
     stats = {"follow_mm": float(l_follow.detach()) * 1e3, "edge_mm": float(l_edge.detach()) * 1e3, "inside": float((sd < 0).float().mean()),
              "bend": float(l_bend.detach())}
     return loss, stats
