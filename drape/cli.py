@@ -294,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--out", required=True)
     o.set_defaults(func=_outfits_generate)
 
-    from drape.training import DEFAULT_DEEPSD_CONFIG
+    from drape.training import DEFAULT_DEEPSD_CONFIG, DEFAULT_GROUND_TRUTH
 
     models_dir = ASSETS / "models" / "deepsd"
     t = sub.add_parser("train", help="train a network").add_subparsers(dest="what", required=True)
@@ -313,7 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     evd.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     evd.add_argument("--model", default=str(models_dir))
     evd.add_argument("--write", action="store_true", help="store the table in the manifest and docs/")
-    evd.add_argument("--ground-truth", default="data/sim/skirt",
+    evd.add_argument("--ground-truth", default=str(DEFAULT_GROUND_TRUTH),
                      help="a `drape sim dataset` directory; mean vertex error against its sequences when it exists")
     evd.set_defaults(func=_eval_deepsd)
 

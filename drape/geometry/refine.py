@@ -11,8 +11,8 @@ displacement dies out within a ring or two of C, so each iteration solves only o
 `rings` rings (the rest is held: the "affected region" solve). mu = 0.5 and 2 rings were
 chosen by bench/refine.py: against mu = 0.02 and 3 rings they leave fewer vertices inside,
 run faster and stretch edges less (a wide smooth field drags outside cloth along with
-targets on opposite sides of a limb). Iterate until
-no vertex is inside (a few iterations). Frames that do not converge take the progressive
+targets on opposite sides of a limb). Iterate until no vertex is inside (a few
+iterations). Frames that do not converge take the progressive
 pass: inside vertices are visited in order of graph (geodesic) distance from vertices
 known to be outside, and each is aimed at the body point closest to its already-placed
 neighbours, so deep vertices cannot be pushed out through the far side of a limb.

@@ -3,3 +3,5 @@
 from pathlib import Path
 
 DEFAULT_DEEPSD_CONFIG = Path(__file__).parent / "configs" / "deepsd.json"
+# the simulated dataset `make sim-dataset` writes; `drape eval deepsd` compares against it when present
+DEFAULT_GROUND_TRUTH = Path("data") / "sim" / "skirt"

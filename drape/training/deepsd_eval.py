@@ -31,15 +31,31 @@ from drape.geometry.queries import (
     signed_distance_nearest_vertex,
 )
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
+from drape.training import DEFAULT_GROUND_TRUTH
 from drape.training.deepsd_data import eval_specs, load_outfit
 
 METHODS = ("baseline", "no_chi", "model")
 LOOSE = ("skirt", "dress")
-GROUND_TRUTH = Path("data") / "sim" / "skirt"
+
+
+def method_poser(model: DeePSDModel, verts: np.ndarray, faces: np.ndarray, body):  # noqa: ANN001, ANN201
+    """One outfit rigged by every method; returns pose(poses (T, 24, 3), trans (T, 3)) -> {method: (T, N, 3)}."""
+    rig = model.rig(verts, faces)
+    rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces))}
+    base_w = nearest_vertex_weights(verts, body.vertices, body.weights)
+
+    def pose(poses: np.ndarray, trans: np.ndarray) -> dict[str, np.ndarray]:
+        keys = model.pose_keys(poses)
+        return {
+            "baseline": pose_mesh(verts, base_w, body.joints, poses, trans),
+            **{m: pose_outfit(verts, r, keys, body.joints, poses, trans) for m, r in rigs.items()},
+        }
+
+    return pose
 
 
 def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=print,
-             ground_truth: str | Path | None = GROUND_TRUTH) -> dict:
+             ground_truth: str | Path | None = DEFAULT_GROUND_TRUTH) -> dict:
     """Evaluate and return {"rows": [...], "settings": {...}}; each row: outfit, method, metrics."""
     cfg = json.loads(Path(config_path).read_text())
     model = DeePSDModel(model_dir)
@@ -47,20 +63,14 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
     for spec in eval_specs(cfg):
         verts, faces = load_outfit(spec)
         body = load_body(spec.body)
-        rig = model.rig(verts, faces)
-        rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces))}
-        base_w = nearest_vertex_weights(verts, body.vertices, body.weights)
+        pose = method_poser(model, verts, faces, body)
         acc: dict[str, dict[str, list[float]]] = {m: {"inside_nv": [], "inside_tri": [], "edge": [], "bend": []}
                                                   for m in METHODS}
         for clip in cfg["heldout_clips"]:
             motion = load_clip(clip)
             frames = np.linspace(0, motion.num_frames - 1, cfg["eval_frames_per_clip"]).round().astype(int)
             poses, trans = motion.poses[frames].astype(np.float64), motion.trans[frames].astype(np.float64)
-            keys = model.pose_keys(poses)
-            posed = {
-                "baseline": pose_mesh(verts, base_w, body.joints, poses, trans),
-                **{m: pose_outfit(verts, r, keys, body.joints, poses, trans) for m, r in rigs.items()},
-            }
+            posed = pose(poses, trans)
             body_frames = body.pose(poses, trans)
             for t in range(len(frames)):
                 bt = body_frames[t].astype(np.float64)
@@ -116,19 +126,13 @@ def ground_truth_error(sim_dir: str | Path, clips: list[str], model: DeePSDModel
     errors: dict[str, dict[str, list[float]]] = {}
     for garment in sorted({it["garment"] for it in items}):
         verts, faces = load_mesh(sim_dir / f"{garment}.obj")
-        rig = model.rig(verts, faces)
-        rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces))}
-        base_w = nearest_vertex_weights(verts, body.vertices, body.weights)
+        pose = method_poser(model, verts, faces, body)
         for it in (i for i in items if i["garment"] == garment):
             with np.load(sim_dir / it["file"], allow_pickle=False) as z:
                 truth, poses, trans = z["vertices"], z["poses"].astype(np.float64), z["trans"].astype(np.float64)
                 if not np.array_equal(z["faces"], faces):
                     raise ValueError(f"{it['file']}: faces differ from {garment}.obj")
-            keys = model.pose_keys(poses)
-            posed = {
-                "baseline": pose_mesh(verts, base_w, body.joints, poses, trans),
-                **{m: pose_outfit(verts, r, keys, body.joints, poses, trans) for m, r in rigs.items()},
-            }
+            posed = pose(poses, trans)
             for m in METHODS:
                 err = float(np.linalg.norm(posed[m] - truth, axis=-1).mean() * 1e3)
                 errors.setdefault(it["motion"], {k: [] for k in METHODS})[m].append(err)
