@@ -12,10 +12,17 @@ displacement dies out within a ring or two of C, so each iteration solves only o
 chosen by bench/refine.py: against mu = 0.02 and 3 rings they leave fewer vertices inside,
 run faster and stretch edges less (a wide smooth field drags outside cloth along with
 targets on opposite sides of a limb). Iterate until no vertex is inside (a few
-iterations). Frames that do not converge take the progressive
-pass: inside vertices are visited in order of graph (geodesic) distance from vertices
-known to be outside, and each is aimed at the body point closest to its already-placed
-neighbours, so deep vertices cannot be pushed out through the far side of a limb.
+iterations); a vertex that was outside in the input and that the smooth solve dragged inside
+is aimed back at its input position, not at a closest point that may lie across a limb.
+
+Progressive pass: inside vertices are visited in order of graph (geodesic) distance from
+vertices known to be outside; each is placed at its placed neighbours' mean plus its own
+offset from them and, if that is inside, at the closest body point to it, so deep vertices
+come out on their neighbours' side, not through the far side of a limb. It is used (a) at
+the start, per connected inside patch, when the patch's closest-point targets would stretch
+an edge by more than `tear` and the progressive targets stretch it less (a limb through the
+cloth, whose closest points fall on both sides of it), and (b) for frames the fast path
+does not converge on.
 
 Shapes: garment (T, N, 3) m; faces (F, 3); body (T, M, 3) m; body_faces (G, 3).
 """
@@ -26,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
@@ -98,13 +106,32 @@ class Refiner:
     """Refinement for one garment topology; the Laplacian and its square are built once."""
 
     def __init__(self, faces: np.ndarray, num_vertices: int, eps: float = 0.003, weight: float = 1e3,
-                 mu: float = 0.5, rings: int = 2, max_iterations: int = 3):
+                 mu: float = 0.5, rings: int = 2, max_iterations: int = 3, return_dragged: bool = True,
+                 tear: float | None = 0.02):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
         self.eps, self.weight, self.mu, self.rings, self.max_iterations = eps, weight, mu, rings, max_iterations
+        self.return_dragged, self.tear = return_dragged, tear
         lap = uniform_laplacian(self.faces, num_vertices)
         self.system = (lap.T @ lap + mu * sp.identity(num_vertices)).tocsr()  # L^T L + mu I, fixed
         self.adjacency = adjacency_matrix(self.faces, num_vertices).tocsr()
+        upper = sp.triu(self.adjacency, k=1).tocoo()
+        self.edges = np.stack([upper.row, upper.col], axis=1)  # (E, 2)
+
+    def _patch_stretch(self, v: np.ndarray, inside: np.ndarray, targets: np.ndarray,
+                       patch: np.ndarray, num_patches: int) -> np.ndarray:
+        """Largest edge elongation (m) per inside patch if `inside` moved straight to `targets`.
+
+        patch: (N,) index of the connected inside patch of each vertex (-1 outside) -> (num_patches,).
+        """
+        moved = v.copy()
+        moved[inside] = targets
+        a, b = self.edges[:, 0], self.edges[:, 1]
+        grow = np.linalg.norm(moved[a] - moved[b], axis=1) - np.linalg.norm(v[a] - v[b], axis=1)
+        owner = np.maximum(patch[a], patch[b])  # an edge touches at most one patch
+        worst = np.full(num_patches, -np.inf)
+        np.maximum.at(worst, owner[owner >= 0], grow[owner >= 0])
+        return worst
 
     def _region(self, seeds: np.ndarray) -> np.ndarray:
         mask = np.zeros(self.n, dtype=bool)
@@ -139,10 +166,12 @@ class Refiner:
                 anchors = placed[front]
             else:
                 w = adj[front].multiply(done[None, :].astype(np.float32)).tocsr()
-                anchors = (w @ placed) / np.maximum(w.sum(axis=1), 1.0)
-            # aim at the body point closest to the already-placed neighbours: the right side of the body
-            _, cp, n = surface.query(body, normals, np.asarray(anchors), tree)
-            placed[front] = cp + self.eps * n
+                wsum = np.maximum(np.asarray(w.sum(axis=1)), 1.0)
+                # the placed neighbours' mean plus the vertex's own offset from them: local shape kept
+                anchors = (w @ placed) / wsum + (v[front] - (w @ v) / wsum)
+            # aim at the body point closest to that: the placed neighbours' side of the body
+            sd_a, cp, n = surface.query(body, normals, np.asarray(anchors), tree)
+            placed[front] = np.where((sd_a >= self.eps)[:, None], anchors, cp + self.eps * n)
             done[front] = True
             visited.append(front)
         inside = np.concatenate(visited) if visited else np.zeros(0, dtype=np.int64)
@@ -164,10 +193,37 @@ class Refiner:
             return out
 
         before = int(np.count_nonzero(sd < 0))
+        was_outside = sd >= 0
+
+        def aim(inside: np.ndarray) -> np.ndarray:
+            # a vertex the smooth solve dragged in goes back where it was outside, not through the limb
+            back = was_outside[inside][:, None] if self.return_dragged else False
+            return np.where(back, v0[inside], cp[inside] + self.eps * n[inside])
+
         it, progressive = 0, False
+        inside = np.nonzero(sd < 0)[0]
+        if self.tear is not None and len(inside):
+            # closest points on opposite sides of a limb tear the cloth; placing front by front from
+            # the outside may tear less: per connected inside patch, take the targets that stretch less
+            direct = aim(inside)
+            num, label = connected_components(self.adjacency[inside][:, inside], directed=False)
+            patch = np.full(self.n, -1)
+            patch[inside] = label
+            worst = self._patch_stretch(v, inside, direct, patch, num)
+            if np.any(worst > self.tear):
+                ordered, placed = self._progressive_targets(v, sd, surface, body, normals, tree)
+                better = self._patch_stretch(v, ordered, placed, patch, num) < worst
+                if better.any():
+                    progressive = True
+                    targets = v.copy()
+                    targets[inside] = direct
+                    use = better[patch[ordered]]
+                    targets[ordered[use]] = placed[use]
+                    v = step(v, inside, targets[inside])
+                    it += 1
         while it < self.max_iterations and np.any(sd < 0):
             inside = np.nonzero(sd < 0)[0]
-            v = step(v, inside, cp[inside] + self.eps * n[inside])
+            v = step(v, inside, aim(inside))
             it += 1
         if np.any(sd < 0):
             progressive = True
@@ -175,7 +231,7 @@ class Refiner:
             v = step(v, inside, targets)
             if np.any(sd < 0):  # one step to settle what the smooth solve left inside
                 inside = np.nonzero(sd < 0)[0]
-                v = step(v, inside, cp[inside] + self.eps * n[inside])
+                v = step(v, inside, aim(inside))
                 it += 1
         report.inside_before.append(before)
         report.inside_after.append(int(np.count_nonzero(sd < 0)))
@@ -186,13 +242,17 @@ class Refiner:
 
 
 def refine(garment: np.ndarray, faces: np.ndarray, body: np.ndarray, body_faces: np.ndarray,
-           eps: float = 0.003, max_iterations: int = 3) -> tuple[np.ndarray, RefineReport]:
-    """Refine a garment stream: (T, N, 3) garment, (T, M, 3) body -> ((T, N, 3) float32, report)."""
+           eps: float = 0.003, max_iterations: int = 3, tear: float | None = 0.02) -> tuple[np.ndarray, RefineReport]:
+    """Refine a garment stream: (T, N, 3) garment, (T, M, 3) body -> ((T, N, 3) float32, report).
+
+    eps: margin outside the body (m); tear: edge elongation (m) above which a patch's closest-point
+    targets are checked against front-by-front placement (None: closest points only).
+    """
     g = np.asarray(garment)
     b = np.asarray(body)
     if g.ndim == 2:
         g, b = g[None], (b[None] if b.ndim == 2 else b)
-    refiner = Refiner(faces, g.shape[1], eps=eps, max_iterations=max_iterations)
+    refiner = Refiner(faces, g.shape[1], eps=eps, max_iterations=max_iterations, tear=tear)
     surface = BodySurface(body_faces, b.shape[1])
     report = RefineReport()
     out = np.stack([refiner.refine_frame(g[t], b[t], surface, report) for t in range(len(g))])
