@@ -16,6 +16,9 @@ Three phases, each a number of steps of one outfit x `batch_frames` poses:
 
 Checkpoints go to `checkpoints/deepsd/` (git-ignored); a rerun resumes from the
 latest one. The run is seeded; the config is recorded in every checkpoint.
+A config with `"init_checkpoints": DIR` is a fine-tune: a fresh run starts from the
+networks of DIR's latest checkpoint (a finished run of another config) instead of
+random weights; phases with 0 steps are skipped.
 """
 
 from __future__ import annotations
@@ -108,11 +111,21 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) 
         done = dict(zip(PHASES, state["done"].tolist(), strict=True))
         elapsed = float(state["elapsed"])
         log(f"resuming from {latest.name}: {done}")
+    elif config.get("init_checkpoints"):
+        base = _latest(Path(config["init_checkpoints"]))
+        if base is None:
+            raise FileNotFoundError(f"init_checkpoints: no step_*.pt in {config['init_checkpoints']}")
+        init = torch.load(base, weights_only=True)
+        net.load_state_dict(init["outfit"])
+        pose.load_state_dict(init["pose"])
+        log(f"fine-tuning from {base} ({float(init['elapsed']):.0f} s of training)")
     specs = train_specs(config)
     prepare_outfits(specs)
     outfits = [TrainOutfit(s) for s in specs]
     pool = torch.as_tensor(pose_pool(config))
     summary: dict = {"phases": {}}
+    if config.get("init_checkpoints"):
+        summary["init_checkpoints"] = config["init_checkpoints"]
     for phase in PHASES:
         total = int(config["steps"][phase])
         if done[phase] >= total:

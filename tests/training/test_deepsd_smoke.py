@@ -30,3 +30,11 @@ def test_train_export_parity(tmp_path, monkeypatch):
     with torch.no_grad():
         tw, td, _ = DeployedOutfitNet(net)(*(torch.from_numpy(inputs[k]) for k in ("features", "nbr_idx", "nbr_w")))
     assert np.abs(w - tw.numpy()).max() <= 1e-4 and np.abs(d - td.numpy()).max() <= 1e-4
+
+    # a fine-tune config starts from that run's networks, not from random weights
+    tune = dict(cfg, init_checkpoints=str(tmp_path / "ckpt"), steps={"prior": 0, "physics": 0, "chi": 0})
+    tuned, tuned_pose, tuned_summary = train(tune, tmp_path / "tuned", log=lambda *_: None)
+    assert tuned_summary["init_checkpoints"] == str(tmp_path / "ckpt")
+    for a, b in ((net, tuned), (pose, tuned_pose)):
+        for (name, x), y in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
+            assert torch.equal(x, y), name
