@@ -153,10 +153,12 @@ class Refiner:
         return out, region
 
     def _progressive_targets(self, v: np.ndarray, sd: np.ndarray, surface: BodySurface, body: np.ndarray,
-                             normals: np.ndarray, tree: cKDTree) -> tuple[np.ndarray, np.ndarray]:
-        """Targets for inside vertices, placed front by front in order of graph distance from outside ones."""
+                             normals: np.ndarray, tree: cKDTree,
+                             only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Targets for inside vertices (those in the (N,) mask `only`, if given), placed front by
+        front in order of graph distance from outside ones -> (vertex indices, (K, 3) targets)."""
         placed = v.copy()
-        done = sd >= 0
+        done = (sd >= 0) if only is None else (sd >= 0) | ~only
         adj = self.adjacency
         visited = []
         while not done.all():
@@ -210,9 +212,12 @@ class Refiner:
             patch = np.full(self.n, -1)
             patch[inside] = label
             worst = self._patch_stretch(v, inside, direct, patch, num)
-            if np.any(worst > self.tear):
-                ordered, placed = self._progressive_targets(v, sd, surface, body, normals, tree)
-                better = self._patch_stretch(v, ordered, placed, patch, num) < worst
+            tearing = worst > self.tear
+            if tearing.any():
+                only = np.zeros(self.n, dtype=bool)
+                only[inside[tearing[label]]] = True
+                ordered, placed = self._progressive_targets(v, sd, surface, body, normals, tree, only)
+                better = (self._patch_stretch(v, ordered, placed, patch, num) < worst) & tearing
                 if better.any():
                     progressive = True
                     targets = v.copy()
