@@ -7,6 +7,7 @@ from drape.assets.body import load_body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
 from drape.geometry.lbs import pose_mesh
+from drape.geometry.mesh import unique_edges
 from drape.geometry.queries import MeshDistance, nearest_vertex_weights
 from drape.geometry.refine import refine
 
@@ -63,3 +64,33 @@ def test_heavy_penetration_ends_outside_on_the_near_side():
     # they end up in front of the torso, near where they started, not behind it
     assert np.all(refined[0][front, 2] > 0.0)
     assert np.abs(refined[0][front] - o.vertices[front]).max() < 0.05
+
+
+def test_cloth_ending_inside_a_limb_comes_out_on_its_own_side():
+    """A flat sheet whose hem ends just past the upper arm's axis: the closest points of the hem lie
+    on the far side of the arm, the rest on the near side, so closest-point targets tear the sheet
+    across the arm; front-by-front placement from the outside brings it out whole on the near side."""
+    shoulder, elbow = BODY.joints[16], BODY.joints[18]  # left upper arm, along +x at rest
+    xs = np.linspace(shoulder[0] + 0.07, elbow[0] - 0.07, 25)
+    zs = shoulder[2] + np.arange(-0.012, 0.10, 0.004)  # from 12 mm behind the axis to 10 cm in front
+    x, z = np.meshgrid(xs, zs, indexing="ij")
+    sheet = np.stack([x.ravel(), np.full(x.size, shoulder[1]), z.ravel()], 1)
+    grid = np.arange(x.size).reshape(x.shape)
+    quads = np.stack([grid[:-1, :-1], grid[1:, :-1], grid[1:, 1:], grid[:-1, 1:]], -1).reshape(-1, 4)
+    faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    edges = unique_edges(faces)
+
+    def largest_stretch(v):
+        length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
+        return (length - np.linalg.norm(sheet[edges[:, 0]] - sheet[edges[:, 1]], axis=1)).max()
+
+    body = MeshDistance(BODY.vertices, BODY.faces)
+    assert np.mean(body.signed_distance(sheet) < 0) > 0.3
+    closest_only, _ = refine(sheet[None], faces, BODY.vertices[None], BODY.faces, tear=None)
+    assert largest_stretch(closest_only[0]) > 0.05  # the tear this guards against
+    refined, report = refine(sheet[None], faces, BODY.vertices[None], BODY.faces)
+    assert report.progressive == [True]
+    assert np.mean(body.signed_distance(refined[0]) < 0) <= 0.001
+    assert largest_stretch(refined[0]) < 0.005
+    hem = np.isclose(sheet[:, 2], zs[0])
+    assert np.all(refined[0][hem, 2] > shoulder[2])  # out in front of the arm, where the sheet is
