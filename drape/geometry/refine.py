@@ -37,7 +37,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
-from drape.geometry.mesh import adjacency_matrix, uniform_laplacian, vertex_normals
+from drape.geometry.mesh import adjacency_matrix, face_normals, uniform_laplacian
 from drape.geometry.queries import closest_point_on_triangles
 
 
@@ -58,6 +58,12 @@ class BodySurface:
         slot = np.arange(inc.nnz) - np.repeat(inc.indptr[:-1], deg)
         table[np.repeat(np.arange(num_vertices), deg), slot] = inc.indices
         self.vertex_faces = table  # (M, fmax)
+        self.incidence = inc  # (M, G) vertex-face incidence
+
+    def normals(self, body: np.ndarray) -> np.ndarray:
+        """Area-weighted unit vertex normals of one posed body (M, 3), with the incidence built once."""
+        vn = self.incidence @ face_normals(body, self.faces, normalize=False)
+        return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-20)
 
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
               tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -68,7 +74,8 @@ class BodySurface:
         the exact closest point on the faces around their k nearest body vertices.
         """
         tree = tree or cKDTree(body)
-        dist, near = tree.query(points, k=self.k, workers=-1)
+        # both cores pay off for large queries only; threads cost more than they save on a small front
+        dist, near = tree.query(points, k=self.k, workers=-1 if len(points) >= 2048 else 1)
         cp, n = body[near[:, 0]].copy(), normals[near[:, 0]].copy()
         sd = dist[:, 0].copy()
         close = (dist[:, 0] < self.far) | (np.einsum("pc,pc->p", points - cp, n) < 0)
@@ -126,11 +133,12 @@ class Refiner:
         """
         moved = v.copy()
         moved[inside] = targets
-        a, b = self.edges[:, 0], self.edges[:, 1]
+        owner = np.maximum(patch[self.edges[:, 0]], patch[self.edges[:, 1]])  # an edge touches <= 1 patch
+        touched = owner >= 0
+        a, b = self.edges[touched, 0], self.edges[touched, 1]
         grow = np.linalg.norm(moved[a] - moved[b], axis=1) - np.linalg.norm(v[a] - v[b], axis=1)
-        owner = np.maximum(patch[a], patch[b])  # an edge touches at most one patch
         worst = np.full(num_patches, -np.inf)
-        np.maximum.at(worst, owner[owner >= 0], grow[owner >= 0])
+        np.maximum.at(worst, owner[touched], grow)
         return worst
 
     def _region(self, seeds: np.ndarray) -> np.ndarray:
@@ -184,7 +192,7 @@ class Refiner:
         """garment (N, 3), body (M, 3) -> refined garment (N, 3) float64; appends to `report`."""
         v0 = np.asarray(garment, dtype=np.float64)
         body = np.asarray(body, dtype=np.float64)
-        normals = vertex_normals(body, surface.faces)
+        normals = surface.normals(body)
         tree = cKDTree(body)
         v = v0
         sd, cp, n = surface.query(body, normals, v, tree)
@@ -268,7 +276,7 @@ def naive_push(garment: np.ndarray, body: np.ndarray, surface: BodySurface, eps:
     """The baseline: move each inside vertex to its closest body point + eps n, nothing else."""
     body = np.asarray(body, dtype=np.float64)
     v = np.asarray(garment, dtype=np.float64).copy()
-    sd, cp, n = surface.query(body, vertex_normals(body, surface.faces), v)
+    sd, cp, n = surface.query(body, surface.normals(body), v)
     inside = sd < 0
     v[inside] = cp[inside] + eps * n[inside]
     return v
