@@ -19,16 +19,25 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray, normalize: bool = True
     return n
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals: (..., N, 3), (F, 3) -> (..., N, 3)."""
+def vertex_face_incidence(faces: np.ndarray, num_vertices: int) -> sp.csr_matrix:
+    """(N, F) sparse matrix, 1 where vertex n is a corner of face f."""
+    f = np.asarray(faces)
+    rows = f.reshape(-1)
+    cols = np.repeat(np.arange(len(f)), 3)
+    return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_vertices, len(f)))
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray, incidence: sp.csr_matrix | None = None) -> np.ndarray:
+    """Area-weighted unit vertex normals: (..., N, 3), (F, 3) -> (..., N, 3).
+
+    incidence: `vertex_face_incidence(faces, N)`, when the caller keeps one for many frames.
+    """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     fn = face_normals(v, f, normalize=False)  # (..., F, 3)
     N = v.shape[-2]
     # (N, F) incidence matrix times face normals: a sparse GEMM instead of a scatter
-    rows = f.reshape(-1)
-    cols = np.repeat(np.arange(len(f)), 3)
-    inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(N, len(f)))
+    inc = vertex_face_incidence(f, N) if incidence is None else incidence
     if fn.ndim == 2:
         vn = inc @ fn
     else:

@@ -37,7 +37,13 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
-from drape.geometry.mesh import adjacency_matrix, face_normals, uniform_laplacian
+from drape.geometry.mesh import (
+    adjacency_matrix,
+    uniform_laplacian,
+    unique_edges,
+    vertex_face_incidence,
+    vertex_normals,
+)
 from drape.geometry.queries import closest_point_on_triangles
 
 
@@ -50,20 +56,18 @@ class BodySurface:
     def __init__(self, body_faces: np.ndarray, num_vertices: int, k: int = 2, far: float = 0.015):
         self.faces = np.asarray(body_faces, dtype=np.int64)
         self.k, self.far = k, far
-        inc = sp.csr_matrix((np.ones(self.faces.size), (self.faces.ravel(), np.repeat(np.arange(len(self.faces)), 3))),
-                            shape=(num_vertices, len(self.faces)))
+        inc = vertex_face_incidence(self.faces, num_vertices)
         deg = np.diff(inc.indptr)
         self.fmax = int(deg.max())
         table = np.repeat(inc.indices[inc.indptr[:-1]][:, None], self.fmax, axis=1)  # pad with a real face
         slot = np.arange(inc.nnz) - np.repeat(inc.indptr[:-1], deg)
         table[np.repeat(np.arange(num_vertices), deg), slot] = inc.indices
         self.vertex_faces = table  # (M, fmax)
-        self.incidence = inc  # (M, G) vertex-face incidence
+        self.incidence = inc  # (M, G) vertex-face incidence, kept for the per-frame normals
 
     def normals(self, body: np.ndarray) -> np.ndarray:
-        """Area-weighted unit vertex normals of one posed body (M, 3), with the incidence built once."""
-        vn = self.incidence @ face_normals(body, self.faces, normalize=False)
-        return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-20)
+        """Unit vertex normals of one posed body (M, 3) -> (M, 3)."""
+        return vertex_normals(body, self.faces, self.incidence)
 
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
               tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -113,17 +117,15 @@ class Refiner:
     """Refinement for one garment topology; the Laplacian and its square are built once."""
 
     def __init__(self, faces: np.ndarray, num_vertices: int, eps: float = 0.003, weight: float = 1e3,
-                 mu: float = 0.5, rings: int = 2, max_iterations: int = 3, return_dragged: bool = True,
-                 tear: float | None = 0.02):
+                 mu: float = 0.5, rings: int = 2, max_iterations: int = 3, tear: float | None = 0.02):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
         self.eps, self.weight, self.mu, self.rings, self.max_iterations = eps, weight, mu, rings, max_iterations
-        self.return_dragged, self.tear = return_dragged, tear
+        self.tear = tear
         lap = uniform_laplacian(self.faces, num_vertices)
         self.system = (lap.T @ lap + mu * sp.identity(num_vertices)).tocsr()  # L^T L + mu I, fixed
         self.adjacency = adjacency_matrix(self.faces, num_vertices).tocsr()
-        upper = sp.triu(self.adjacency, k=1).tocoo()
-        self.edges = np.stack([upper.row, upper.col], axis=1)  # (E, 2)
+        self.edges = unique_edges(self.faces)  # (E, 2)
 
     def _patch_stretch(self, v: np.ndarray, inside: np.ndarray, targets: np.ndarray,
                        patch: np.ndarray, num_patches: int) -> np.ndarray:
@@ -187,6 +189,35 @@ class Refiner:
         inside = np.concatenate(visited) if visited else np.zeros(0, dtype=np.int64)
         return inside, placed[inside]
 
+    def _untorn_targets(self, v: np.ndarray, inside: np.ndarray, direct: np.ndarray, sd: np.ndarray,
+                        surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                        tree: cKDTree) -> np.ndarray | None:
+        """Targets (K, 3) for `inside` with front-by-front placement where it tears less, or None.
+
+        Closest points (`direct`) on opposite sides of a limb tear the cloth; placing front by
+        front from the outside may tear less. Per connected inside patch whose direct targets
+        stretch an edge by more than `tear`, take the targets that stretch less. None when no
+        patch is better off (the caller keeps the direct targets).
+        """
+        num, label = connected_components(self.adjacency[inside][:, inside], directed=False)
+        patch = np.full(self.n, -1)
+        patch[inside] = label
+        worst = self._patch_stretch(v, inside, direct, patch, num)
+        tearing = worst > self.tear
+        if not tearing.any():
+            return None
+        only = np.zeros(self.n, dtype=bool)
+        only[inside[tearing[label]]] = True
+        ordered, placed = self._progressive_targets(v, sd, surface, body, normals, tree, only)
+        better = (self._patch_stretch(v, ordered, placed, patch, num) < worst) & tearing
+        if not better.any():
+            return None
+        targets = v.copy()
+        targets[inside] = direct
+        use = better[patch[ordered]]
+        targets[ordered[use]] = placed[use]
+        return targets[inside]
+
     def refine_frame(self, garment: np.ndarray, body: np.ndarray, surface: BodySurface,
                      report: RefineReport) -> np.ndarray:
         """garment (N, 3), body (M, 3) -> refined garment (N, 3) float64; appends to `report`."""
@@ -207,33 +238,16 @@ class Refiner:
 
         def aim(inside: np.ndarray) -> np.ndarray:
             # a vertex the smooth solve dragged in goes back where it was outside, not through the limb
-            back = was_outside[inside][:, None] if self.return_dragged else False
-            return np.where(back, v0[inside], cp[inside] + self.eps * n[inside])
+            return np.where(was_outside[inside][:, None], v0[inside], cp[inside] + self.eps * n[inside])
 
         it, progressive = 0, False
         inside = np.nonzero(sd < 0)[0]
         if self.tear is not None and len(inside):
-            # closest points on opposite sides of a limb tear the cloth; placing front by front from
-            # the outside may tear less: per connected inside patch, take the targets that stretch less
-            direct = aim(inside)
-            num, label = connected_components(self.adjacency[inside][:, inside], directed=False)
-            patch = np.full(self.n, -1)
-            patch[inside] = label
-            worst = self._patch_stretch(v, inside, direct, patch, num)
-            tearing = worst > self.tear
-            if tearing.any():
-                only = np.zeros(self.n, dtype=bool)
-                only[inside[tearing[label]]] = True
-                ordered, placed = self._progressive_targets(v, sd, surface, body, normals, tree, only)
-                better = (self._patch_stretch(v, ordered, placed, patch, num) < worst) & tearing
-                if better.any():
-                    progressive = True
-                    targets = v.copy()
-                    targets[inside] = direct
-                    use = better[patch[ordered]]
-                    targets[ordered[use]] = placed[use]
-                    v = step(v, inside, targets[inside])
-                    it += 1
+            targets = self._untorn_targets(v, inside, aim(inside), sd, surface, body, normals, tree)
+            if targets is not None:
+                progressive = True
+                v = step(v, inside, targets)
+                it += 1
         while it < self.max_iterations and np.any(sd < 0):
             inside = np.nonzero(sd < 0)[0]
             v = step(v, inside, aim(inside))
