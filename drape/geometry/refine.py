@@ -47,6 +47,12 @@ from drape.geometry.mesh import (
 from drape.geometry.queries import closest_point_on_triangles
 
 
+def body_tree(body: np.ndarray) -> cKDTree:
+    """KD-tree over one posed body's vertices (M, 3). Leaves of 32, unbalanced: on a ~14k-vertex
+    body this builds faster than scipy's default and answers a garment's queries no slower."""
+    return cKDTree(body, leafsize=32, balanced_tree=False)
+
+
 class BodySurface:
     """Closest points on one posed body: candidates are the faces around the k nearest body vertices.
 
@@ -77,23 +83,25 @@ class BodySurface:
         one's normal are outside: they keep that vertex as their closest point. The others get
         the exact closest point on the faces around their k nearest body vertices.
         """
-        tree = tree or cKDTree(body)
-        # both cores pay off for large queries only; threads cost more than they save on a small front
-        dist, near = tree.query(points, k=self.k, workers=-1 if len(points) >= 2048 else 1)
-        cp, n = body[near[:, 0]].copy(), normals[near[:, 0]].copy()
+        tree = tree or body_tree(body)
+        # one thread: on this 2-core machine, starting threads costs more than it saves here
+        dist, near = tree.query(points, k=self.k)
+        # `take` rather than fancy indexing: it gathers rows several times faster
+        cp, n = body.take(near[:, 0], axis=0), normals.take(near[:, 0], axis=0)
         sd = dist[:, 0].copy()
         close = (dist[:, 0] < self.far) | (np.einsum("pc,pc->p", points - cp, n) < 0)
         idx = np.nonzero(close)[0]
         if len(idx):
-            cand = self.vertex_faces[near[idx]].reshape(len(idx), -1)
+            cand = self.vertex_faces.take(near[idx], axis=0).reshape(len(idx), -1)
             P, C = cand.shape
-            f = self.faces[cand.ravel()]
+            f = self.faces.take(cand.ravel(), axis=0)
+            tri = body.take(f, axis=0)  # (P * C, 3 corners, 3)
             pts = np.repeat(points[idx], C, axis=0)
-            c, bary = closest_point_on_triangles(pts, body[f[:, 0]], body[f[:, 1]], body[f[:, 2]])
+            c, bary = closest_point_on_triangles(pts, tri[:, 0], tri[:, 1], tri[:, 2])
             d2 = np.einsum("pc,pc->p", pts - c, pts - c).reshape(P, C)
             best = np.arange(P) * C + np.argmin(d2, axis=1)
             c, bary, fb = c[best], bary[best], f[best]
-            nn = np.einsum("pk,pkc->pc", bary, normals[fb])
+            nn = np.einsum("pk,pkc->pc", bary, normals.take(fb, axis=0))
             nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-12)
             diff = points[idx] - c
             d = np.linalg.norm(diff, axis=1)
@@ -166,28 +174,35 @@ class Refiner:
                              normals: np.ndarray, tree: cKDTree,
                              only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Targets for inside vertices (those in the (N,) mask `only`, if given), placed front by
-        front in order of graph distance from outside ones -> (vertex indices, (K, 3) targets)."""
-        placed = v.copy()
-        done = (sd >= 0) if only is None else (sd >= 0) | ~only
-        adj = self.adjacency
+        front in order of graph distance from outside ones -> (vertex indices, (K, 3) targets).
+
+        Works on the subgraph of those vertices and their (outside) neighbours only.
+        """
+        todo = sd < 0 if only is None else (sd < 0) & only
+        ring = todo | ((self.adjacency @ todo.astype(np.float32)) > 0)
+        idx = np.nonzero(ring)[0]  # the vertices to place and their (outside) neighbours
+        adj = self.adjacency[idx][:, idx].tocsr()
+        rest, placed = v[idx], v[idx].copy()
+        done = ~todo[idx]
         visited = []
         while not done.all():
             front = np.nonzero(~done & ((adj @ done.astype(np.float32)) > 0))[0]
             if len(front) == 0:  # a component with no outside vertex: aim at its own closest points
                 front = np.nonzero(~done)[0]
-                anchors = placed[front]
+                sd_a, cp, n = surface.query(body, normals, placed[front], tree)
+                placed[front] = np.where((sd_a >= self.eps)[:, None], placed[front], cp + self.eps * n)
             else:
                 w = adj[front].multiply(done[None, :].astype(np.float32)).tocsr()
                 wsum = np.maximum(np.asarray(w.sum(axis=1)), 1.0)
                 # the placed neighbours' mean plus the vertex's own offset from them: local shape kept
-                anchors = (w @ placed) / wsum + (v[front] - (w @ v) / wsum)
-            # aim at the body point closest to that: the placed neighbours' side of the body
-            sd_a, cp, n = surface.query(body, normals, np.asarray(anchors), tree)
-            placed[front] = np.where((sd_a >= self.eps)[:, None], anchors, cp + self.eps * n)
+                anchors = (w @ placed) / wsum + (rest[front] - (w @ rest) / wsum)
+                # aim at the body point closest to that: the placed neighbours' side of the body
+                sd_a, cp, n = surface.query(body, normals, anchors, tree)
+                placed[front] = np.where((sd_a >= self.eps)[:, None], anchors, cp + self.eps * n)
             done[front] = True
             visited.append(front)
-        inside = np.concatenate(visited) if visited else np.zeros(0, dtype=np.int64)
-        return inside, placed[inside]
+        order = np.concatenate(visited) if visited else np.zeros(0, dtype=np.int64)
+        return idx[order], placed[order]
 
     def _untorn_targets(self, v: np.ndarray, inside: np.ndarray, direct: np.ndarray, sd: np.ndarray,
                         surface: BodySurface, body: np.ndarray, normals: np.ndarray,
@@ -224,7 +239,7 @@ class Refiner:
         v0 = np.asarray(garment, dtype=np.float64)
         body = np.asarray(body, dtype=np.float64)
         normals = surface.normals(body)
-        tree = cKDTree(body)
+        tree = body_tree(body)
         v = v0
         sd, cp, n = surface.query(body, normals, v, tree)
 
