@@ -65,7 +65,7 @@ class BodySurface:
         inc = vertex_face_incidence(self.faces, num_vertices)
         deg = np.diff(inc.indptr)
         self.fmax = int(deg.max())
-        table = np.repeat(inc.indices[inc.indptr[:-1]][:, None], self.fmax, axis=1)  # pad with a real face
+        table = np.full((num_vertices, self.fmax), len(self.faces), dtype=np.int64)  # padded past the last face
         slot = np.arange(inc.nnz) - np.repeat(inc.indptr[:-1], deg)
         table[np.repeat(np.arange(num_vertices), deg), slot] = inc.indices
         self.vertex_faces = table  # (M, fmax)
@@ -92,14 +92,21 @@ class BodySurface:
         close = (dist[:, 0] < self.far) | (np.einsum("pc,pc->p", points - cp, n) < 0)
         idx = np.nonzero(close)[0]
         if len(idx):
-            cand = self.vertex_faces.take(near[idx], axis=0).reshape(len(idx), -1)
-            P, C = cand.shape
-            f = self.faces.take(cand.ravel(), axis=0)
-            tri = body.take(f, axis=0)  # (P * C, 3 corners, 3)
-            pts = np.repeat(points[idx], C, axis=0)
+            # the faces around the k nearest body vertices, each face once per point
+            cand = np.sort(self.vertex_faces.take(near[idx], axis=0).reshape(len(idx), -1), axis=1)
+            keep = cand < len(self.faces)
+            keep[:, 1:] &= cand[:, 1:] != cand[:, :-1]
+            row, face = np.nonzero(keep)[0], cand[keep]  # row-major: each point's candidates are contiguous
+            f = self.faces.take(face, axis=0)
+            tri = body.take(f, axis=0)  # (candidates, 3 corners, 3)
+            pts = points[idx].take(row, axis=0)
             c, bary = closest_point_on_triangles(pts, tri[:, 0], tri[:, 1], tri[:, 2])
-            d2 = np.einsum("pc,pc->p", pts - c, pts - c).reshape(P, C)
-            best = np.arange(P) * C + np.argmin(d2, axis=1)
+            d2 = np.einsum("pc,pc->p", pts - c, pts - c)
+            start = np.searchsorted(row, np.arange(len(idx)))
+            # the first candidate of each point reaching that point's smallest distance
+            at_min = d2 == np.repeat(np.minimum.reduceat(d2, start), np.diff(np.append(start, len(row))))
+            first = np.nonzero(at_min)[0]
+            best = first[np.searchsorted(row[first], np.arange(len(idx)))]
             c, bary, fb = c[best], bary[best], f[best]
             nn = np.einsum("pk,pkc->pc", bary, normals.take(fb, axis=0))
             nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-12)
