@@ -8,6 +8,7 @@ from drape.geometry.mesh import (
     connected_components,
     cotangent_laplacian,
     face_adjacency,
+    face_normals,
     is_edge_manifold,
     neighbour_table,
     uniform_laplacian,
@@ -21,6 +22,16 @@ def test_sphere_normals_point_outward_radially():
     n = vertex_normals(v, f)
     assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
     assert np.min(np.einsum("nc,nc->n", n, v / np.linalg.norm(v, axis=1, keepdims=True))) > 0.995
+
+
+def test_face_normals_are_the_cross_products_for_one_frame_and_a_batch():
+    v, f = sphere(subdiv=1)
+    frames = np.stack([v, 2 * v + 1, v[:, [1, 2, 0]]])  # (T, N, 3)
+    cross = np.cross(frames[:, f[:, 1]] - frames[:, f[:, 0]], frames[:, f[:, 2]] - frames[:, f[:, 0]])
+    assert np.allclose(face_normals(frames, f, normalize=False), cross, rtol=0, atol=1e-12)
+    assert np.allclose(face_normals(frames[1], f, normalize=False), cross[1], rtol=0, atol=1e-12)
+    unit = face_normals(frames, f)
+    assert np.allclose(unit, cross / np.linalg.norm(cross, axis=-1, keepdims=True))
 
 
 def test_edges_euler_and_manifold():

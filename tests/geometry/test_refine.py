@@ -94,3 +94,28 @@ def test_cloth_ending_inside_a_limb_comes_out_on_its_own_side():
     assert largest_stretch(refined[0]) < 0.005
     hem = np.isclose(sheet[:, 2], zs[0])
     assert np.all(refined[0][hem, 2] > shoulder[2])  # out in front of the arm, where the sheet is
+
+
+def test_body_surface_matches_the_exact_mesh_distance_where_garments_go():
+    """BodySurface (faces around the 2 nearest body vertices) against MeshDistance (exact), for
+    points within about 2 cm of the torso and limbs: the same inside/outside answer, never a
+    shorter distance, the same one for almost every point. Head, hands and feet are left out:
+    near the head's inner geometry and across thin toes and fingers the two can disagree."""
+    from drape.geometry.refine import BodySurface
+    from drape.geometry.skeleton import JOINT_INDEX
+
+    body = BODY.vertices.astype(np.float64)
+    surface = BodySurface(BODY.faces, len(body))
+    normals = surface.normals(body)
+    rng = np.random.default_rng(0)
+    ends = [JOINT_INDEX[n] for n in ("head", "left_foot", "right_foot", "left_hand", "right_hand")]
+    idx = rng.choice(np.nonzero(~np.isin(BODY.weights.argmax(1), ends))[0], 3000, replace=False)
+    pts = body[idx] + normals[idx] * rng.uniform(-0.01, 0.01, (3000, 1)) + rng.normal(0, 0.005, (3000, 3))
+    sd, cp, _ = surface.query(body, normals, pts)
+    exact = MeshDistance(body, BODY.faces).signed_distance(pts)
+    assert np.mean(exact < 0) > 0.3  # both sides are tested
+    assert np.array_equal(sd < 0, exact < 0)
+    assert np.all(np.abs(sd) >= np.abs(exact) - 1e-9)
+    close = np.abs(exact) < surface.far
+    assert np.mean(np.abs(np.abs(sd[close]) - np.abs(exact[close])) < 1e-6) > 0.97
+    assert np.allclose(np.linalg.norm(pts - cp, axis=1)[close], np.abs(sd[close]))
