@@ -91,7 +91,27 @@ def load_checkpoint(ckpt_dir: str | Path) -> tuple[OutfitNet, PoseNet, dict]:
     config = json.loads(state["config"])
     config["_checkpoint"] = {"file": found[-1].name, "steps_done": state["done"].tolist(),
                              "train_seconds": round(float(state["elapsed"]), 1)}
+    if config.get("init_checkpoints"):
+        config["_started_from"] = started_from(config["init_checkpoints"])
     return outfit, pose, config
+
+
+def started_from(ckpt_dir: str | Path) -> list[dict]:
+    """A fine-tune's ancestry, nearest first: each earlier run's config, steps and training time,
+    followed through their own `init_checkpoints` (a run no longer on disk ends the list)."""
+    chain: list[dict] = []
+    base: str | Path | None = ckpt_dir
+    while base:
+        found = sorted(Path(base).glob("step_*.pt"))
+        if not found:
+            chain.append({"checkpoints": str(base), "missing": True})
+            break
+        state = torch.load(found[-1], weights_only=True)
+        config = json.loads(state["config"])
+        chain.append({"checkpoints": str(base), "config": config, "steps_done": state["done"].tolist(),
+                      "train_seconds": round(float(state["elapsed"]), 1)})
+        base = config.get("init_checkpoints")
+    return chain
 
 
 def export_deepsd_from_checkpoints(ckpt_dir: str | Path, out_dir: str | Path, init: bool = False) -> list[Path]:
@@ -109,4 +129,4 @@ def export_deepsd_from_checkpoints(ckpt_dir: str | Path, out_dir: str | Path, in
     return [paths["outfit"], paths["pose"], manifest]
 
 
-VERSION = "0.1.0"
+VERSION = "0.2.0"

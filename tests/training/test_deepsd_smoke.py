@@ -4,7 +4,7 @@ import numpy as np
 import onnxruntime as ort
 import torch
 
-from drape.export.deepsd import export_deepsd
+from drape.export.deepsd import export_deepsd, started_from
 from drape.models.deepsd import DeployedOutfitNet
 from drape.runtime.deepsd import network_inputs
 from drape.training import deepsd_data
@@ -38,3 +38,8 @@ def test_train_export_parity(tmp_path, monkeypatch):
     for a, b in ((net, tuned), (pose, tuned_pose)):
         for (name, x), y in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
             assert torch.equal(x, y), name
+
+    # the manifest of a fine-tune records the run it started from, followed back to the first run
+    chain = started_from(tmp_path / "ckpt")
+    assert len(chain) == 1 and chain[0]["steps_done"] == [4, 4, 4] and chain[0]["config"]["steps"] == cfg["steps"]
+    assert started_from(tmp_path / "nowhere") == [{"checkpoints": str(tmp_path / "nowhere"), "missing": True}]
