@@ -196,16 +196,15 @@ class Refiner:
             front = np.nonzero(~done & ((adj @ done.astype(np.float32)) > 0))[0]
             if len(front) == 0:  # a component with no outside vertex: aim at its own closest points
                 front = np.nonzero(~done)[0]
-                sd_a, cp, n = surface.query(body, normals, placed[front], tree)
-                placed[front] = np.where((sd_a >= self.eps)[:, None], placed[front], cp + self.eps * n)
+                anchors = placed[front]
             else:
                 w = adj[front].multiply(done[None, :].astype(np.float32)).tocsr()
                 wsum = np.maximum(np.asarray(w.sum(axis=1)), 1.0)
                 # the placed neighbours' mean plus the vertex's own offset from them: local shape kept
                 anchors = (w @ placed) / wsum + (rest[front] - (w @ rest) / wsum)
-                # aim at the body point closest to that: the placed neighbours' side of the body
-                sd_a, cp, n = surface.query(body, normals, anchors, tree)
-                placed[front] = np.where((sd_a >= self.eps)[:, None], anchors, cp + self.eps * n)
+            # aim at the body point closest to that: the placed neighbours' side of the body
+            sd_a, cp, n = surface.query(body, normals, anchors, tree)
+            placed[front] = np.where((sd_a >= self.eps)[:, None], anchors, cp + self.eps * n)
             done[front] = True
             visited.append(front)
         order = np.concatenate(visited) if visited else np.zeros(0, dtype=np.int64)
