@@ -79,18 +79,27 @@ def _json_default(o: object) -> object:
     raise TypeError(type(o).__name__)
 
 
-def load_checkpoint(ckpt_dir: str | Path) -> tuple[OutfitNet, PoseNet, dict]:
-    """The latest checkpoint's networks and its training config."""
+def _latest_run(ckpt_dir: str | Path) -> tuple[dict, dict] | None:
+    """The latest checkpoint's state and its record: config, file, steps done, training seconds."""
     found = sorted(Path(ckpt_dir).glob("step_*.pt"))
     if not found:
-        raise FileNotFoundError(f"no checkpoint in {ckpt_dir}; run `drape train deepsd` first")
+        return None
     state = torch.load(found[-1], weights_only=True)
+    return state, {"config": json.loads(state["config"]), "file": found[-1].name,
+                   "steps_done": state["done"].tolist(), "train_seconds": round(float(state["elapsed"]), 1)}
+
+
+def load_checkpoint(ckpt_dir: str | Path) -> tuple[OutfitNet, PoseNet, dict]:
+    """The latest checkpoint's networks and its training config."""
+    run = _latest_run(ckpt_dir)
+    if run is None:
+        raise FileNotFoundError(f"no checkpoint in {ckpt_dir}; run `drape train deepsd` first")
+    state, record = run
     outfit, pose = OutfitNet(), PoseNet()
     outfit.load_state_dict(state["outfit"])
     pose.load_state_dict(state["pose"])
-    config = json.loads(state["config"])
-    config["_checkpoint"] = {"file": found[-1].name, "steps_done": state["done"].tolist(),
-                             "train_seconds": round(float(state["elapsed"]), 1)}
+    config = record.pop("config")
+    config["_checkpoint"] = record
     if config.get("init_checkpoints"):
         config["_started_from"] = started_from(config["init_checkpoints"])
     return outfit, pose, config
@@ -102,15 +111,13 @@ def started_from(ckpt_dir: str | Path) -> list[dict]:
     chain: list[dict] = []
     base: str | Path | None = ckpt_dir
     while base:
-        found = sorted(Path(base).glob("step_*.pt"))
-        if not found:
+        run = _latest_run(base)
+        if run is None:
             chain.append({"checkpoints": str(base), "missing": True})
             break
-        state = torch.load(found[-1], weights_only=True)
-        config = json.loads(state["config"])
-        chain.append({"checkpoints": str(base), "config": config, "steps_done": state["done"].tolist(),
-                      "train_seconds": round(float(state["elapsed"]), 1)})
-        base = config.get("init_checkpoints")
+        record = run[1]
+        chain.append({"checkpoints": str(base), **record})
+        base = record["config"].get("init_checkpoints")
     return chain
 
 
