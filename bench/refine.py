@@ -21,9 +21,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
-from drape.assets.body import load_body
+from drape.assets.body import Body, load_body
 from drape.assets.motion import load_clip
-from drape.assets.outfits import generate_outfit
+from drape.assets.outfits import Outfit, generate_outfit
 from drape.geometry.lbs import pose_mesh
 from drape.geometry.mesh import uniform_laplacian, unique_edges
 from drape.geometry.metrics import edge_lengths
@@ -53,24 +53,35 @@ def quality(g, r, b, faces, body_faces, lap, edges) -> tuple[float, float, float
     return 100 * inside, lap_dev, spike, p999, spikes, added_jitter_mm(g, r)
 
 
-def main() -> None:
+def posed_body(frames: np.ndarray) -> tuple[Body, np.ndarray, np.ndarray, np.ndarray]:
+    """The neutral body on the held-out clip dance_b at `frames`: (Body, poses (T, 24, 3), trans (T, 3),
+    posed body vertices (T, M, 3) float64, metres)."""
     body = load_body("neutral")
-    model = DeePSDModel()
     clip = load_clip("dance_b")
-    surface = BodySurface(body.faces, len(body.vertices))
-    frames = np.arange(0, clip.num_frames, 5)
     p, t = clip.poses[frames].astype(float), clip.trans[frames].astype(float)
-    b = body.pose(p, t).astype(np.float64)
+    return body, p, t, body.pose(p, t).astype(np.float64)
+
+
+def penetrating_inputs(model: DeePSDModel, o: Outfit, body: Body, p: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+    """The two inputs refinement is benched on, each (T, N, 3) float64 metres: the shipped DeePSD's
+    output and LBS with weights copied from the nearest body vertex."""
+    return {
+        "deepsd": pose_outfit(o.vertices, model.rig(o.vertices, o.faces), model.pose_keys(p), body.joints, p, t),
+        "baseline": pose_mesh(o.vertices, nearest_vertex_weights(o.vertices, body.vertices, body.weights),
+                              body.joints, p, t),
+    }
+
+
+def main() -> None:
+    model = DeePSDModel()
+    body, p, t, b = posed_body(np.arange(0, load_clip("dance_b").num_frames, 5))
+    surface = BodySurface(body.faces, len(body.vertices))
     print(f"{'input':8s} {'N':>6s} {'method':8s} {'ms/frame':>9s} {'inside %':>9s} {'lap dev mm':>11s} "
           f"{'spike mm':>9s} {'p99.9 mm':>9s} {'>10mm/fr':>9s} {'jitter mm':>10s}")
     for n in (2000, 6000, 20000):
         o = generate_outfit("longsleeve,trousers", vertices=n, seed=77)
         lap, edges = uniform_laplacian(o.faces, len(o.vertices)), unique_edges(o.faces)
-        inputs = {
-            "deepsd": pose_outfit(o.vertices, model.rig(o.vertices, o.faces), model.pose_keys(p), body.joints, p, t),
-            "baseline": pose_mesh(o.vertices, nearest_vertex_weights(o.vertices, body.vertices, body.weights),
-                                  body.joints, p, t),
-        }
+        inputs = penetrating_inputs(model, o, body, p, t)
         fast, slow = Refiner(o.faces, len(o.vertices)), GlobalSolveRefiner(o.faces, len(o.vertices))
         methods = {
             "refine": lambda x, y, r=fast: r.refine_frame(x, y, surface, RefineReport()),

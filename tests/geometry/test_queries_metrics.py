@@ -20,6 +20,7 @@ from drape.geometry.queries import (
     closest_point_on_triangles,
     signed_distance_nearest_vertex,
     signed_distance_to_mesh,
+    winding_number,
 )
 
 
@@ -56,6 +57,20 @@ def test_signed_distance_sphere_inside_outside():
     assert np.allclose(sd, radii - 1.0, atol=1.5e-3)
     sdn, _ = signed_distance_nearest_vertex(pts, v, vertex_normals(v, f))
     assert np.array_equal(sdn < 0, radii < 1)
+
+
+def test_winding_number_sees_inside_where_the_closest_triangle_sign_cannot():
+    """Two overlapping unit spheres as one mesh, like a posed body whose arm enters the torso."""
+    v, f = sphere(1.0, 3)
+    both_v, both_f = np.concatenate([v, v + [1.8, 0, 0]]), np.concatenate([f, f + len(v)])
+    pts = np.array([[-0.5, 0, 0], [0.45, 0, 0], [0.9, 0, 0], [3.0, 0, 0], [0.9, 1.5, 0]])
+    w = winding_number(pts, both_v, both_f)
+    assert np.allclose(w, [1, 1, 2, 0, 0], atol=1e-6)
+    # (0.45, 0, 0) is 0.55 inside the first sphere but 0.35 outside the second, which is nearer:
+    # the closest-triangle sign calls it outside
+    sd = signed_distance_to_mesh(pts, both_v, both_f)
+    assert sd[1] > 0.3 and sd[0] < 0
+    assert np.allclose(winding_number(pts, v, f), [1, 1, 1, 0, 0], atol=1e-6)
 
 
 def test_collision_share_counts_inside_vertices():
