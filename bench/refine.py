@@ -62,13 +62,17 @@ def posed_body(frames: np.ndarray) -> tuple[Body, np.ndarray, np.ndarray, np.nda
     return body, p, t, body.pose(p, t).astype(np.float64)
 
 
+def baseline_input(o: Outfit, body: Body, p: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """LBS with weights copied from the nearest body vertex: (T, N, 3) metres, the issue's penetrating input."""
+    return pose_mesh(o.vertices, nearest_vertex_weights(o.vertices, body.vertices, body.weights), body.joints, p, t)
+
+
 def penetrating_inputs(model: DeePSDModel, o: Outfit, body: Body, p: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
-    """The two inputs refinement is benched on, each (T, N, 3) float64 metres: the shipped DeePSD's
-    output and LBS with weights copied from the nearest body vertex."""
+    """The two inputs refinement is benched on, each (T, N, 3) metres: the shipped DeePSD's output
+    and the nearest-weights LBS baseline."""
     return {
         "deepsd": pose_outfit(o.vertices, model.rig(o.vertices, o.faces), model.pose_keys(p), body.joints, p, t),
-        "baseline": pose_mesh(o.vertices, nearest_vertex_weights(o.vertices, body.vertices, body.weights),
-                              body.joints, p, t),
+        "baseline": baseline_input(o, body, p, t),
     }
 
 

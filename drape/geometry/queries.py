@@ -199,8 +199,8 @@ def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, 
     inside, 0 outside, and k where k closed parts of a self-intersecting mesh overlap. Unlike a
     closest-triangle sign it sees a point inside one body part whose nearest surface belongs to
     another part (a posed body that intersects itself at the armpits or thighs). Brute force,
-    O(P F): a diagnostic, too slow for per-frame use on a full body (about 5 ms per point at
-    F = 27k on this machine).
+    O(P F): a diagnostic, too slow for per-frame use on a full body (minutes for a few frames of a
+    6k-vertex garment at F = 27k, see bench/refine_self_intersection.py).
     """
     tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]  # (F, 3 corners, 3)
     pts = np.asarray(points, dtype=np.float64)
