@@ -18,7 +18,8 @@ Checkpoints go to `checkpoints/deepsd/` (git-ignored); a rerun resumes from the
 latest one. The run is seeded; the config is recorded in every checkpoint.
 A config with `"init_checkpoints": DIR` is a fine-tune: a fresh run starts from the
 networks of DIR's latest checkpoint (a finished run of another config) instead of
-random weights; phases with 0 steps are skipped.
+random weights; phases with 0 steps are skipped. `"loss_phase": {PHASE: {NAME: WEIGHT}}` overrides
+loss weights in one phase only (e.g. a stiffer edge term for the physics phase than for Chi).
 """
 
 from __future__ import annotations
@@ -49,10 +50,15 @@ def _trainable(phase: str, net: OutfitNet, pose: PoseNet) -> list[torch.nn.Param
     return [p for p in net.parameters() if id(p) not in chi] + list(pose.parameters())
 
 
+def phase_loss_weights(cfg: dict, phase: str) -> dict:
+    """The config's `loss` weights, with the phase's entries of `loss_phase` (if any) on top."""
+    return {**cfg["loss"], **cfg.get("loss_phase", {}).get(phase, {})}
+
+
 def step_loss(phase: str, outfit: TrainOutfit, poses: torch.Tensor, net: OutfitNet, pose: PoseNet,
               cfg: dict) -> tuple[torch.Tensor, dict[str, float]]:
     """Loss of one outfit under a batch of poses (B, 24, 3) for the given phase."""
-    lw = cfg["loss"]
+    lw = phase_loss_weights(cfg, phase)
     weights, d_data, d_phys = net(outfit.features, outfit.nbr_idx, outfit.nbr_w)
     if phase == "prior":
         l_w = ((weights - outfit.prior_weights) ** 2).sum(-1).mean()

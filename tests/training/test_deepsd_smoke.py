@@ -43,3 +43,12 @@ def test_train_export_parity(tmp_path, monkeypatch):
     chain = started_from(tmp_path / "ckpt")
     assert len(chain) == 1 and chain[0]["steps_done"] == [4, 4, 4] and chain[0]["config"]["steps"] == cfg["steps"]
     assert started_from(tmp_path / "nowhere") == [{"checkpoints": str(tmp_path / "nowhere"), "missing": True}]
+
+
+def test_phase_loss_override():
+    from drape.training.deepsd import phase_loss_weights
+
+    cfg = {"loss": {"edge": 6.0, "collision": 20.0}, "loss_phase": {"physics": {"edge": 8.0}}}
+    assert phase_loss_weights(cfg, "physics") == {"edge": 8.0, "collision": 20.0}
+    assert phase_loss_weights(cfg, "chi") == {"edge": 6.0, "collision": 20.0}
+    assert phase_loss_weights({"loss": {"edge": 6.0}}, "physics") == {"edge": 6.0}
