@@ -51,8 +51,18 @@ def _trainable(phase: str, net: OutfitNet, pose: PoseNet) -> list[torch.nn.Param
 
 
 def phase_loss_weights(cfg: dict, phase: str) -> dict:
-    """The config's `loss` weights, with the phase's entries of `loss_phase` (if any) on top."""
-    return {**cfg["loss"], **cfg.get("loss_phase", {}).get(phase, {})}
+    """The config's `loss` weights, with the phase's entries of `loss_phase` (if any) on top.
+
+    A phase or loss name that does not exist is an error, not a silently ignored override.
+    """
+    overrides = cfg.get("loss_phase", {})
+    for name, weights in overrides.items():
+        if name not in PHASES:
+            raise ValueError(f"loss_phase: unknown phase {name!r} (phases: {', '.join(PHASES)})")
+        unknown = sorted(set(weights) - set(cfg["loss"]))
+        if unknown:
+            raise ValueError(f"loss_phase.{name}: unknown loss weights {unknown} (not in `loss`)")
+    return {**cfg["loss"], **overrides.get(phase, {})}
 
 
 def step_loss(phase: str, outfit: TrainOutfit, poses: torch.Tensor, net: OutfitNet, pose: PoseNet,

@@ -2,6 +2,7 @@
 
 import numpy as np
 import onnxruntime as ort
+import pytest
 import torch
 
 from drape.export.deepsd import export_deepsd, started_from
@@ -52,3 +53,7 @@ def test_phase_loss_override():
     assert phase_loss_weights(cfg, "physics") == {"edge": 8.0, "collision": 20.0}
     assert phase_loss_weights(cfg, "chi") == {"edge": 6.0, "collision": 20.0}
     assert phase_loss_weights({"loss": {"edge": 6.0}}, "physics") == {"edge": 6.0}
+    with pytest.raises(ValueError, match="unknown phase 'phisics'"):
+        phase_loss_weights({"loss": {"edge": 6.0}, "loss_phase": {"phisics": {"edge": 8.0}}}, "chi")
+    with pytest.raises(ValueError, match="unknown loss weights"):
+        phase_loss_weights({"loss": {"edge": 6.0}, "loss_phase": {"physics": {"edg": 8.0}}}, "physics")
