@@ -66,9 +66,9 @@ def phase_loss_weights(cfg: dict, phase: str) -> dict:
 
 
 def step_loss(phase: str, outfit: TrainOutfit, poses: torch.Tensor, net: OutfitNet, pose: PoseNet,
-              cfg: dict) -> tuple[torch.Tensor, dict[str, float]]:
-    """Loss of one outfit under a batch of poses (B, 24, 3) for the given phase."""
-    lw = phase_loss_weights(cfg, phase)
+              lw: dict) -> tuple[torch.Tensor, dict[str, float]]:
+    """Loss of one outfit under a batch of poses (B, 24, 3) for the given phase; lw: that phase's
+    loss weights (`phase_loss_weights`)."""
     weights, d_data, d_phys = net(outfit.features, outfit.nbr_idx, outfit.nbr_w)
     if phase == "prior":
         l_w = ((weights - outfit.prior_weights) ** 2).sum(-1).mean()
@@ -135,6 +135,8 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) 
         net.load_state_dict(init["outfit"])
         pose.load_state_dict(init["pose"])
         log(f"fine-tuning from {base} ({float(init['elapsed']):.0f} s of training)")
+    # checked before the outfits are prepared: a misspelt override fails at once, not minutes in
+    loss_weights = {p: phase_loss_weights(config, p) for p in PHASES}
     specs = train_specs(config)
     prepare_outfits(specs)
     outfits = [TrainOutfit(s) for s in specs]
@@ -166,7 +168,7 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) 
                 noise = torch.as_tensor(rng.normal(0, config["pose_noise"], poses.shape), dtype=torch.float32)
                 noise[:, 0] = 0.0
                 poses = poses + noise
-            loss, stats = step_loss(phase, outfit, poses, net, pose, config)
+            loss, stats = step_loss(phase, outfit, poses, net, pose, loss_weights[phase])
             opt.zero_grad()
             loss.backward()
             opt.step()
