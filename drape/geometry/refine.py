@@ -24,6 +24,16 @@ an edge by more than `tear` and the progressive targets stretch it less (a limb 
 cloth, whose closest points fall on both sides of it), and (b) for frames the fast path
 does not converge on.
 
+Stretch relief: closest-point targets on both sides of a crease (between the thighs, at the
+armpit) or of a limb stretch the edges between them, and the smooth solve spreads the stretch
+only a ring or two. Last, edges elongated by more than `relief_threshold` against the input are
+relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
+edge-length projection (each stretched edge shortened back towards its input length, nothing
+compressed; vertices outside the region held), each round followed by pushing whatever went
+inside back to its closest body point + eps. The stretched cloth slides along the body towards
+the crease instead of spanning it, and cloth the body's own overlap hides from the sign test is
+pulled out by its pushed neighbours.
+
 Shapes: garment (T, N, 3) m; faces (F, 3); body (T, M, 3) m; body_faces (G, 3).
 """
 
@@ -126,17 +136,21 @@ class RefineReport:
     iterations: list[int] = field(default_factory=list)
     max_displacement: list[float] = field(default_factory=list)
     progressive: list[bool] = field(default_factory=list)
+    relieved: list[int] = field(default_factory=list)  # vertices the stretch relief pass worked on
 
 
 class Refiner:
     """Refinement for one garment topology; the Laplacian and its square are built once."""
 
     def __init__(self, faces: np.ndarray, num_vertices: int, eps: float = 0.003, weight: float = 1e3,
-                 mu: float = 0.5, rings: int = 2, max_iterations: int = 3, tear: float | None = 0.02):
+                 mu: float = 0.5, rings: int = 2, max_iterations: int = 3, tear: float | None = 0.02,
+                 relief_threshold: float = 0.005, relief_iterations: int = 10, relief_query_every: int = 5):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
         self.eps, self.weight, self.mu, self.rings, self.max_iterations = eps, weight, mu, rings, max_iterations
         self.tear = tear
+        self.relief_threshold, self.relief_iterations = relief_threshold, relief_iterations
+        self.relief_query_every = relief_query_every
         lap = uniform_laplacian(self.faces, num_vertices)
         self.system = (lap.T @ lap + mu * sp.identity(num_vertices)).tocsr()  # L^T L + mu I, fixed
         self.adjacency = adjacency_matrix(self.faces, num_vertices).tocsr()
@@ -239,6 +253,69 @@ class Refiner:
         targets[ordered[use]] = placed[use]
         return targets[inside]
 
+    def _relieve(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, closest: np.ndarray,
+                 closest_normal: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                 tree: cKDTree) -> tuple[np.ndarray, int]:
+        """Stretch relief: v0, v (N, 3) input and refined garment -> (relieved garment (N, 3), vertices worked on).
+
+        sd (N,), closest (N, 3), closest_normal (N, 3): v's signed distances, closest body points and
+        their normals; sd is updated in place for the vertices that moved.
+        """
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        rest = np.linalg.norm(v0[e0] - v0[e1], axis=1)  # (E,) the input's edge lengths, m
+        stretched = np.linalg.norm(v[e0] - v[e1], axis=1) - rest > self.relief_threshold
+        if self.relief_iterations == 0 or not stretched.any():
+            return v, 0
+        free = np.zeros(self.n, dtype=bool)
+        free[e0[stretched]] = free[e1[stretched]] = True
+        for _ in range(self.rings):
+            free |= (self.adjacency @ free.astype(np.float32)) > 0
+        touching = free[e0] | free[e1]  # edges to held vertices pull too
+        ea, eb, length = e0[touching], e1[touching], rest[touching]
+        verts = np.unique(np.concatenate([ea, eb]))
+        a, b = np.searchsorted(verts, ea), np.searchsorted(verts, eb)
+        m = len(verts)
+        moving = np.nonzero(free[verts])[0]
+        x = v[verts].copy()
+        cp, nn = closest[verts[moving]], closest_normal[verts[moving]]
+        for k in range(self.relief_iterations):
+            d = x[a] - x[b]
+            dl = np.sqrt(np.einsum("ec,ec->e", d, d))
+            excess = np.maximum(dl - length, 0.0)
+            pull = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
+            active = excess > 0
+            count = np.maximum(np.bincount(a[active], minlength=m) + np.bincount(b[active], minlength=m), 1)
+            # each end moves by its stretched edges' mean excess (twice the textbook half step: converges faster)
+            delta = np.stack([np.bincount(b, pull[:, c], m) - np.bincount(a, pull[:, c], m) for c in range(3)], 1)
+            xm = x[moving] + delta[moving] / count[moving, None]
+            if (k + 1) % self.relief_query_every == 0 or k == self.relief_iterations - 1:
+                s, cp, nn = surface.query(body, normals, xm, tree)
+                inside = s < 0
+                xm[inside] = cp[inside] + self.eps * nn[inside]
+            else:  # between queries a vertex is held on the outer side of its last closest point's tangent plane
+                s = np.einsum("pc,pc->p", xm - cp, nn)
+                inside = s < 0
+                xm[inside] += (self.eps - s[inside])[:, None] * nn[inside]
+            s[inside] = self.eps
+            x[moving] = xm
+        # a point placed off one part's surface can land inside another (the armpit, between the thighs):
+        # project again what was just projected; what is still inside keeps its refined position
+        check = np.nonzero(inside)[0]
+        for _ in range(2):
+            q, c, cn = surface.query(body, normals, x[moving[check]], tree)
+            s[check] = q
+            check = check[q < 0]
+            x[moving[check]] = c[q < 0] + self.eps * cn[q < 0]
+        q = surface.query(body, normals, x[moving[check]], tree)[0]
+        back = check[q < 0]
+        x[moving[back]] = v[verts[moving[back]]]
+        s[back] = sd[verts[moving[back]]]
+        s[check[q >= 0]] = q[q >= 0]
+        out = v.copy()
+        out[verts[moving]] = x[moving]
+        sd[verts[moving]] = s
+        return out, len(moving)
+
     def refine_frame(self, garment: np.ndarray, body: np.ndarray, surface: BodySurface,
                      report: RefineReport) -> np.ndarray:
         """garment (N, 3), body (M, 3) -> refined garment (N, 3) float64; appends to `report`."""
@@ -281,26 +358,31 @@ class Refiner:
                 inside = np.nonzero(sd < 0)[0]
                 v = step(v, inside, aim(inside))
                 it += 1
+        v, relieved = self._relieve(v0, v, sd, cp, n, surface, body, normals, tree) if before else (v, 0)
         report.inside_before.append(before)
         report.inside_after.append(int(np.count_nonzero(sd < 0)))
         report.iterations.append(it)
         report.max_displacement.append(float(np.linalg.norm(v - v0, axis=1).max()))
         report.progressive.append(progressive)
+        report.relieved.append(relieved)
         return v
 
 
 def refine(garment: np.ndarray, faces: np.ndarray, body: np.ndarray, body_faces: np.ndarray,
-           eps: float = 0.003, max_iterations: int = 3, tear: float | None = 0.02) -> tuple[np.ndarray, RefineReport]:
+           eps: float = 0.003, max_iterations: int = 3, tear: float | None = 0.02,
+           relief_iterations: int = 10) -> tuple[np.ndarray, RefineReport]:
     """Refine a garment stream: (T, N, 3) garment, (T, M, 3) body -> ((T, N, 3) float32, report).
 
     eps: margin outside the body (m); tear: edge elongation (m) above which a patch's closest-point
-    targets are checked against front-by-front placement (None: closest points only).
+    targets are checked against front-by-front placement (None: closest points only);
+    relief_iterations: rounds of the stretch relief pass (0: none).
     """
     g = np.asarray(garment)
     b = np.asarray(body)
     if g.ndim == 2:
         g, b = g[None], (b[None] if b.ndim == 2 else b)
-    refiner = Refiner(faces, g.shape[1], eps=eps, max_iterations=max_iterations, tear=tear)
+    refiner = Refiner(faces, g.shape[1], eps=eps, max_iterations=max_iterations, tear=tear,
+                      relief_iterations=relief_iterations)
     surface = BodySurface(body_faces, b.shape[1])
     report = RefineReport()
     out = np.stack([refiner.refine_frame(g[t], b[t], surface, report) for t in range(len(g))])

@@ -86,7 +86,7 @@ def test_cloth_ending_inside_a_limb_comes_out_on_its_own_side():
 
     body = MeshDistance(BODY.vertices, BODY.faces)
     assert np.mean(body.signed_distance(sheet) < 0) > 0.3
-    closest_only, _ = refine(sheet[None], faces, BODY.vertices[None], BODY.faces, tear=None)
+    closest_only, _ = refine(sheet[None], faces, BODY.vertices[None], BODY.faces, tear=None, relief_iterations=0)
     assert largest_stretch(closest_only[0]) > 0.05  # the tear this guards against
     refined, report = refine(sheet[None], faces, BODY.vertices[None], BODY.faces)
     assert report.progressive == [True]
