@@ -32,7 +32,8 @@ edge-length projection (each stretched edge shortened back towards its input len
 compressed; vertices outside the region held), each round followed by pushing whatever went
 inside back to its closest body point + eps. The stretched cloth slides along the body towards
 the crease instead of spanning it, and cloth the body's own overlap hides from the sign test is
-pulled out by its pushed neighbours.
+pulled out by its pushed neighbours. A connected patch whose largest stretch the pass would raise (pulled round
+a limb to its far side) keeps its refined position: the pass never raises a patch's largest stretch.
 
 Shapes: garment (T, N, 3) m; faces (F, 3); body (T, M, 3) m; body_faces (G, 3).
 """
@@ -262,8 +263,10 @@ class Refiner:
         their normals; sd is updated in place for the vertices that moved.
         """
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
-        rest = np.linalg.norm(v0[e0] - v0[e1], axis=1)  # (E,) the input's edge lengths, m
-        stretched = np.linalg.norm(v[e0] - v[e1], axis=1) - rest > self.relief_threshold
+        d0 = v0.take(e0, axis=0) - v0.take(e1, axis=0)
+        rest = np.sqrt(np.einsum("ec,ec->e", d0, d0))  # (E,) the input's edge lengths, m
+        d1 = v.take(e0, axis=0) - v.take(e1, axis=0)
+        stretched = np.sqrt(np.einsum("ec,ec->e", d1, d1)) - rest > self.relief_threshold
         if self.relief_iterations == 0 or not stretched.any():
             return v, 0
         free = np.zeros(self.n, dtype=bool)
@@ -274,20 +277,22 @@ class Refiner:
         ea, eb, length = e0[touching], e1[touching], rest[touching]
         verts = np.unique(np.concatenate([ea, eb]))
         a, b = np.searchsorted(verts, ea), np.searchsorted(verts, eb)
-        m = len(verts)
+        m, ne = len(verts), len(ea)
+        rows = np.concatenate([np.arange(ne), np.arange(ne)])
+        diff = sp.csr_matrix((np.concatenate([np.ones(ne), -np.ones(ne)]), (rows, np.concatenate([a, b]))),
+                             shape=(ne, m))  # (edges, m): x[a] - x[b]
+        gather = abs(diff).T.tocsr()  # (m, edges): sums over each vertex's edges
         moving = np.nonzero(free[verts])[0]
         x = v[verts].copy()
         cp, nn = closest[verts[moving]], closest_normal[verts[moving]]
         for k in range(self.relief_iterations):
-            d = x[a] - x[b]
+            d = diff @ x
             dl = np.sqrt(np.einsum("ec,ec->e", d, d))
             excess = np.maximum(dl - length, 0.0)
             pull = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
-            active = excess > 0
-            count = np.maximum(np.bincount(a[active], minlength=m) + np.bincount(b[active], minlength=m), 1)
+            count = np.maximum(gather @ (excess > 0).astype(np.float64), 1.0)
             # each end moves by its stretched edges' mean excess (twice the textbook half step: converges faster)
-            delta = np.stack([np.bincount(b, pull[:, c], m) - np.bincount(a, pull[:, c], m) for c in range(3)], 1)
-            xm = x[moving] + delta[moving] / count[moving, None]
+            xm = x[moving] - (diff.T @ pull)[moving] / count[moving, None]
             if (k + 1) % self.relief_query_every == 0 or k == self.relief_iterations - 1:
                 s, cp, nn = surface.query(body, normals, xm, tree)
                 inside = s < 0
@@ -299,22 +304,36 @@ class Refiner:
             s[inside] = self.eps
             x[moving] = xm
         # a point placed off one part's surface can land inside another (the armpit, between the thighs):
-        # project again what was just projected; what is still inside keeps its refined position
+        # project once more what was just projected; what is still inside keeps its refined position
         check = np.nonzero(inside)[0]
-        for _ in range(2):
-            q, c, cn = surface.query(body, normals, x[moving[check]], tree)
-            s[check] = q
-            check = check[q < 0]
-            x[moving[check]] = c[q < 0] + self.eps * cn[q < 0]
+        q, c, cn = surface.query(body, normals, x[moving[check]], tree)
+        s[check] = q
+        check = check[q < 0]
+        x[moving[check]] = c[q < 0] + self.eps * cn[q < 0]
         q = surface.query(body, normals, x[moving[check]], tree)[0]
         back = check[q < 0]
         x[moving[back]] = v[verts[moving[back]]]
         s[back] = sd[verts[moving[back]]]
         s[check[q >= 0]] = q[q >= 0]
+        # the pass may only lower a connected patch's largest stretch: a patch it made worse (pulled round
+        # a limb to its far side) keeps its refined position
+        mov = np.zeros(m, dtype=bool)
+        mov[moving] = True
+        inner = mov[a] & mov[b]
+        num, label = connected_components(sp.coo_matrix((np.ones(np.count_nonzero(inner)), (a[inner], b[inner])),
+                                                        shape=(m, m)), directed=False)
+        patch = label[np.where(mov[a], a, b)]  # (edges,) the patch of each edge's moving end
+        x0 = v[verts]
+        worst_before, worst_after = np.full(num, -np.inf), np.full(num, -np.inf)
+        np.maximum.at(worst_before, patch, np.linalg.norm(x0[a] - x0[b], axis=1) - length)
+        np.maximum.at(worst_after, patch, np.linalg.norm(x[a] - x[b], axis=1) - length)
+        worse = (worst_after > worst_before)[label[moving]]
+        x[moving[worse]] = x0[moving[worse]]
+        s[worse] = sd[verts[moving[worse]]]
         out = v.copy()
         out[verts[moving]] = x[moving]
         sd[verts[moving]] = s
-        return out, len(moving)
+        return out, int(np.count_nonzero(~worse))
 
     def refine_frame(self, garment: np.ndarray, body: np.ndarray, surface: BodySurface,
                      report: RefineReport) -> np.ndarray:

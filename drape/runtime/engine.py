@@ -34,10 +34,16 @@ class RiggedOutfit:
 
 @dataclass(frozen=True)
 class RefineSettings:
-    """eps: metres kept from the body surface; max_iterations: fast-path iterations per frame."""
+    """eps: metres kept from the body surface; max_iterations: fast-path iterations per frame;
+    relief_iterations: rounds of the stretch relief pass (0: none)."""
 
     eps: float = 0.003
     max_iterations: int = 3
+    relief_iterations: int = 10
+
+    def refiner(self, faces: np.ndarray, num_vertices: int) -> Refiner:
+        return Refiner(faces, num_vertices, eps=self.eps, max_iterations=self.max_iterations,
+                       relief_iterations=self.relief_iterations)
 
 
 @lru_cache(maxsize=8)
@@ -96,8 +102,7 @@ class Engine:
                     chunk: int = 32, refine: RefineSettings | None = None) -> Iterator[np.ndarray]:
         """Posed vertices in chunks of up to `chunk` frames: (n, N, 3) float32 each, refined if asked."""
         joints = load_body(outfit.body).joints
-        refiner = (Refiner(outfit.faces, len(outfit.vertices), eps=refine.eps, max_iterations=refine.max_iterations)
-                   if refine else None)
+        refiner = refine.refiner(outfit.faces, len(outfit.vertices)) if refine else None
         for start in range(0, len(poses), chunk):
             p, tr = poses[start : start + chunk], translation[start : start + chunk]
             t = time.perf_counter()
@@ -115,7 +120,7 @@ class Engine:
     def refine_chunks(self, vertices: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray,
                       translation: np.ndarray, options: RefineSettings, chunk: int = 32) -> Iterator[np.ndarray]:
         """A given garment stream (T, N, 3), refined against the body in chunks: (n, N, 3) float32 each."""
-        refiner = Refiner(faces, vertices.shape[1], eps=options.eps, max_iterations=options.max_iterations)
+        refiner = options.refiner(faces, vertices.shape[1])
         for start in range(0, len(vertices), chunk):
             t = time.perf_counter()
             s = slice(start, start + chunk)

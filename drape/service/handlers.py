@@ -141,12 +141,14 @@ def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str
 
 
 def check_refine(value: Any) -> RefineSettings | None:
-    """refine: false/None -> None, true -> defaults, {eps, max_iterations} -> those (validated upstream)."""
+    """refine: false/None -> None, true -> defaults, {eps, max_iterations, relief_iterations} -> those
+    (validated upstream)."""
     if not value:
         return None
     if value is True:
         return RefineSettings()
-    return RefineSettings(eps=float(value["eps"]), max_iterations=int(value["max_iterations"]))
+    return RefineSettings(eps=float(value["eps"]), max_iterations=int(value["max_iterations"]),
+                          relief_iterations=int(value["relief_iterations"]))
 
 
 def plan_animation(engine: Engine, settings: Settings, request: dict, streaming: bool) -> AnimationPlan:
