@@ -263,18 +263,22 @@ class Refiner:
         their normals; sd is updated in place for the vertices that moved.
         """
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
-        d0 = v0.take(e0, axis=0) - v0.take(e1, axis=0)
-        rest = np.sqrt(np.einsum("ec,ec->e", d0, d0))  # (E,) the input's edge lengths, m
-        d1 = v.take(e0, axis=0) - v.take(e1, axis=0)
-        stretched = np.sqrt(np.einsum("ec,ec->e", d1, d1)) - rest > self.relief_threshold
-        if self.relief_iterations == 0 or not stretched.any():
+        moved = np.any(v != v0, axis=1)
+        near = np.nonzero(moved[e0] | moved[e1])[0]  # only edges the refinement moved can be stretched
+        if self.relief_iterations == 0 or len(near) == 0:
+            return v, 0
+        i0, i1 = e0[near], e1[near]
+        stretched = np.linalg.norm(v[i0] - v[i1], axis=1) - np.linalg.norm(v0[i0] - v0[i1], axis=1)
+        stretched = near[stretched > self.relief_threshold]
+        if len(stretched) == 0:
             return v, 0
         free = np.zeros(self.n, dtype=bool)
         free[e0[stretched]] = free[e1[stretched]] = True
         for _ in range(self.rings):
             free |= (self.adjacency @ free.astype(np.float32)) > 0
         touching = free[e0] | free[e1]  # edges to held vertices pull too
-        ea, eb, length = e0[touching], e1[touching], rest[touching]
+        ea, eb = e0[touching], e1[touching]
+        length = np.linalg.norm(v0[ea] - v0[eb], axis=1)  # the input's edge lengths, m
         verts = np.unique(np.concatenate([ea, eb]))
         a, b = np.searchsorted(verts, ea), np.searchsorted(verts, eb)
         m, ne = len(verts), len(ea)
