@@ -26,8 +26,9 @@ does not converge on.
 
 Stretch relief: closest-point targets on both sides of a crease (between the thighs, at the
 armpit) or of a limb stretch the edges between them, and the smooth solve spreads the stretch
-only a ring or two. Last, edges elongated by more than `relief_threshold` against the input are
-relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
+only a ring or two. With `relief_iterations` > 0 (off by default: at 6k vertices it costs about 7 ms
+per frame, see docs/refine.md), edges elongated by more than `relief_threshold` against the input
+are then relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
 edge-length projection (each stretched edge shortened back towards its input length, nothing
 compressed; vertices outside the region held), each round followed by pushing whatever went
 inside back to its closest body point + eps. The stretched cloth slides along the body towards
@@ -145,7 +146,7 @@ class Refiner:
 
     def __init__(self, faces: np.ndarray, num_vertices: int, eps: float = 0.003, weight: float = 1e3,
                  mu: float = 0.5, rings: int = 2, max_iterations: int = 3, tear: float | None = 0.02,
-                 relief_threshold: float = 0.005, relief_iterations: int = 10, relief_query_every: int = 5):
+                 relief_threshold: float = 0.005, relief_iterations: int = 0, relief_query_every: int = 5):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
         self.eps, self.weight, self.mu, self.rings, self.max_iterations = eps, weight, mu, rings, max_iterations
@@ -393,12 +394,12 @@ class Refiner:
 
 def refine(garment: np.ndarray, faces: np.ndarray, body: np.ndarray, body_faces: np.ndarray,
            eps: float = 0.003, max_iterations: int = 3, tear: float | None = 0.02,
-           relief_iterations: int = 10) -> tuple[np.ndarray, RefineReport]:
+           relief_iterations: int = 0) -> tuple[np.ndarray, RefineReport]:
     """Refine a garment stream: (T, N, 3) garment, (T, M, 3) body -> ((T, N, 3) float32, report).
 
     eps: margin outside the body (m); tear: edge elongation (m) above which a patch's closest-point
     targets are checked against front-by-front placement (None: closest points only);
-    relief_iterations: rounds of the stretch relief pass (0: none).
+    relief_iterations: rounds of the stretch relief pass (0: none; 10 is what bench/refine.py measures).
     """
     g = np.asarray(garment)
     b = np.asarray(body)

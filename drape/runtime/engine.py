@@ -39,7 +39,7 @@ class RefineSettings:
 
     eps: float = 0.003
     max_iterations: int = 3
-    relief_iterations: int = 10
+    relief_iterations: int = 0
 
     def refiner(self, faces: np.ndarray, num_vertices: int) -> Refiner:
         return Refiner(faces, num_vertices, eps=self.eps, max_iterations=self.max_iterations,

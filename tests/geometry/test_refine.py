@@ -55,8 +55,8 @@ def test_stretch_relief_lowers_the_spikes(penetrating):
             return np.linalg.norm(y[:, edges[:, 0]] - y[:, edges[:, 1]], axis=2)
         return length(x) - length(g)
 
-    plain, _ = refine(g, o.faces, b, BODY.faces, relief_iterations=0)
-    relieved, report = refine(g, o.faces, b, BODY.faces)
+    plain, _ = refine(g, o.faces, b, BODY.faces)
+    relieved, report = refine(g, o.faces, b, BODY.faces, relief_iterations=10)
     before, after = stretch(plain), stretch(relieved)
     assert np.count_nonzero(before > 0.01) > 20, "the test input should stretch edges"
     assert np.count_nonzero(after > 0.01) <= np.count_nonzero(before > 0.01) / 2
@@ -108,7 +108,7 @@ def test_cloth_ending_inside_a_limb_comes_out_on_its_own_side():
 
     body = MeshDistance(BODY.vertices, BODY.faces)
     assert np.mean(body.signed_distance(sheet) < 0) > 0.3
-    closest_only, _ = refine(sheet[None], faces, BODY.vertices[None], BODY.faces, tear=None, relief_iterations=0)
+    closest_only, _ = refine(sheet[None], faces, BODY.vertices[None], BODY.faces, tear=None)
     assert largest_stretch(closest_only[0]) > 0.05  # the tear this guards against
     refined, report = refine(sheet[None], faces, BODY.vertices[None], BODY.faces)
     assert report.progressive == [True]
