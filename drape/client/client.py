@@ -101,9 +101,11 @@ def _animate_json(outfit_id: str | None, arrays: tuple | None, motion: MotionLik
     return req
 
 
-def _refine_json(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float) -> dict:
+def _refine_json(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float,
+                 relief_iterations: int) -> dict:
     return {"vertices": np.asarray(vertices, np.float32).tolist(), "faces": np.asarray(faces, np.int64).tolist(),
-            "motion": _motion_json(motion), "body": body, "options": {"eps": eps}}
+            "motion": _motion_json(motion), "body": body,
+            "options": {"eps": eps, "relief_iterations": relief_iterations}}
 
 
 def _animate_vertices(response: httpx.Response) -> np.ndarray:
@@ -178,9 +180,12 @@ class Client(_Base):
         return _animate_vertices(self._http.post("/v1/outfits/animate", json=req, headers={"Accept": NPZ}))
 
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-               eps: float = 0.003) -> np.ndarray:
-        """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion`."""
-        req = _refine_json(vertices, faces, motion, body, eps)
+               eps: float = 0.003, relief_iterations: int = 0) -> np.ndarray:
+        """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion`.
+
+        eps: metres kept from the body; relief_iterations: rounds of the stretch relief pass (0: none).
+        """
+        req = _refine_json(vertices, faces, motion, body, eps, relief_iterations)
         return _animate_vertices(self._http.post("/v1/refine", json=req, headers={"Accept": NPZ}))
 
     def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
@@ -233,8 +238,8 @@ class AsyncClient(_Base):
         return _animate_vertices(await self._http.post("/v1/outfits/animate", json=req, headers={"Accept": NPZ}))
 
     async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-                     eps: float = 0.003) -> np.ndarray:
-        req = _refine_json(vertices, faces, motion, body, eps)
+                     eps: float = 0.003, relief_iterations: int = 0) -> np.ndarray:
+        req = _refine_json(vertices, faces, motion, body, eps, relief_iterations)
         return _animate_vertices(await self._http.post("/v1/refine", json=req, headers={"Accept": NPZ}))
 
     async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,

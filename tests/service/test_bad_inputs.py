@@ -118,6 +118,7 @@ def test_refine_bad_inputs(http):
     problem(http.post("/v1/refine", json={**body, "faces": [[0, 1, 9]], "motion": {"poses": [[0.0] * 72] * 2}}),
             422, "faces")
     problem(animate(http, refine={"eps": -1.0}), 422, "eps")
+    problem(animate(http, refine={"relief_iterations": -1}), 422, "relief_iterations")
 
 
 def test_exactly_one_outfit_and_one_motion_source(http):
