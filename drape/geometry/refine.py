@@ -31,7 +31,8 @@ per frame, see docs/refine.md), edges elongated by more than `relief_threshold` 
 are then relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
 edge-length projection (each stretched edge shortened back towards its input length, nothing
 compressed; vertices outside the region held), each round followed by pushing whatever went
-inside back to its closest body point + eps. The stretched cloth slides along the body towards
+inside back out: onto its closest body point + eps every `relief_query_every` rounds and in the
+last, onto its last closest point's tangent plane in between. The stretched cloth slides along the body towards
 the crease instead of spanning it, and cloth the body's own overlap hides from the sign test is
 pulled out by its pushed neighbours. A connected patch whose largest stretch the pass would raise (pulled round
 a limb to its far side) keeps its refined position: the pass never raises a patch's largest stretch.
