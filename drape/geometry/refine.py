@@ -383,7 +383,7 @@ class Refiner:
                 inside = np.nonzero(sd < 0)[0]
                 v = step(v, inside, aim(inside))
                 it += 1
-        v, relieved = self._relieve(v0, v, sd, cp, n, surface, body, normals, tree) if before else (v, 0)
+        v, relieved = self._relieve(v0, v, sd, cp, n, surface, body, normals, tree)
         report.inside_before.append(before)
         report.inside_after.append(int(np.count_nonzero(sd < 0)))
         report.iterations.append(it)
