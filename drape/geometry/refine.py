@@ -92,9 +92,9 @@ class BodySurface:
               tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """points (P, 3) -> (signed distance (P,), closest point (P, 3), unit normal there (P, 3)).
 
-        Points farther than `far` from every body vertex and on the outer side of the nearest
-        one's normal are outside: they keep that vertex as their closest point. The others get
-        the exact closest point on the faces around their k nearest body vertices.
+        Points farther than `far` from every body vertex and on the outer side of the normals of
+        all k nearest ones are outside: they keep the nearest vertex as their closest point. The
+        others get the exact closest point on the faces around their k nearest body vertices.
         """
         tree = tree or body_tree(body)
         # both cores only for a whole large garment: below ~10k points the threads cost more than they save
@@ -102,7 +102,10 @@ class BodySurface:
         # `take` rather than fancy indexing: it gathers rows several times faster
         cp, n = body.take(near[:, 0], axis=0), normals.take(near[:, 0], axis=0)
         sd = dist[:, 0].copy()
-        close = (dist[:, 0] < self.far) | (np.einsum("pc,pc->p", points - cp, n) < 0)
+        # inner side of any of the k nearest: where the body overlaps itself (armpit, thighs) the nearest
+        # vertex can belong to the part the point is not inside
+        inner = np.einsum("pkc,pkc->pk", points[:, None] - body.take(near, axis=0), normals.take(near, axis=0)) < 0
+        close = (dist[:, 0] < self.far) | inner.any(axis=1)
         idx = np.nonzero(close)[0]
         if len(idx):
             # the faces around the k nearest body vertices, each face once per point

@@ -141,3 +141,30 @@ def test_body_surface_matches_the_exact_mesh_distance_where_garments_go():
     close = np.abs(exact) < surface.far
     assert np.mean(np.abs(np.abs(sd[close]) - np.abs(exact[close])) < 1e-6) > 0.97
     assert np.allclose(np.linalg.norm(pts - cp, axis=1)[close], np.abs(sd[close]))
+
+
+def test_body_surface_sees_points_deep_in_a_posed_body():
+    """Points 1.5-4 cm under the surface of a posed body that overlaps itself (dance_b): where a
+    point is inside one part and the nearest body vertex belongs to another, BodySurface must still
+    answer inside when the exact closest triangle does. Before it checked the k nearest vertices'
+    normals (not only the nearest one's), 29 of these 22,000 points disagreed; now 8."""
+    from drape.geometry.refine import BodySurface
+    from drape.geometry.skeleton import JOINT_INDEX
+
+    clip = load_clip("dance_b")
+    frames = np.arange(0, clip.num_frames, 15)
+    bodies = BODY.pose(clip.poses[frames].astype(float), clip.trans[frames].astype(float)).astype(np.float64)
+    surface = BodySurface(BODY.faces, len(BODY.vertices))
+    rng = np.random.default_rng(0)
+    ends = [JOINT_INDEX[n] for n in ("head", "left_foot", "right_foot", "left_hand", "right_hand")]
+    candidates = np.nonzero(~np.isin(BODY.weights.argmax(1), ends))[0]
+    disagree = total = 0
+    for body in bodies:
+        normals = surface.normals(body)
+        idx = rng.choice(candidates, 2000, replace=False)
+        pts = body[idx] - normals[idx] * rng.uniform(0.015, 0.04, (2000, 1))
+        sd = surface.query(body, normals, pts)[0]
+        exact = MeshDistance(body, BODY.faces).signed_distance(pts)
+        disagree += int(np.count_nonzero((sd < 0) != (exact < 0)))
+        total += len(pts)
+    assert disagree <= 0.0005 * total
