@@ -1,0 +1,84 @@
+"""Where the largest edge stretches left by refinement come from: a diagnostic for bench/refine.py.
+
+Input: the long sleeve + trousers outfit on the held-out clip dance_b (every 5th frame), posed by
+the nearest-body-weights LBS baseline (the issue's penetrating input; 6k and 20k vertices) and by
+the shipped DeePSD (6k). For each method (refine with its defaults, relief = the stretch relief
+pass on, naive = each inside vertex to its closest body point + eps) it lists the 8 most stretched
+edges over all frames: the stretch (elongation vs the input, mm), each end's depth in the input
+(exact closest-triangle signed distance, mm; negative inside), whether the refined edge passes
+through the body (a point at 1/4, 1/2 or 3/4 of it inside by the winding number: its ends sit on
+opposite sides of a limb), and the naive push's stretch of the same edge in the same frame.
+A summary line per method counts the listed edges with both ends more than 15 mm inside in the
+input, and those that pass through the body after.
+
+Run: .venv/bin/python -m bench.refine_spikes (about 5 minutes on the 2-core machine)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.refine import baseline_input, posed_body
+from drape.assets.motion import load_clip
+from drape.assets.outfits import generate_outfit
+from drape.geometry.mesh import unique_edges
+from drape.geometry.metrics import edge_lengths
+from drape.geometry.queries import MeshDistance, winding_number
+from drape.geometry.refine import BodySurface, Refiner, RefineReport, naive_push
+from drape.runtime.deepsd import DeePSDModel, pose_outfit
+
+TOP = 8
+DEEP = 0.015  # m
+
+
+def passes_through(a: np.ndarray, b: np.ndarray, body: np.ndarray, body_faces: np.ndarray) -> np.ndarray:
+    """Edges from a (K, 3) to b (K, 3), metres -> (K,) bool: a point at 1/4, 1/2 or 3/4 of the edge is inside
+    the body (M, 3) by the winding number."""
+    inner = np.array([0.25, 0.5, 0.75])
+    pts = a[:, None] + inner[None, :, None] * (b - a)[:, None]
+    inside = winding_number(pts.reshape(-1, 3), body, body_faces) > 0.5
+    return np.asarray(inside.reshape(len(a), -1).any(axis=1), dtype=bool)
+
+
+def main() -> None:
+    body, p, t, b = posed_body(np.arange(0, load_clip("dance_b").num_frames, 5))
+    surface = BodySurface(body.faces, len(body.vertices))
+    model = DeePSDModel()
+    cases = [("baseline", 6000), ("deepsd", 6000), ("baseline", 20000)]
+    print(f"{'input':8s} {'N':>6s} {'method':7s} {'frame':>5s} {'edge':>12s} {'stretch mm':>10s} "
+          f"{'depth in mm':>15s} {'through body':>12s} {'naive mm':>8s}")
+    for source, n in cases:
+        o = generate_outfit("longsleeve,trousers", vertices=n, seed=77)
+        if source == "baseline":
+            g = baseline_input(o, body, p, t)
+        else:
+            g = pose_outfit(o.vertices, model.rig(o.vertices, o.faces), model.pose_keys(p), body.joints, p, t)
+        g = g.astype(np.float64)
+        edges, nv = unique_edges(o.faces), len(o.vertices)
+        methods = {"refine": Refiner(o.faces, nv), "relief": Refiner(o.faces, nv, relief_iterations=10)}
+        naive = np.stack([naive_push(g[i], b[i], surface) for i in range(len(g))])
+        naive_stretch = edge_lengths(naive, edges) - edge_lengths(g, edges)  # (T, E) m
+        outputs = {name: np.stack([r.refine_frame(g[i], b[i], surface, RefineReport()) for i in range(len(g))])
+                   for name, r in methods.items()}
+        outputs["naive"] = naive
+        distances: dict[int, MeshDistance] = {}
+        for name, r in outputs.items():
+            stretch = edge_lengths(r, edges) - edge_lengths(g, edges)
+            top = np.argsort(-stretch, axis=None)[:TOP]
+            deep = through = 0
+            for frame, e in zip(*np.unravel_index(top, stretch.shape), strict=True):
+                ends = edges[e]
+                d = distances.setdefault(frame, MeshDistance(b[frame], body.faces))
+                depth = d.signed_distance(g[frame][ends])
+                crosses = bool(passes_through(r[frame][ends[:1]], r[frame][ends[1:]], b[frame], body.faces)[0])
+                deep += int(np.all(depth < -DEEP))
+                through += int(crosses)
+                print(f"{source:8s} {nv:6d} {name:7s} {frame:5d} {ends[0]:6d}-{ends[1]:<5d} {stretch[frame, e] * 1e3:10.2f} "
+                      f"{depth[0] * 1e3:7.1f} {depth[1] * 1e3:7.1f} {'yes' if crosses else 'no':>12s} "
+                      f"{naive_stretch[frame, e] * 1e3:8.2f}")
+            print(f"{source:8s} {nv:6d} {name:7s} of the {TOP} largest: both ends over {DEEP * 1e3:.0f} mm deep in "
+                  f"the input {deep}, through the body after {through}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
