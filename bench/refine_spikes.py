@@ -8,8 +8,13 @@ edges over all frames: the stretch (elongation vs the input, mm), each end's dep
 (exact closest-triangle signed distance, mm; negative inside), whether the refined edge passes
 through the body (a point at 1/4, 1/2 or 3/4 of it inside by the winding number: its ends sit on
 opposite sides of a limb), and the naive push's stretch of the same edge in the same frame.
+`gap deg`: for the connected patch of input cloth inside the body that holds the edge's deeper end,
+the largest angle around the limb's axis with none of the patch's outside neighbours in it (limb:
+the body vertices skinned mostly to the joint that the deeper end's closest body face belongs to;
+axis: their first principal direction). Under 180 degrees the patch's rim goes all round the limb:
+the limb pierces the cloth, and no placement of the patch outside the body leaves it unstretched.
 A summary line per method counts the listed edges with both ends more than 15 mm inside in the
-input, and those that pass through the body after.
+input, those that pass through the body after, and those whose patch rim goes all round the limb.
 
 Run: .venv/bin/python -m bench.refine_spikes (about 5 minutes on the 2-core machine)
 """
@@ -17,11 +22,13 @@ Run: .venv/bin/python -m bench.refine_spikes (about 5 minutes on the 2-core mach
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse.csgraph import connected_components
 
 from bench.refine import baseline_input, posed_body
+from drape.assets.body import Body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
-from drape.geometry.mesh import unique_edges
+from drape.geometry.mesh import adjacency_matrix, unique_edges
 from drape.geometry.metrics import edge_lengths
 from drape.geometry.queries import MeshDistance, winding_number
 from drape.geometry.refine import BodySurface, Refiner, RefineReport, naive_push
@@ -40,13 +47,37 @@ def passes_through(a: np.ndarray, b: np.ndarray, body: np.ndarray, body_faces: n
     return np.asarray(inside.reshape(len(a), -1).any(axis=1), dtype=bool)
 
 
+def rim_gap_deg(garment: np.ndarray, sd: np.ndarray, adjacency, vertex: int, distance: MeshDistance,  # noqa: ANN001
+                body: Body, posed: np.ndarray) -> float:
+    """The largest angle (degrees) around the limb's axis free of the inside patch's outside rim.
+
+    garment (N, 3) m, the input frame; sd (N,) its signed distances, m; adjacency (N, N) sparse;
+    vertex: an inside vertex of the patch; posed (M, 3) m, the posed body.
+    """
+    inside = np.nonzero(sd < 0)[0]
+    _, label = connected_components(adjacency[inside][:, inside], directed=False)
+    patch = inside[label == label[np.searchsorted(inside, vertex)]]
+    rim = np.unique(adjacency[patch].indices)
+    rim = rim[sd[rim] >= 0]
+    if len(rim) == 0:
+        return 360.0
+    face = distance.closest(garment[[vertex]])[2][0]
+    joint = np.bincount(body.weights[body.faces[face]].argmax(axis=1)).argmax()
+    limb = posed[body.weights.argmax(axis=1) == joint]
+    centre = limb.mean(axis=0)
+    _, _, axes = np.linalg.svd(limb - centre, full_matrices=False)  # axes[0]: the limb's long axis
+    rel = garment[rim] - centre
+    angle = np.sort(np.degrees(np.arctan2(rel @ np.cross(axes[0], axes[1]), rel @ axes[1])))
+    return float(np.max(np.diff(np.append(angle, angle[0] + 360.0))))
+
+
 def main() -> None:
     body, p, t, b = posed_body(np.arange(0, load_clip("dance_b").num_frames, 5))
     surface = BodySurface(body.faces, len(body.vertices))
     model = DeePSDModel()
     cases = [("baseline", 6000), ("deepsd", 6000), ("baseline", 20000)]
     print(f"{'input':8s} {'N':>6s} {'method':7s} {'frame':>5s} {'edge':>12s} {'stretch mm':>10s} "
-          f"{'depth in mm':>15s} {'through body':>12s} {'naive mm':>8s}")
+          f"{'depth in mm':>15s} {'through body':>12s} {'naive mm':>8s} {'gap deg':>7s}")
     for source, n in cases:
         o = generate_outfit("longsleeve,trousers", vertices=n, seed=77)
         if source == "baseline":
@@ -55,6 +86,7 @@ def main() -> None:
             g = pose_outfit(o.vertices, model.rig(o.vertices, o.faces), model.pose_keys(p), body.joints, p, t)
         g = g.astype(np.float64)
         edges, nv = unique_edges(o.faces), len(o.vertices)
+        adjacency = adjacency_matrix(o.faces, nv).tocsr()
         methods = {"refine": Refiner(o.faces, nv), "relief": Refiner(o.faces, nv, relief_iterations=10)}
         naive = np.stack([naive_push(g[i], b[i], surface) for i in range(len(g))])
         naive_stretch = edge_lengths(naive, edges) - edge_lengths(g, edges)  # (T, E) m
@@ -62,22 +94,30 @@ def main() -> None:
                    for name, r in methods.items()}
         outputs["naive"] = naive
         distances: dict[int, MeshDistance] = {}
+        input_sd: dict[int, np.ndarray] = {}
         for name, r in outputs.items():
             stretch = edge_lengths(r, edges) - edge_lengths(g, edges)
             top = np.argsort(-stretch, axis=None)[:TOP]
-            deep = through = 0
+            deep = through = pierced = 0
             for frame, e in zip(*np.unravel_index(top, stretch.shape), strict=True):
                 ends = edges[e]
                 d = distances.setdefault(frame, MeshDistance(b[frame], body.faces))
                 depth = d.signed_distance(g[frame][ends])
                 crosses = bool(passes_through(r[frame][ends[:1]], r[frame][ends[1:]], b[frame], body.faces)[0])
+                gap = "-"
+                if depth.min() < 0:
+                    sd = input_sd.setdefault(frame, d.signed_distance(g[frame]))
+                    gap_deg = rim_gap_deg(g[frame], sd, adjacency, int(ends[np.argmin(depth)]), d, body, b[frame])
+                    gap = f"{gap_deg:.0f}"
+                    pierced += int(gap_deg < 180)
                 deep += int(np.all(depth < -DEEP))
                 through += int(crosses)
                 print(f"{source:8s} {nv:6d} {name:7s} {frame:5d} {ends[0]:6d}-{ends[1]:<5d} {stretch[frame, e] * 1e3:10.2f} "
                       f"{depth[0] * 1e3:7.1f} {depth[1] * 1e3:7.1f} {'yes' if crosses else 'no':>12s} "
-                      f"{naive_stretch[frame, e] * 1e3:8.2f}")
+                      f"{naive_stretch[frame, e] * 1e3:8.2f} {gap:>7s}")
             print(f"{source:8s} {nv:6d} {name:7s} of the {TOP} largest: both ends over {DEEP * 1e3:.0f} mm deep in "
-                  f"the input {deep}, through the body after {through}", flush=True)
+                  f"the input {deep}, through the body after {through}, patch rim all round the limb {pierced}",
+                  flush=True)
 
 
 if __name__ == "__main__":
