@@ -146,8 +146,8 @@ def test_body_surface_matches_the_exact_mesh_distance_where_garments_go():
 def test_body_surface_sees_points_deep_in_a_posed_body():
     """Points 1.5-4 cm under the surface of a posed body that overlaps itself (dance_b): where a
     point is inside one part and the nearest body vertex belongs to another, BodySurface must still
-    answer inside when the exact closest triangle does. Before it checked the k nearest vertices'
-    normals (not only the nearest one's), 29 of these 22,000 points disagreed; now 8."""
+    answer inside when the exact closest triangle does. While BodySurface looked only at the nearest
+    vertex's normal, 29 of these 22,000 points disagreed; looking at both nearest ones', 8."""
     from drape.geometry.refine import BodySurface
     from drape.geometry.skeleton import JOINT_INDEX
 
