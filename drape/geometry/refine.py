@@ -26,8 +26,8 @@ does not converge on.
 
 Stretch relief: closest-point targets on both sides of a crease (between the thighs, at the
 armpit) or of a limb stretch the edges between them, and the smooth solve spreads the stretch
-only a ring or two. With `relief_iterations` > 0 (off by default: at 6k vertices it costs about 7 ms
-per frame, see docs/refine.md), edges elongated by more than `relief_threshold` against the input
+only a ring or two. With `relief_iterations` > 0 (off by default: at 6k vertices it takes 1.2-1.3x the
+defaults' time, see docs/refine.md), edges elongated by more than `relief_threshold` against the input
 are then relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
 edge-length projection (each stretched edge shortened back towards its input length, nothing
 compressed; vertices outside the region held), each round followed by pushing whatever went
@@ -100,11 +100,12 @@ class BodySurface:
         # both cores only for a whole large garment: below ~10k points the threads cost more than they save
         dist, near = tree.query(points, k=self.k, workers=-1 if len(points) >= 10_000 else 1)
         # `take` rather than fancy indexing: it gathers rows several times faster
-        cp, n = body.take(near[:, 0], axis=0), normals.take(near[:, 0], axis=0)
+        around, around_n = body.take(near, axis=0), normals.take(near, axis=0)  # (P, k, 3)
+        cp, n = around[:, 0], around_n[:, 0]
         sd = dist[:, 0].copy()
         # inner side of any of the k nearest: where the body overlaps itself (armpit, thighs) the nearest
         # vertex can belong to the part the point is not inside
-        inner = np.einsum("pkc,pkc->pk", points[:, None] - body.take(near, axis=0), normals.take(near, axis=0)) < 0
+        inner = np.einsum("pkc,pkc->pk", points[:, None] - around, around_n) < 0
         close = (dist[:, 0] < self.far) | inner.any(axis=1)
         idx = np.nonzero(close)[0]
         if len(idx):
@@ -326,8 +327,7 @@ class Refiner:
         s[check[q >= 0]] = q[q >= 0]
         # the pass may only lower a connected patch's largest stretch: a patch it made worse (pulled round
         # a limb to its far side) keeps its refined position
-        mov = np.zeros(m, dtype=bool)
-        mov[moving] = True
+        mov = free[verts]  # (m,) the moving vertices as a mask
         inner = mov[a] & mov[b]
         num, label = connected_components(sp.coo_matrix((np.ones(np.count_nonzero(inner)), (a[inner], b[inner])),
                                                         shape=(m, m)), directed=False)

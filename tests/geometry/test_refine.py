@@ -118,20 +118,26 @@ def test_cloth_ending_inside_a_limb_comes_out_on_its_own_side():
     assert np.all(refined[0][hem, 2] > shoulder[2])  # out in front of the arm, where the sheet is
 
 
+def vertices_where_garments_go():
+    """Body vertex indices skinned mostly to the torso and limbs, not the head, hands or feet."""
+    from drape.geometry.skeleton import JOINT_INDEX
+
+    ends = [JOINT_INDEX[n] for n in ("head", "left_foot", "right_foot", "left_hand", "right_hand")]
+    return np.nonzero(~np.isin(BODY.weights.argmax(1), ends))[0]
+
+
 def test_body_surface_matches_the_exact_mesh_distance_where_garments_go():
     """BodySurface (faces around the 2 nearest body vertices) against MeshDistance (exact), for
     points within about 2 cm of the torso and limbs: the same inside/outside answer, never a
     shorter distance, the same one for almost every point. Head, hands and feet are left out:
     near the head's inner geometry and across thin toes and fingers the two can disagree."""
     from drape.geometry.refine import BodySurface
-    from drape.geometry.skeleton import JOINT_INDEX
 
     body = BODY.vertices.astype(np.float64)
     surface = BodySurface(BODY.faces, len(body))
     normals = surface.normals(body)
     rng = np.random.default_rng(0)
-    ends = [JOINT_INDEX[n] for n in ("head", "left_foot", "right_foot", "left_hand", "right_hand")]
-    idx = rng.choice(np.nonzero(~np.isin(BODY.weights.argmax(1), ends))[0], 3000, replace=False)
+    idx = rng.choice(vertices_where_garments_go(), 3000, replace=False)
     pts = body[idx] + normals[idx] * rng.uniform(-0.01, 0.01, (3000, 1)) + rng.normal(0, 0.005, (3000, 3))
     sd, cp, _ = surface.query(body, normals, pts)
     exact = MeshDistance(body, BODY.faces).signed_distance(pts)
@@ -149,15 +155,13 @@ def test_body_surface_sees_points_deep_in_a_posed_body():
     answer inside when the exact closest triangle does. While BodySurface looked only at the nearest
     vertex's normal, 29 of these 22,000 points disagreed; looking at both nearest ones', 8."""
     from drape.geometry.refine import BodySurface
-    from drape.geometry.skeleton import JOINT_INDEX
 
     clip = load_clip("dance_b")
     frames = np.arange(0, clip.num_frames, 15)
     bodies = BODY.pose(clip.poses[frames].astype(float), clip.trans[frames].astype(float)).astype(np.float64)
     surface = BodySurface(BODY.faces, len(BODY.vertices))
     rng = np.random.default_rng(0)
-    ends = [JOINT_INDEX[n] for n in ("head", "left_foot", "right_foot", "left_hand", "right_hand")]
-    candidates = np.nonzero(~np.isin(BODY.weights.argmax(1), ends))[0]
+    candidates = vertices_where_garments_go()
     disagree = total = 0
     for body in bodies:
         normals = surface.normals(body)
