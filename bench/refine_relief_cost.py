@@ -25,6 +25,11 @@ from drape.runtime.deepsd import DeePSDModel
 PASSES = 15
 
 
+def spread(x: np.ndarray) -> str:
+    """Per-pass figures (PASSES,) -> 'median (min-max)'."""
+    return f"{np.median(x):.2f} ({x.min():.2f}-{x.max():.2f})"
+
+
 def main() -> None:
     body, p, t, b = posed_body(np.arange(0, load_clip("dance_b").num_frames, 5))
     surface = BodySurface(body.faces, len(body.vertices))
@@ -47,9 +52,6 @@ def main() -> None:
                     seconds[name][k] += time.perf_counter() - t0
         ms = {name: s / len(g) * 1e3 for name, s in seconds.items()}
         ratio = ms["relief"] / ms["defaults"]
-
-        def spread(x: np.ndarray) -> str:
-            return f"{np.median(x):.2f} ({x.min():.2f}-{x.max():.2f})"
         print(f"{source:8s} {spread(ms['defaults']):>24s} {spread(ms['relief']):>24s} {spread(ratio):>24s}", flush=True)
 
 
