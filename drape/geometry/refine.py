@@ -287,22 +287,20 @@ class Refiner:
         length = np.linalg.norm(v0[ea] - v0[eb], axis=1)  # the input's edge lengths, m
         verts = np.unique(np.concatenate([ea, eb]))
         a, b = np.searchsorted(verts, ea), np.searchsorted(verts, eb)
-        m, ne = len(verts), len(ea)
-        rows = np.concatenate([np.arange(ne), np.arange(ne)])
-        diff = sp.csr_matrix((np.concatenate([np.ones(ne), -np.ones(ne)]), (rows, np.concatenate([a, b]))),
-                             shape=(ne, m))  # (edges, m): x[a] - x[b]
-        gather = abs(diff).T.tocsr()  # (m, edges): sums over each vertex's edges
+        m = len(verts)
         moving = np.nonzero(free[verts])[0]
         x = v[verts].copy()
         cp, nn = closest[verts[moving]], closest_normal[verts[moving]]
         for k in range(self.relief_iterations):
-            d = diff @ x
+            d = x[a] - x[b]
             dl = np.sqrt(np.einsum("ec,ec->e", d, d))
             excess = np.maximum(dl - length, 0.0)
             pull = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
-            count = np.maximum(gather @ (excess > 0).astype(np.float64), 1.0)
+            on = (excess > 0).astype(np.float64)
+            count = np.maximum(np.bincount(a, on, m) + np.bincount(b, on, m), 1.0)
             # each end moves by its stretched edges' mean excess (twice the textbook half step: converges faster)
-            xm = x[moving] - (diff.T @ pull)[moving] / count[moving, None]
+            force = np.stack([np.bincount(a, pull[:, c], m) - np.bincount(b, pull[:, c], m) for c in range(3)], axis=1)
+            xm = x[moving] - force[moving] / count[moving, None]
             if (k + 1) % self.relief_query_every == 0 or k == self.relief_iterations - 1:
                 s, cp, nn = surface.query(body, normals, xm, tree)
                 inside = s < 0
