@@ -38,45 +38,36 @@ def closest_point_on_triangles(
     All inputs (P, 3). Returns (closest points (P, 3), barycentric coords (P, 3)).
     """
     ab, ac, ap = b - a, c - a, points - a
+    bp, cp = points - b, points - c
     d1 = np.einsum("pc,pc->p", ab, ap)
     d2 = np.einsum("pc,pc->p", ac, ap)
-    bp = points - b
     d3 = np.einsum("pc,pc->p", ab, bp)
     d4 = np.einsum("pc,pc->p", ac, bp)
-    cp = points - c
     d5 = np.einsum("pc,pc->p", ab, cp)
     d6 = np.einsum("pc,pc->p", ac, cp)
     va = d3 * d6 - d5 * d4
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
     tiny = 1e-30
-    # default: interior of the face
+    # default: interior of the face; v, w: the weights of b and c
     denom = 1.0 / np.maximum(va + vb + vc, tiny)
-    v = vb * denom
-    w = vc * denom
-    bary = np.stack([1 - v - w, v, w], axis=1)
-    regions = [
-        (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),  # edge bc
-        (vb <= 0) & (d2 >= 0) & (d6 <= 0),  # edge ac
-        (vc <= 0) & (d1 >= 0) & (d3 <= 0),  # edge ab
-        (d6 >= 0) & (d5 <= d6),  # vertex c
-        (d3 >= 0) & (d4 <= d3),  # vertex b
-        (d1 <= 0) & (d2 <= 0),  # vertex a
-    ]
-    # later assignments win, so the most specific (vertex) regions come last
-    m = regions[0]
-    t = (d4 - d3) / np.maximum((d4 - d3) + (d5 - d6), tiny)
-    bary[m] = np.stack([np.zeros_like(t), 1 - t, t], axis=1)[m]
-    m = regions[1]
+    v, w = vb * denom, vc * denom
+    # a point in several regions' tests takes the last: the most specific (vertex) regions come last
+    e43, e56 = d4 - d3, d5 - d6
+    m = (va <= 0) & (e43 >= 0) & (e56 >= 0)  # edge bc
+    t = e43 / np.maximum(e43 + e56, tiny)
+    v, w = np.where(m, 1 - t, v), np.where(m, t, w)
+    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)  # edge ac
     t = d2 / np.maximum(d2 - d6, tiny)
-    bary[m] = np.stack([1 - t, np.zeros_like(t), t], axis=1)[m]
-    m = regions[2]
+    v, w = np.where(m, 0.0, v), np.where(m, t, w)
+    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)  # edge ab
     t = d1 / np.maximum(d1 - d3, tiny)
-    bary[m] = np.stack([1 - t, t, np.zeros_like(t)], axis=1)[m]
-    for m, corner in zip(regions[3:], (2, 1, 0), strict=True):
-        one = np.zeros((int(m.sum()), 3))
-        one[:, corner] = 1.0
-        bary[m] = one
+    v, w = np.where(m, t, v), np.where(m, 0.0, w)
+    for m, vv, ww in (((d6 >= 0) & (d5 <= d6), 0.0, 1.0),  # vertex c
+                      ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),  # vertex b
+                      ((d1 <= 0) & (d2 <= 0), 0.0, 0.0)):  # vertex a
+        v, w = np.where(m, vv, v), np.where(m, ww, w)
+    bary = np.stack([1 - v - w, v, w], axis=1)
     closest = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
     return closest, bary
 

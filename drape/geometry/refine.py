@@ -96,6 +96,8 @@ class BodySurface:
         all k nearest ones are outside: they keep the nearest vertex as their closest point. The
         others get the exact closest point on the faces around their k nearest body vertices.
         """
+        if len(points) == 0:
+            return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
         tree = tree or body_tree(body)
         # both cores only for a whole large garment: below ~10k points the threads cost more than they save
         dist, near = tree.query(points, k=self.k, workers=-1 if len(points) >= 10_000 else 1)
@@ -327,7 +329,7 @@ class Refiner:
         # a limb to its far side) keeps its refined position
         mov = free[verts]  # (m,) the moving vertices as a mask
         inner = mov[a] & mov[b]
-        num, label = connected_components(sp.coo_matrix((np.ones(np.count_nonzero(inner)), (a[inner], b[inner])),
+        num, label = connected_components(sp.csr_matrix((np.ones(np.count_nonzero(inner)), (a[inner], b[inner])),
                                                         shape=(m, m)), directed=False)
         patch = label[np.where(mov[a], a, b)]  # (edges,) the patch of each edge's moving end
         x0 = v[verts]
