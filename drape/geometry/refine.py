@@ -22,7 +22,8 @@ come out on their neighbours' side, not through the far side of a limb. It is us
 the start, per connected inside patch, when the patch's closest-point targets would stretch
 an edge by more than `tear` and the progressive targets stretch it less (a limb through the
 cloth, whose closest points fall on both sides of it), and (b) for frames the fast path
-does not converge on.
+does not converge on; there, cloth that was outside in the input is aimed back at its input
+position, as in the fast path, rather than placed after its neighbours across the limb.
 
 Stretch relief: closest-point targets on both sides of a crease (between the thighs, at the
 armpit) or of a limb stretch the edges between them, and the smooth solve spreads the stretch
@@ -380,8 +381,12 @@ class Refiner:
             it += 1
         if np.any(sd < 0):
             progressive = True
-            inside, targets = self._progressive_targets(v, sd, surface, body, normals, tree)
-            v = step(v, inside, targets)
+            # cloth that was outside in the input goes back there; the rest is placed front by front
+            back = np.nonzero((sd < 0) & was_outside)[0]
+            inside, targets = self._progressive_targets(v, sd, surface, body, normals, tree, only=~was_outside)
+            inside, targets = np.concatenate([inside, back]), np.concatenate([targets, v0[back]])
+            order = np.argsort(inside)
+            v = step(v, inside[order], targets[order])
             if np.any(sd < 0):  # one step to settle what the smooth solve left inside
                 inside = np.nonzero(sd < 0)[0]
                 v = step(v, inside, aim(inside))
