@@ -10,8 +10,7 @@ through the body (a point at 1/4, 1/2 or 3/4 of it inside by the winding number:
 opposite sides of a limb), and the naive push's stretch of the same edge in the same frame.
 `gap deg`: for the connected patch of input cloth inside the body that holds the edge's deeper end,
 the largest angle around the limb's axis with none of the patch's outside neighbours in it (limb:
-the body vertices skinned mostly to the joint that the patch's deepest vertex's closest body face
-belongs to;
+the body vertices skinned mostly to the joint of the patch's deepest vertex's closest body face;
 axis: their first principal direction). Under 180 degrees the patch's rim goes all round the limb:
 the limb pierces the cloth, and no placement of the patch outside the body leaves it unstretched.
 A summary line per method counts the listed edges with both ends more than 15 mm inside in the
@@ -19,7 +18,7 @@ input, those that pass through the body after, and those whose patch rim goes al
 A second gives the spike figures over all edges and frames except the edges with an end in such a
 pierced patch: the largest stretch, its 99.9th percentile and the edges over 10 mm per frame.
 
-Run: .venv/bin/python -m bench.refine_spikes (about 1.5 minutes on the 2-core machine)
+Run: .venv/bin/python -m bench.refine_spikes (about 2 minutes on the 2-core machine)
 """
 
 from __future__ import annotations
@@ -136,6 +135,7 @@ def main() -> None:
                   f"of edge-frames): largest {off.max() * 1e3:.2f} mm, 99.9th percentile "
                   f"{np.percentile(off, 99.9) * 1e3:.2f} mm, over 10 mm {np.count_nonzero(off > 0.01) / len(g):.1f} "
                   f"per frame", flush=True)
+
 
 if __name__ == "__main__":
     main()
