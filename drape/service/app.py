@@ -39,13 +39,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             catalog.bodies()
             catalog.motions()
             engine = Engine(settings.model_dir, settings.ort_threads, settings.outfit_cache_bytes,
-                            observe=metrics.observe_inference)
+                            observe=metrics.observe_inference, refine_workers=settings.refine_workers)
             engine.warm_up()
             app.state.engine = engine
 
         await run_in_threadpool(start)
         app.state.ready = True
         yield
+        app.state.engine.close()
 
     app = FastAPI(
         title="drape", version=__version__, lifespan=lifespan,

@@ -23,5 +23,6 @@ class Settings(BaseSettings):
     max_body_bytes: int = 64 * 2**20
     outfit_cache_bytes: int = 512 * 2**20
     stream_chunk_frames: int = 32
+    refine_workers: int = 2  # processes a chunk's refinement is split over (1: in the serving process)
     api_key: str | None = None
     cors_origins: list[str] = []
