@@ -11,7 +11,7 @@ from typing import Any
 import httpx
 import numpy as np
 
-from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, decode_npz
+from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, decode_npz, encode_npz
 from drape.schemas.catalog import BodyList, Health, MotionList
 from drape.schemas.models import ModelList
 
@@ -59,19 +59,23 @@ def _mesh_arrays(outfit: OutfitLike) -> tuple[np.ndarray, np.ndarray] | None:
     return np.asarray(vertices, np.float32), np.asarray(faces, np.int64)
 
 
-def _motion_json(motion: MotionLike) -> dict:
+def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
+    """A motion as the request's arrays: clip (a name) or poses, fps and translation if given."""
     if isinstance(motion, str):
-        return {"clip": motion}
+        return {"clip": np.array(motion)}
     if isinstance(motion, np.ndarray):
-        return {"poses": motion.tolist()}
+        return {"poses": np.asarray(motion, np.float64)}
     get = motion.get if isinstance(motion, Mapping) else (lambda k, d=None: getattr(motion, k, d))
-    poses = np.asarray(get("poses"), np.float64)
     trans = get("translation", None)
     trans = get("trans", None) if trans is None else trans
-    out: dict = {"poses": poses.tolist(), "fps": float(get("fps", 30.0) or 30.0)}
+    out = {"poses": np.asarray(get("poses"), np.float64), "fps": np.array(float(get("fps", 30.0) or 30.0))}
     if trans is not None:
-        out["translation"] = np.asarray(trans, np.float64).tolist()
+        out["translation"] = np.asarray(trans, np.float64)
     return out
+
+
+def _motion_json(motion: MotionLike) -> dict:
+    return {k: a.tolist() if a.ndim else a.item() for k, a in _motion_arrays(motion).items()}
 
 
 def _rig_request(outfit: OutfitLike, body: str) -> dict:
@@ -101,11 +105,12 @@ def _animate_json(outfit_id: str | None, arrays: tuple | None, motion: MotionLik
     return req
 
 
-def _refine_json(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float,
-                 relief_iterations: int) -> dict:
-    return {"vertices": np.asarray(vertices, np.float32).tolist(), "faces": np.asarray(faces, np.int64).tolist(),
-            "motion": _motion_json(motion), "body": body,
-            "options": {"eps": eps, "relief_iterations": relief_iterations}}
+def _refine_npz(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float,
+                relief_iterations: int) -> bytes:
+    """The refine request as an npz: binary float32 vertices instead of JSON text (about a tenth of the bytes)."""
+    return encode_npz({"vertices": np.asarray(vertices, np.float32), "faces": np.asarray(faces, np.int64),
+                       **_motion_arrays(motion), "body": np.array(body), "eps": np.array(float(eps)),
+                       "relief_iterations": np.array(int(relief_iterations))})
 
 
 def _animate_vertices(response: httpx.Response) -> np.ndarray:
@@ -185,8 +190,9 @@ class Client(_Base):
 
         eps: metres kept from the body; relief_iterations: rounds of the stretch relief pass (0: none).
         """
-        req = _refine_json(vertices, faces, motion, body, eps, relief_iterations)
-        return _animate_vertices(self._http.post("/v1/refine", json=req, headers={"Accept": NPZ}))
+        req = _refine_npz(vertices, faces, motion, body, eps, relief_iterations)
+        return _animate_vertices(self._http.post("/v1/refine", content=req, headers={"Content-Type": NPZ,
+                                                                                     "Accept": NPZ}))
 
     def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                        motion: MotionLike, body: str | None = None, refine: bool = False) -> Iterator[np.ndarray]:
@@ -239,8 +245,9 @@ class AsyncClient(_Base):
 
     async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
                      eps: float = 0.003, relief_iterations: int = 0) -> np.ndarray:
-        req = _refine_json(vertices, faces, motion, body, eps, relief_iterations)
-        return _animate_vertices(await self._http.post("/v1/refine", json=req, headers={"Accept": NPZ}))
+        req = _refine_npz(vertices, faces, motion, body, eps, relief_iterations)
+        return _animate_vertices(await self._http.post("/v1/refine", content=req, headers={"Content-Type": NPZ,
+                                                                                           "Accept": NPZ}))
 
     async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                              motion: MotionLike, body: str | None = None,

@@ -121,6 +121,20 @@ def test_refine_bad_inputs(http):
     problem(animate(http, refine={"relief_iterations": -1}), 422, "relief_iterations")
 
 
+def test_refine_npz_bad_options(http):
+    """An npz refine request carries its options as scalars, checked like the JSON request's options."""
+    def post(**arrays):
+        buf = io.BytesIO()
+        np.savez(buf, vertices=np.array([V] * 2, np.float32), faces=np.array(F), poses=np.zeros((2, 72)), **arrays)
+        return http.post("/v1/refine", content=buf.getvalue(), headers={"content-type": "application/x-npz"})
+
+    problem(post(relief_iterations=np.array(-1)), 422, "relief_iterations")
+    problem(post(eps=np.array(1.0)), 422, "eps")
+    problem(post(eps=np.array([0.003, 0.003])), 422, "eps", "scalar")
+    problem(post(max_iterations=np.array("three")), 422, "max_iterations")
+    assert post(eps=np.array(0.004), relief_iterations=np.array(2)).status_code == 200
+
+
 def test_exactly_one_outfit_and_one_motion_source(http):
     problem(http.post("/v1/outfits/animate", json={"motion": {"clip": "kick"}}), 422, "outfit")
     problem(animate(http, motion={"clip": "kick", "poses": [[0.0] * 72]}), 422, "motion")

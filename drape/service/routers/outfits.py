@@ -15,7 +15,7 @@ from pydantic import BaseModel, ValidationError
 from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
 from drape.schemas.binary import FRAMES, NPZ, decode_npz, encode_npz, stream_chunk, stream_header
-from drape.schemas.outfits import AnimateRequest, RefineRequest, RigRequest
+from drape.schemas.outfits import AnimateRequest, RefineOptions, RefineRequest, RigRequest
 from drape.service import handlers
 from drape.service.errors import InvalidInput, MalformedInput, UnsupportedMediaType
 from drape.service.http import engine_of, media_type, parse_json, read_body, settings_of
@@ -130,6 +130,21 @@ def _parse(model: type[BaseModel], data: bytes) -> BaseModel:
         raise InvalidInput(_validation_detail(exc)) from exc
 
 
+def _npz_options(z: dict[str, np.ndarray]) -> dict | None:
+    """The refine options among an npz's arrays (scalars eps, max_iterations, relief_iterations), validated
+    like the JSON request's `options`; None when it has none."""
+    given = {k: z[k] for k in RefineOptions.model_fields if k in z}
+    if not given:
+        return None
+    for k, a in given.items():
+        if a.shape != () or a.dtype.kind not in "iuf":
+            raise InvalidInput(f"expected a numeric scalar, got dtype {a.dtype} and shape {a.shape}", k)
+    try:
+        return RefineOptions.model_validate({k: a.item() for k, a in given.items()}).model_dump()
+    except ValidationError as exc:
+        raise InvalidInput(_validation_detail(exc)) from exc
+
+
 FRAME_ANSWERS = {200: {"description": "frames (T, N, 3)", "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY}}, **ERRORS}
 
@@ -160,8 +175,9 @@ refine_router = APIRouter(prefix="/v1", tags=["refine"])
 @refine_router.post("/refine", responses=FRAME_ANSWERS, openapi_extra={"requestBody": {"required": True, "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/RefineRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
-                     "npz: vertices (T, N, 3), faces (F, 3), poses (T, 24, 3) or (T, 72), optional translation "
-                     "(T, 3), fps, body"}}}}})
+                     "npz: vertices (T, N, 3), faces (F, 3), poses (T, 24, 3) or (T, 72) with optional translation "
+                     "(T, 3) and fps, or clip (a name); optional body, and the options as scalars: eps, "
+                     "max_iterations, relief_iterations"}}}}})
 async def refine_stream(request: Request) -> Response:
     """Garment stream + faces + body motion -> the stream with body penetration removed (same formats as animate)."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
@@ -172,11 +188,12 @@ async def refine_stream(request: Request) -> Response:
             z = decode_npz(await read_body(request))
         except ValueError as exc:
             raise MalformedInput(str(exc), "body") from exc
-        missing = [k for k in ("vertices", "faces", "poses") if k not in z]
+        missing = [k for k in ("vertices", "faces") if k not in z] + ([] if "poses" in z or "clip" in z else ["poses"])
         if missing:
             raise InvalidInput(f"the archive lacks {missing}", "body")
-        motion = {"poses": z["poses"], "translation": z.get("translation"), "fps": float(z.get("fps", 30.0))}
-        args = (z["vertices"], z["faces"], motion, str(z["body"]) if "body" in z else None, None)
+        motion = {"clip": str(z["clip"]) if "clip" in z else None, "poses": z.get("poses"),
+                  "translation": z.get("translation"), "fps": float(z.get("fps", 30.0))}
+        args = (z["vertices"], z["faces"], motion, str(z["body"]) if "body" in z else None, _npz_options(z))
     elif kind in (JSON, ""):
         req = _parse(RefineRequest, await read_body(request))
         d = req.model_dump()
