@@ -129,3 +129,15 @@ def test_refine_route_and_animate_refine(server_url, outfit):
     # the test service runs an untrained model, which penetrates heavily; the 0.1% bar on realistic
     # input is pinned in tests/geometry/test_refine.py and measured by bench/refine.py
     assert inside(raw) > 0.01 and inside(fixed) < 0.25 * inside(raw)
+
+
+def test_refine_with_a_clip_name(server_url, outfit):
+    """client.refine sends npz; a motion given as a clip name refines like the clip's own poses."""
+    clip = load_clip("kick")
+    frames = np.repeat(outfit.vertices[None], clip.num_frames, axis=0)
+    with drape.Client(server_url) as client:
+        by_name = client.refine(frames, outfit.faces, motion="kick")
+        by_poses = client.refine(frames, outfit.faces, motion={"poses": clip.poses, "translation": clip.trans,
+                                                               "fps": clip.fps})
+    assert by_name.shape == frames.shape and np.array_equal(by_name, by_poses)
+    assert np.abs(by_name - frames).max() > 1e-3, "the rest-pose shirt should need refining somewhere in the clip"
