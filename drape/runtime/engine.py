@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import hashlib
 import multiprocessing
+import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -79,17 +81,15 @@ def refine_against(frames: np.ndarray, body: str, body_vertices: np.ndarray, ref
 
 
 @lru_cache(maxsize=4)
-def _worker_refiner(settings: RefineSettings, faces_key: str, faces: bytes, num_faces: int,
-                    num_vertices: int) -> Refiner:
-    """A worker process's Refiner for one garment topology, built once (faces: int32 bytes, keyed by their hash)."""
-    return settings.refiner(np.frombuffer(faces, dtype=np.int32).reshape(num_faces, 3), num_vertices)
+def _worker_refiner(settings: RefineSettings, faces: bytes, num_vertices: int) -> Refiner:
+    """A worker process's Refiner for one garment topology (faces: (F, 3) int32 as bytes), built once."""
+    return settings.refiner(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices)
 
 
-def _refine_in_worker(frames: np.ndarray, faces_key: str, faces: bytes, num_faces: int, body: str,
-                      body_vertices: np.ndarray, settings: RefineSettings) -> np.ndarray:
+def _refine_in_worker(frames: np.ndarray, faces: bytes, body: str, body_vertices: np.ndarray,
+                      settings: RefineSettings) -> np.ndarray:
     """`refine_against` in a worker process, with the worker's cached Refiner: (n, N, 3) float32."""
-    refiner = _worker_refiner(settings, faces_key, faces, num_faces, frames.shape[1])
-    return refine_against(frames, body, body_vertices, refiner)
+    return refine_against(frames, body, body_vertices, _worker_refiner(settings, faces, frames.shape[1]))
 
 
 def _start_worker() -> None:
@@ -102,13 +102,15 @@ def _start_worker() -> None:
 class RefinePool:
     """Refines a chunk's frames split over `workers` processes; fewer than `min_frames` per worker: in process.
 
-    The processes start on first use, from a fork server (not forked from the serving process, whose
-    ONNX Runtime threads a fork would copy in an unknown state); close() stops them.
+    The processes start at `start()` (the engine's warm-up) or on first use, from a fork server (not
+    forked from the serving process, whose ONNX Runtime threads a fork would copy in an unknown state);
+    close() stops them. If a worker dies, the chunk is refined in process and the next one starts new workers.
     """
 
     def __init__(self, workers: int, min_frames: int = 2):
         self.workers, self.min_frames = workers, min_frames
         self._pool: Executor | None = None
+        self._lock = threading.Lock()
 
     def refine(self, frames: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray, translation: np.ndarray,
                settings: RefineSettings, refiner: Refiner) -> np.ndarray:
@@ -120,30 +122,32 @@ class RefinePool:
         # the body is posed here, for the whole chunk, in every case: posing in smaller batches would
         # change its vertices in the last float bit, and the refinement's discrete choices with them
         vertices = posed_body(body, poses, translation)
-        if parts < 2:
-            return refine_against(frames, body, vertices, refiner)
-        self.start()
-        assert self._pool is not None
-        f = np.ascontiguousarray(faces, dtype=np.int32)
-        key = hashlib.sha256(f.tobytes()).hexdigest()
-        split = np.array_split(np.arange(len(frames)), parts)
-        futures = [self._pool.submit(_refine_in_worker, frames[i], key, f.tobytes(), len(f), body, vertices[i],
-                                     settings) for i in split]
-        return np.concatenate([fut.result() for fut in futures])
+        if parts >= 2:
+            pool = self.start()
+            f = np.ascontiguousarray(faces, dtype=np.int32).tobytes()
+            split = np.array_split(np.arange(len(frames)), parts)
+            try:
+                futures = [pool.submit(_refine_in_worker, frames[i], f, body, vertices[i], settings) for i in split]
+                return np.concatenate([fut.result() for fut in futures])
+            except BrokenProcessPool:
+                self.close()
+        return refine_against(frames, body, vertices, refiner)
 
-    def start(self) -> None:
-        """Start the worker processes now (each loads the geometry code and the neutral body), so that the
-        first request does not wait for them; nothing when refining in process."""
-        if self.workers < 2 or self._pool is not None:
-            return
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("forkserver"))
-        for fut in [self._pool.submit(_start_worker) for _ in range(self.workers)]:
-            fut.result()
+    def start(self) -> Executor:
+        """Start the worker processes now if they are not running (each loads the geometry code and the
+        neutral body), so that the first request does not wait for them."""
+        with self._lock:
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("forkserver"))
+                for fut in [self._pool.submit(_start_worker) for _ in range(self.workers)]:
+                    fut.result()
+            return self._pool
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        with self._lock:
+            if self._pool is not None:
+                self._pool.shutdown()
+                self._pool = None
 
 
 class Engine:
@@ -224,4 +228,5 @@ class Engine:
         outfit = RiggedOutfit("warm-up", "neutral", v, f, rig)
         for _ in self.pose_chunks(outfit, np.zeros((2, 24, 3)), np.zeros((2, 3))):
             pass
-        self.refine_pool.start()
+        if self.refine_pool.workers >= 2:
+            self.refine_pool.start()

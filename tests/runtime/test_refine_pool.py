@@ -1,5 +1,9 @@
 """Refinement split over worker processes gives exactly the in-process result."""
 
+import os
+import signal
+import time
+
 import numpy as np
 import pytest
 
@@ -47,3 +51,21 @@ def test_a_short_chunk_stays_in_process(stream):
     out = pool.refine(g[:3], faces, "neutral", p[:3], t[:3], settings, refiner)
     assert pool._pool is None
     assert np.array_equal(out, refine_frames(g[:3], faces, "neutral", p[:3], t[:3], refiner))
+
+
+def test_a_dead_worker_falls_back_to_the_serving_process(stream):
+    g, faces, p, t = stream
+    settings = RefineSettings()
+    refiner = settings.refiner(faces, g.shape[1])
+    pool = RefinePool(2)
+    try:
+        for pid in list(pool.start()._processes):  # type: ignore[attr-defined]
+            os.kill(pid, signal.SIGKILL)
+        time.sleep(0.5)
+        out = pool.refine(g, faces, "neutral", p, t, settings, refiner)
+        assert pool._pool is None, "the broken pool is dropped; the next chunk starts new workers"
+        assert np.array_equal(out, refine_frames(g, faces, "neutral", p, t, refiner))
+        assert np.array_equal(pool.refine(g, faces, "neutral", p, t, settings, refiner), out)
+        assert pool._pool is not None
+    finally:
+        pool.close()
