@@ -13,6 +13,8 @@ import socket
 import statistics
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import httpx
 import numpy as np
@@ -31,14 +33,31 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--vertices", type=int, default=10000)
     args = p.parse_args()
+    with loopback_server() as url:
+        measure(args, url)
+
+
+@contextmanager
+def loopback_server() -> Iterator[str]:
+    """The service with its default settings on a free port of 127.0.0.1, in a thread: yields its base URL.
+    On exit the server shuts down (its lifespan too: the refinement workers stop)."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     server = uvicorn.Server(uvicorn.Config(create_app(Settings()), host="127.0.0.1", port=port, log_level="warning"))
-    threading.Thread(target=server.run, daemon=True).start()
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
     while not server.started:
         time.sleep(0.05)
-    url = f"http://127.0.0.1:{port}"
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(timeout=30)
+
+
+def measure(args: argparse.Namespace, url: str) -> None:
+    """Fetch the posed stream three ways from the server at `url`, then print the table."""
     outfit = generate_outfit("tshirt,trousers", vertices=args.vertices, seed=1)
     clip = load_clip("walk")
     idx = np.arange(args.frames) % clip.num_frames
@@ -69,7 +88,6 @@ def main() -> None:
             ref = out if ref is None else ref
             assert out.shape == (args.frames, len(outfit.vertices), 3) and np.array_equal(out, ref)
             results[name] = statistics.median(times)
-    server.should_exit = True
     mb = args.frames * len(outfit.vertices) * 3 * 4 / 1e6
     print(f"{args.frames} frames x {len(outfit.vertices)} vertices = {mb:.1f} MB float32, median of {args.repeat}")
     print(f"{'transport':14s} {'seconds':>8s} {'MB/s':>8s} {'frames/s':>9s} {'x JSON':>7s}")

@@ -14,22 +14,17 @@ from __future__ import annotations
 
 import argparse
 import io
-import socket
 import statistics
-import threading
 import time
 
 import httpx
 import numpy as np
-import uvicorn
 
+from bench.http import loopback_server
 from bench.refine import baseline_input, posed_body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
-from drape.service.app import create_app
-from drape.service.settings import Settings
-
-NPZ = "application/x-npz"
+from drape.schemas.binary import NPZ, decode_npz
 
 
 def main() -> None:
@@ -39,14 +34,6 @@ def main() -> None:
     body, p, t, _ = posed_body(np.arange(0, load_clip("dance_b").num_frames, 5))
     o = generate_outfit("longsleeve,trousers", vertices=6000, seed=77)
     g = baseline_input(o, body, p, t).astype(np.float32)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(Settings()), host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    while not server.started:
-        time.sleep(0.05)
     motion = {"poses": p.tolist(), "translation": t.tolist(), "fps": 30.0}
     buf = io.BytesIO()
     np.savez(buf, vertices=g, faces=o.faces, poses=p, translation=t, fps=np.array(30.0))
@@ -57,19 +44,14 @@ def main() -> None:
     }
     seconds: dict[str, list[float]] = {name: [] for name in requests}
     frames: dict[str, np.ndarray] = {}
-    try:
-        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=600) as http:
-            for k in range(args.repeat):
-                for name in (list(requests) if k % 2 == 0 else list(reversed(requests))):
-                    t0 = time.perf_counter()
-                    r = http.post("/v1/refine", **requests[name])  # type: ignore[arg-type]
-                    r.raise_for_status()
-                    with np.load(io.BytesIO(r.content), allow_pickle=False) as z:
-                        frames[name] = z["vertices"]
-                    seconds[name].append(time.perf_counter() - t0)
-    finally:
-        server.should_exit = True
-        thread.join(timeout=30)
+    with loopback_server() as url, httpx.Client(base_url=url, timeout=600) as http:
+        for k in range(args.repeat):
+            for name in (list(requests) if k % 2 == 0 else list(reversed(requests))):
+                t0 = time.perf_counter()
+                r = http.post("/v1/refine", **requests[name])  # type: ignore[arg-type]
+                r.raise_for_status()
+                frames[name] = decode_npz(r.content)["vertices"]
+                seconds[name].append(time.perf_counter() - t0)
     assert np.array_equal(frames["json"], frames["npz"])
     med = {name: statistics.median(s) for name, s in seconds.items()}
     print(f"{len(g)} frames x {g.shape[1]} vertices, median of {args.repeat}")
