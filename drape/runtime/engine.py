@@ -61,12 +61,6 @@ def body_surface(body: str) -> BodySurface:
     return BodySurface(b.faces, len(b.vertices))
 
 
-def refine_frames(frames: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray, translation: np.ndarray,
-                  refiner: Refiner) -> np.ndarray:
-    """Refine posed garment frames (n, N, 3) against the body posed by (poses, translation): (n, N, 3) float32."""
-    return refine_against(frames, body, posed_body(body, poses, translation), refiner)
-
-
 def posed_body(body: str, poses: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """The body's vertices posed by (poses (n, 24, 3) or (n, 72), translation (n, 3)): (n, M, 3) float64, m."""
     return load_body(body).pose(poses, translation).astype(np.float64)
@@ -81,15 +75,15 @@ def refine_against(frames: np.ndarray, body: str, body_vertices: np.ndarray, ref
 
 
 @lru_cache(maxsize=4)
-def _worker_refiner(settings: RefineSettings, faces: bytes, num_vertices: int) -> Refiner:
-    """A worker process's Refiner for one garment topology (faces: (F, 3) int32 as bytes), built once."""
+def cached_refiner(settings: RefineSettings, faces: bytes, num_vertices: int) -> Refiner:
+    """This process's Refiner for one garment topology and settings (faces: (F, 3) int32 as bytes), built once."""
     return settings.refiner(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices)
 
 
 def _refine_in_worker(frames: np.ndarray, faces: bytes, body: str, body_vertices: np.ndarray,
                       settings: RefineSettings) -> np.ndarray:
-    """`refine_against` in a worker process, with the worker's cached Refiner: (n, N, 3) float32."""
-    return refine_against(frames, body, body_vertices, _worker_refiner(settings, faces, frames.shape[1]))
+    """`refine_against` in a worker process: (n, N, 3) float32."""
+    return refine_against(frames, body, body_vertices, cached_refiner(settings, faces, frames.shape[1]))
 
 
 def _start_worker() -> None:
@@ -113,25 +107,23 @@ class RefinePool:
         self._lock = threading.Lock()
 
     def refine(self, frames: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray, translation: np.ndarray,
-               settings: RefineSettings, refiner: Refiner) -> np.ndarray:
-        """frames (n, N, 3), poses (n, 24, 3) or (n, 72), translation (n, 3) -> refined (n, N, 3) float32.
-
-        refiner: `settings.refiner(faces, N)`, used when the chunk is refined in process.
-        """
+               settings: RefineSettings) -> np.ndarray:
+        """frames (n, N, 3), faces (F, 3), poses (n, 24, 3) or (n, 72), translation (n, 3) -> refined (n, N, 3)
+        float32."""
         parts = min(self.workers, len(frames) // self.min_frames)
         # the body is posed here, for the whole chunk, in every case: posing in smaller batches would
         # change its vertices in the last float bit, and the refinement's discrete choices with them
         vertices = posed_body(body, poses, translation)
+        f = np.ascontiguousarray(faces, dtype=np.int32).tobytes()
         if parts >= 2:
             pool = self.start()
-            f = np.ascontiguousarray(faces, dtype=np.int32).tobytes()
             split = np.array_split(np.arange(len(frames)), parts)
             try:
                 futures = [pool.submit(_refine_in_worker, frames[i], f, body, vertices[i], settings) for i in split]
                 return np.concatenate([fut.result() for fut in futures])
             except BrokenProcessPool:
                 self.close()
-        return refine_against(frames, body, vertices, refiner)
+        return refine_against(frames, body, vertices, cached_refiner(settings, f, frames.shape[1]))
 
     def start(self) -> Executor:
         """Start the worker processes now if they are not running (each loads the geometry code and the
@@ -191,7 +183,6 @@ class Engine:
                     chunk: int = 32, refine: RefineSettings | None = None) -> Iterator[np.ndarray]:
         """Posed vertices in chunks of up to `chunk` frames: (n, N, 3) float32 each, refined if asked."""
         joints = load_body(outfit.body).joints
-        refiner = refine.refiner(outfit.faces, len(outfit.vertices)) if refine else None
         for start in range(0, len(poses), chunk):
             p, tr = poses[start : start + chunk], translation[start : start + chunk]
             t = time.perf_counter()
@@ -200,20 +191,19 @@ class Engine:
             t = time.perf_counter()
             frames = pose_outfit(outfit.vertices, outfit.rig, keys, joints, p, tr)
             self._observe("posing", time.perf_counter() - t)
-            if refine is not None and refiner is not None:
+            if refine is not None:
                 t = time.perf_counter()
-                frames = self.refine_pool.refine(frames, outfit.faces, outfit.body, p, tr, refine, refiner)
+                frames = self.refine_pool.refine(frames, outfit.faces, outfit.body, p, tr, refine)
                 self._observe("refine", time.perf_counter() - t)
             yield frames
 
     def refine_chunks(self, vertices: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray,
                       translation: np.ndarray, options: RefineSettings, chunk: int = 32) -> Iterator[np.ndarray]:
         """A given garment stream (T, N, 3), refined against the body in chunks: (n, N, 3) float32 each."""
-        refiner = options.refiner(faces, vertices.shape[1])
         for start in range(0, len(vertices), chunk):
             t = time.perf_counter()
             s = slice(start, start + chunk)
-            yield self.refine_pool.refine(vertices[s], faces, body, poses[s], translation[s], options, refiner)
+            yield self.refine_pool.refine(vertices[s], faces, body, poses[s], translation[s], options)
             self._observe("refine", time.perf_counter() - t)
 
     def close(self) -> None:

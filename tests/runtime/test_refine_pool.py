@@ -12,7 +12,7 @@ from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
 from drape.geometry.lbs import pose_mesh
 from drape.geometry.queries import nearest_vertex_weights
-from drape.runtime.engine import RefinePool, RefineSettings, refine_frames
+from drape.runtime.engine import RefinePool, RefineSettings
 
 
 @pytest.fixture(scope="module")
@@ -31,12 +31,11 @@ def stream():
 def test_two_workers_equal_one_process(stream, relief_iterations):
     g, faces, p, t = stream
     settings = RefineSettings(relief_iterations=relief_iterations)
-    refiner = settings.refiner(faces, g.shape[1])
-    alone = refine_frames(g, faces, "neutral", p, t, refiner)
+    alone = RefinePool(1).refine(g, faces, "neutral", p, t, settings)
     assert np.abs(alone - g).max() > 1e-3, "the test input should need refining"
     pool = RefinePool(2)
     try:
-        split = pool.refine(g, faces, "neutral", p, t, settings, refiner)
+        split = pool.refine(g, faces, "neutral", p, t, settings)
         assert pool._pool is not None, "7 frames over 2 workers should go to the worker processes"
     finally:
         pool.close()
@@ -46,26 +45,24 @@ def test_two_workers_equal_one_process(stream, relief_iterations):
 def test_a_short_chunk_stays_in_process(stream):
     g, faces, p, t = stream
     settings = RefineSettings()
-    refiner = settings.refiner(faces, g.shape[1])
     pool = RefinePool(2)
-    out = pool.refine(g[:3], faces, "neutral", p[:3], t[:3], settings, refiner)
+    out = pool.refine(g[:3], faces, "neutral", p[:3], t[:3], settings)
     assert pool._pool is None
-    assert np.array_equal(out, refine_frames(g[:3], faces, "neutral", p[:3], t[:3], refiner))
+    assert np.array_equal(out, RefinePool(1).refine(g[:3], faces, "neutral", p[:3], t[:3], settings))
 
 
 def test_a_dead_worker_falls_back_to_the_serving_process(stream):
     g, faces, p, t = stream
     settings = RefineSettings()
-    refiner = settings.refiner(faces, g.shape[1])
     pool = RefinePool(2)
     try:
         for pid in list(pool.start()._processes):  # type: ignore[attr-defined]
             os.kill(pid, signal.SIGKILL)
         time.sleep(0.5)
-        out = pool.refine(g, faces, "neutral", p, t, settings, refiner)
+        out = pool.refine(g, faces, "neutral", p, t, settings)
         assert pool._pool is None, "the broken pool is dropped; the next chunk starts new workers"
-        assert np.array_equal(out, refine_frames(g, faces, "neutral", p, t, refiner))
-        assert np.array_equal(pool.refine(g, faces, "neutral", p, t, settings, refiner), out)
+        assert np.array_equal(out, RefinePool(1).refine(g, faces, "neutral", p, t, settings))
+        assert np.array_equal(pool.refine(g, faces, "neutral", p, t, settings), out)
         assert pool._pool is not None
     finally:
         pool.close()
