@@ -20,15 +20,20 @@ def inside_share(garment, body):
                           for g, b in zip(garment, body, strict=True)]))
 
 
-@pytest.fixture(scope="module")
-def penetrating():
-    """The nearest-body-weights LBS baseline on a held-out clip: it penetrates."""
+def baseline_stream(step):
+    """The nearest-body-weights LBS baseline on every `step`-th frame of a held-out clip: it penetrates.
+    -> (outfit, garment (T, N, 3), posed body (T, M, 3))."""
     o = generate_outfit("longsleeve", vertices=1500, seed=77)
     w = nearest_vertex_weights(o.vertices, BODY.vertices, BODY.weights)
     clip = load_clip("dance_b")
-    frames = np.arange(0, clip.num_frames, 30)
+    frames = np.arange(0, clip.num_frames, step)
     p, t = clip.poses[frames].astype(float), clip.trans[frames].astype(float)
     return o, pose_mesh(o.vertices, w, BODY.joints, p, t), BODY.pose(p, t)
+
+
+@pytest.fixture(scope="module")
+def penetrating():
+    return baseline_stream(30)
 
 
 def test_refinement_leaves_almost_nothing_inside(penetrating):
@@ -71,12 +76,7 @@ def test_cloth_outside_in_the_input_is_not_carried_across_a_limb():
     the solve and stay there. The final pass sends it back to where it was outside, not front by front
     across the limb after its pushed neighbours: no edge is stretched more than 15 mm beyond what the
     naive push stretches it (placed front by front, one edge here was 22.7 mm beyond)."""
-    o = generate_outfit("longsleeve", vertices=1500, seed=77)
-    w = nearest_vertex_weights(o.vertices, BODY.vertices, BODY.weights)
-    clip = load_clip("dance_b")
-    frames = np.arange(0, clip.num_frames, 5)
-    p, t = clip.poses[frames].astype(float), clip.trans[frames].astype(float)
-    g, b = pose_mesh(o.vertices, w, BODY.joints, p, t).astype(float), BODY.pose(p, t)
+    o, g, b = baseline_stream(5)
     edges = unique_edges(o.faces)
     surface = BodySurface(BODY.faces, len(BODY.vertices))
     naive = np.stack([naive_push(g[i], b[i], surface) for i in range(len(g))])
