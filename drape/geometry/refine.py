@@ -27,9 +27,9 @@ position, as in the fast path, rather than placed after its neighbours across th
 
 Stretch relief: closest-point targets on both sides of a crease (between the thighs, at the
 armpit) or of a limb stretch the edges between them, and the smooth solve spreads the stretch
-only a ring or two. With `relief_iterations` > 0 (off by default: at 6k vertices it takes 1.2-1.3x the
-defaults' time, see docs/refine.md), edges elongated by more than `relief_threshold` against the input
-are then relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
+only a ring or two. With `relief_iterations` > 0 (RELIEF_ITERATIONS = 10 by default; 0 turns it off;
+its cost in docs/refine.md), edges elongated by more than
+`relief_threshold` against the input are then relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
 edge-length projection (each stretched edge shortened back towards its input length, nothing
 compressed; vertices outside the region held), each round followed by pushing whatever went
 inside back out: onto its closest body point + eps every `relief_query_every` rounds and in the
@@ -59,6 +59,11 @@ from drape.geometry.mesh import (
     vertex_normals,
 )
 from drape.geometry.queries import closest_point_on_triangles
+
+# the defaults of refine(), Refiner and the service's refine options (drape.schemas.outfits.RefineOptions)
+EPS = 0.003  # metres kept from the body surface
+MAX_ITERATIONS = 3  # fast-path iterations before the progressive pass
+RELIEF_ITERATIONS = 10  # rounds of the stretch relief pass (0: none)
 
 
 def body_tree(body: np.ndarray) -> cKDTree:
@@ -152,9 +157,10 @@ class RefineReport:
 class Refiner:
     """Refinement for one garment topology; the Laplacian and its square are built once."""
 
-    def __init__(self, faces: np.ndarray, num_vertices: int, eps: float = 0.003, weight: float = 1e3,
-                 mu: float = 0.5, rings: int = 2, max_iterations: int = 3, tear: float | None = 0.02,
-                 relief_threshold: float = 0.005, relief_iterations: int = 0, relief_query_every: int = 5):
+    def __init__(self, faces: np.ndarray, num_vertices: int, eps: float = EPS, weight: float = 1e3,
+                 mu: float = 0.5, rings: int = 2, max_iterations: int = MAX_ITERATIONS, tear: float | None = 0.02,
+                 relief_threshold: float = 0.005, relief_iterations: int = RELIEF_ITERATIONS,
+                 relief_query_every: int = 5):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
         self.eps, self.weight, self.mu, self.rings, self.max_iterations = eps, weight, mu, rings, max_iterations
@@ -402,13 +408,13 @@ class Refiner:
 
 
 def refine(garment: np.ndarray, faces: np.ndarray, body: np.ndarray, body_faces: np.ndarray,
-           eps: float = 0.003, max_iterations: int = 3, tear: float | None = 0.02,
-           relief_iterations: int = 0) -> tuple[np.ndarray, RefineReport]:
+           eps: float = EPS, max_iterations: int = MAX_ITERATIONS, tear: float | None = 0.02,
+           relief_iterations: int = RELIEF_ITERATIONS) -> tuple[np.ndarray, RefineReport]:
     """Refine a garment stream: (T, N, 3) garment, (T, M, 3) body -> ((T, N, 3) float32, report).
 
     eps: margin outside the body (m); tear: edge elongation (m) above which a patch's closest-point
     targets are checked against front-by-front placement (None: closest points only);
-    relief_iterations: rounds of the stretch relief pass (0: none; 10 is what bench/refine.py measures).
+    relief_iterations: rounds of the stretch relief pass (0: none).
     """
     g = np.asarray(garment)
     b = np.asarray(body)
@@ -422,7 +428,7 @@ def refine(garment: np.ndarray, faces: np.ndarray, body: np.ndarray, body_faces:
     return out.astype(np.float32), report
 
 
-def naive_push(garment: np.ndarray, body: np.ndarray, surface: BodySurface, eps: float = 0.003) -> np.ndarray:
+def naive_push(garment: np.ndarray, body: np.ndarray, surface: BodySurface, eps: float = EPS) -> np.ndarray:
     """The baseline: move each inside vertex to its closest body point + eps n, nothing else."""
     body = np.asarray(body, dtype=np.float64)
     v = np.asarray(garment, dtype=np.float64).copy()

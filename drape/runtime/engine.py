@@ -21,7 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from drape.assets.body import load_body
-from drape.geometry.refine import BodySurface, Refiner, RefineReport
+from drape.geometry.refine import (
+    EPS,
+    MAX_ITERATIONS,
+    RELIEF_ITERATIONS,
+    BodySurface,
+    Refiner,
+    RefineReport,
+)
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 
@@ -46,9 +53,9 @@ class RefineSettings:
     """eps: metres kept from the body surface; max_iterations: fast-path iterations per frame;
     relief_iterations: rounds of the stretch relief pass (0: none)."""
 
-    eps: float = 0.003
-    max_iterations: int = 3
-    relief_iterations: int = 0
+    eps: float = EPS
+    max_iterations: int = MAX_ITERATIONS
+    relief_iterations: int = RELIEF_ITERATIONS
 
     def refiner(self, faces: np.ndarray, num_vertices: int) -> Refiner:
         return Refiner(faces, num_vertices, eps=self.eps, max_iterations=self.max_iterations,

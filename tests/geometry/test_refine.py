@@ -61,8 +61,8 @@ def test_stretch_relief_lowers_the_spikes(penetrating):
             return np.linalg.norm(y[:, edges[:, 0]] - y[:, edges[:, 1]], axis=2)
         return length(x) - length(g)
 
-    plain, _ = refine(g, o.faces, b, BODY.faces)
-    relieved, report = refine(g, o.faces, b, BODY.faces, relief_iterations=10)
+    plain, _ = refine(g, o.faces, b, BODY.faces, relief_iterations=0)
+    relieved, report = refine(g, o.faces, b, BODY.faces)  # the relief pass is on by default
     before, after = stretch(plain), stretch(relieved)
     assert np.count_nonzero(before > 0.01) > 20, "the test input should stretch edges"
     assert np.count_nonzero(after > 0.01) <= np.count_nonzero(before > 0.01) / 2
@@ -80,7 +80,9 @@ def test_cloth_outside_in_the_input_is_not_carried_across_a_limb():
     edges = unique_edges(o.faces)
     surface = BodySurface(BODY.faces, len(BODY.vertices))
     naive = np.stack([naive_push(g[i], b[i], surface) for i in range(len(g))])
-    refined, _ = refine(g, o.faces, b, BODY.faces)
+    # the final pass alone: the relief pass after it moves stretch between edges (it lowers a patch's
+    # largest, and may stretch an edge the naive push leaves alone)
+    refined, _ = refine(g, o.faces, b, BODY.faces, relief_iterations=0)
     beyond = edge_lengths(refined, edges) - edge_lengths(naive, edges)  # (T, E) m
     assert beyond.max() <= 0.015, beyond.max()
 
@@ -128,7 +130,7 @@ def test_cloth_ending_inside_a_limb_comes_out_on_its_own_side():
 
     body = MeshDistance(BODY.vertices, BODY.faces)
     assert np.mean(body.signed_distance(sheet) < 0) > 0.3
-    closest_only, _ = refine(sheet[None], faces, BODY.vertices[None], BODY.faces, tear=None)
+    closest_only, _ = refine(sheet[None], faces, BODY.vertices[None], BODY.faces, tear=None, relief_iterations=0)
     assert largest_stretch(closest_only[0]) > 0.05  # the tear this guards against
     refined, report = refine(sheet[None], faces, BODY.vertices[None], BODY.faces)
     assert report.progressive == [True]

@@ -69,3 +69,16 @@ def test_serving_path_imports_no_torch():
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_refine_defaults_are_the_librarys():
+    """`refine: true`, RefineOptions() and the library's refine() give the same refinement: one default each."""
+    from drape.geometry import refine
+    from drape.runtime.engine import RefineSettings
+    from drape.schemas.outfits import RefineOptions
+
+    library = {"eps": refine.EPS, "max_iterations": refine.MAX_ITERATIONS,
+               "relief_iterations": refine.RELIEF_ITERATIONS}
+    assert RefineOptions().model_dump() == library
+    assert vars(RefineSettings()) == library
+    assert refine.RELIEF_ITERATIONS > 0, "the stretch relief pass is on by default"
