@@ -6,7 +6,7 @@ baseline and by the shipped DeePSD. The path timed is the service's: `Engine.ref
 body posed for the chunk, then the frames refined, in process with `refine_workers=1`, split over
 2 worker processes with 2). Each pass refines the stream with both engines, alternating which goes
 first; the workers are started before the first pass. Printed per input and refine setting (the
-defaults; relief = `relief_iterations=10`): ms per frame of the stream, median and range over the
+defaults, with the stretch relief pass; no relief = `relief_iterations=0`): ms per frame of the stream, median and range over the
 passes, and the ratio one process / two workers per pass. Both give the same output (checked).
 
 Run: .venv/bin/python -m bench.refine_parallel (about 2 minutes on the 2-core machine)
@@ -40,7 +40,7 @@ def main() -> None:
     try:
         for source, g in penetrating_inputs(DeePSDModel(), o, body, p, t).items():
             g = g.astype(np.float32)
-            for setting, options in (("defaults", RefineSettings()), ("relief", RefineSettings(relief_iterations=10))):
+            for setting, options in (("defaults", RefineSettings()), ("norelief", RefineSettings(relief_iterations=0))):
                 ms = {name: np.zeros(PASSES) for name in engines}
                 outputs = {}
                 for k in range(PASSES):

@@ -2,8 +2,9 @@
 
 Input: the long sleeve + trousers outfit on the held-out clip dance_b (every 5th frame), posed by
 the nearest-body-weights LBS baseline (the issue's penetrating input; 6k and 20k vertices) and by
-the shipped DeePSD (6k). For each method (refine with its defaults, relief = the stretch relief
-pass on, naive = each inside vertex to its closest body point + eps) it lists the 8 most stretched
+the shipped DeePSD (6k). For each method (refine with its defaults, the stretch relief pass
+included; norelief = the same without it, `relief_iterations=0`; naive = each inside vertex to its
+closest body point + eps) it lists the 8 most stretched
 edges over all frames: the stretch (elongation vs the input, mm), each end's depth in the input
 (exact closest-triangle signed distance, mm; negative inside), whether the refined edge passes
 through the body (a point at 1/4, 1/2 or 3/4 of it inside by the winding number: its ends sit on
@@ -89,7 +90,7 @@ def main() -> None:
     surface = BodySurface(body.faces, len(body.vertices))
     model = DeePSDModel()
     cases = [("baseline", 6000), ("deepsd", 6000), ("baseline", 20000)]
-    print(f"{'input':8s} {'N':>6s} {'method':7s} {'frame':>5s} {'edge':>12s} {'stretch mm':>10s} "
+    print(f"{'input':8s} {'N':>6s} {'method':8s} {'frame':>5s} {'edge':>12s} {'stretch mm':>10s} "
           f"{'depth in mm':>15s} {'through body':>12s} {'naive mm':>8s} {'gap deg':>7s}")
     for source, n in cases:
         o = generate_outfit("longsleeve,trousers", vertices=n, seed=77)
@@ -100,7 +101,7 @@ def main() -> None:
         g = g.astype(np.float64)
         edges, nv = unique_edges(o.faces), len(o.vertices)
         adjacency = adjacency_matrix(o.faces, nv).tocsr()
-        methods = {"refine": Refiner(o.faces, nv), "relief": Refiner(o.faces, nv, relief_iterations=10)}
+        methods = {"refine": Refiner(o.faces, nv), "norelief": Refiner(o.faces, nv, relief_iterations=0)}
         naive = np.stack([naive_push(g[i], b[i], surface) for i in range(len(g))])
         naive_stretch = edge_lengths(naive, edges) - edge_lengths(g, edges)  # (T, E) m
         outputs = {name: np.stack([r.refine_frame(g[i], b[i], surface, RefineReport()) for i in range(len(g))])
@@ -125,13 +126,13 @@ def main() -> None:
                     pierced += int(gap_deg < 180)
                 deep += int(np.all(depth < -DEEP))
                 through += int(crosses)
-                print(f"{source:8s} {nv:6d} {name:7s} {frame:5d} {ends[0]:6d}-{ends[1]:<5d} {stretch[frame, e] * 1e3:10.2f} "
+                print(f"{source:8s} {nv:6d} {name:8s} {frame:5d} {ends[0]:6d}-{ends[1]:<5d} {stretch[frame, e] * 1e3:10.2f} "
                       f"{depth[0] * 1e3:7.1f} {depth[1] * 1e3:7.1f} {'yes' if crosses else 'no':>12s} "
                       f"{naive_stretch[frame, e] * 1e3:8.2f} {gap:>7s}")
-            print(f"{source:8s} {nv:6d} {name:7s} of the {TOP} largest: both ends over {DEEP * 1e3:.0f} mm deep in "
+            print(f"{source:8s} {nv:6d} {name:8s} of the {TOP} largest: both ends over {DEEP * 1e3:.0f} mm deep in "
                   f"the input {deep}, through the body after {through}, patch rim all round the limb {pierced}")
             off = stretch[~pierced_edge]
-            print(f"{source:8s} {nv:6d} {name:7s} all edges off pierced patches ({100 * off.size / stretch.size:.2f}% "
+            print(f"{source:8s} {nv:6d} {name:8s} all edges off pierced patches ({100 * off.size / stretch.size:.2f}% "
                   f"of edge-frames): largest {off.max() * 1e3:.2f} mm, 99.9th percentile "
                   f"{np.percentile(off, 99.9) * 1e3:.2f} mm, over 10 mm {np.count_nonzero(off > 0.01) / len(g):.1f} "
                   f"per frame", flush=True)
