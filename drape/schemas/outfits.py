@@ -55,8 +55,8 @@ class RefineOptions(BaseModel):
     eps: float = Field(0.003, gt=0, le=0.05, description="distance kept from the body surface, metres")
     max_iterations: int = Field(3, ge=1, le=20, description="fast-path iterations before the progressive pass")
     relief_iterations: int = Field(10, ge=0, le=50, description="rounds of the stretch relief pass after the "
-                                   "solve, which slides stretched cloth along the body (0: none, about a sixth "
-                                   "faster, with more edges stretched by over 1 cm; see docs/refine.md)")
+                                   "solve, which slides stretched cloth along the body (0: none, 15-20% less "
+                                   "time, more edges stretched by over 1 cm; see docs/refine.md)")
 
 
 class AnimateRequest(BaseModel):
