@@ -27,9 +27,9 @@ position, as in the fast path, rather than placed after its neighbours across th
 
 Stretch relief: closest-point targets on both sides of a crease (between the thighs, at the
 armpit) or of a limb stretch the edges between them, and the smooth solve spreads the stretch
-only a ring or two. With `relief_iterations` > 0 (RELIEF_ITERATIONS = 10 by default; 0 turns it off;
-its cost in docs/refine.md), edges elongated by more than
-`relief_threshold` against the input are then relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
+only a ring or two. With `relief_iterations` > 0 (RELIEF_ITERATIONS = 10 by default; 0 turns it
+off; its cost in docs/refine.md), edges elongated by more than `relief_threshold` against the input
+are then relaxed: on those edges' vertices grown by `rings` rings, a few Jacobi rounds of position-based
 edge-length projection (each stretched edge shortened back towards its input length, nothing
 compressed; vertices outside the region held), each round followed by pushing whatever went
 inside back out: onto its closest body point + eps every `relief_query_every` rounds and in the
