@@ -2,7 +2,7 @@
 
 Refinement of a chunk of frames is split over `refine_workers` processes (frames are refined
 independently, so the result is the same as in one process): on the 2-core machine a 6k-vertex
-stream refines 1.4-1.6x faster with 2 (bench/refine_parallel.py).
+stream refines 1.4-1.7x faster with 2 (bench/refine_parallel.py, docs/refine.md).
 """
 
 from __future__ import annotations
