@@ -16,4 +16,4 @@ ENV DRAPE_HOST=0.0.0.0 DRAPE_PORT=8000
 EXPOSE 8000
 HEALTHCHECK --interval=30s --timeout=5s --start-period=60s --retries=3 \
   CMD python -c "import os, urllib.request; urllib.request.urlopen('http://127.0.0.1:%s/healthz' % os.environ.get('DRAPE_PORT', '8000'), timeout=4)"
-CMD ["sh", "-c", "exec uvicorn --factory drape.service.app:create_app --host \"$DRAPE_HOST\" --port \"$DRAPE_PORT\""]
+CMD ["drape", "serve"]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import multiprocessing
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -93,6 +94,23 @@ def _refine_in_worker(frames: np.ndarray, faces: bytes, body: str, body_vertices
     return refine_against(frames, body, body_vertices, cached_refiner(settings, faces, frames.shape[1]))
 
 
+def _exit_with(server_pid: int, period_s: float = 0.5) -> None:
+    """A worker's initializer: a daemon thread ends this process once `server_pid` is gone, so that no
+    worker outlives the serving process, even one killed by SIGKILL or the OOM killer."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(period_s)
+            try:
+                os.kill(server_pid, 0)
+            except ProcessLookupError:
+                os._exit(0)
+            except PermissionError:  # pragma: no cover - the pid was reused by another user's process
+                os._exit(0)
+
+    threading.Thread(target=watch, name="exit-with-server", daemon=True).start()
+
+
 def _start_worker() -> None:
     """A worker's first task: load the neutral body's surface, and stay busy long enough that each
     worker gets one of these tasks (an idle worker would take a second)."""
@@ -105,7 +123,7 @@ class RefinePool:
 
     The processes start at `start()` (the engine's warm-up) or on first use, from a fork server (not
     forked from the serving process, whose ONNX Runtime threads a fork would copy in an unknown state);
-    close() stops them. If a worker dies, the chunk is refined in process and the next one starts new workers.
+    close() stops them, and each exits by itself when the serving process is gone (`_exit_with`). If a worker dies, the chunk is refined in process and the next one starts new workers.
     """
 
     def __init__(self, workers: int, min_frames: int = 2):
@@ -137,7 +155,8 @@ class RefinePool:
         neutral body), so that the first request does not wait for them."""
         with self._lock:
             if self._pool is None:
-                self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("forkserver"))
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("forkserver"),
+                                                 initializer=_exit_with, initargs=(os.getpid(),))
                 for fut in [self._pool.submit(_start_worker) for _ in range(self.workers)]:
                     fut.result()
             return self._pool
@@ -145,7 +164,7 @@ class RefinePool:
     def close(self) -> None:
         with self._lock:
             if self._pool is not None:
-                self._pool.shutdown()
+                self._pool.shutdown(cancel_futures=True)
                 self._pool = None
 
 

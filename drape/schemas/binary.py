@@ -1,7 +1,8 @@
 """Binary encodings shared by the service and the client (numpy only).
 
-npz (`application/x-npz`): an uncompressed numpy .npz archive of plain arrays;
-read with allow_pickle=False, so object arrays are refused.
+npz (`application/x-npz`): a numpy .npz archive (stored or deflated) of plain arrays;
+object (pickled) and void arrays are refused, and `decode_npz` can read just the members it is
+asked for and bound their declared sizes before anything is inflated.
 
 Frame stream (`application/x-drape-frames`), all integers little-endian:
   magic  b"DRPF", u32 version (1), u32 header length H, H bytes of UTF-8 JSON header
@@ -17,8 +18,11 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import struct
+import zipfile
 from collections.abc import Iterable, Iterator
+from typing import IO
 
 import numpy as np
 
@@ -34,13 +38,117 @@ def encode_npz(arrays: dict[str, np.ndarray]) -> bytes:
     return buf.getvalue()
 
 
-def decode_npz(data: bytes) -> dict[str, np.ndarray]:
-    """Arrays of an npz; ValueError for anything that is not a pickle-free npz."""
+MAX_NPZ_MEMBERS = 1024
+MAX_NPZ_DIRECTORY_BYTES = 2**20  # the zip central directory (zipfile builds an object per entry)
+DEFLATE_MAX_RATIO = 1032  # deflate cannot expand beyond this (258-byte matches in ~2 bits)
+_READ_CHUNK = 2**20
+
+
+class NpzTooLarge(ValueError):
+    """The npz members asked for declare more bytes than `decode_npz`'s max_bytes."""
+
+
+def decode_npz(data: bytes, names: Iterable[str] | None = None, *,
+               max_bytes: int | None = None) -> dict[str, np.ndarray]:
+    """Arrays of an npz, keyed by member name without ".npy"; ValueError for anything else.
+
+    names: read only these members (those present; the others are never opened, so never
+    inflated); None reads all. max_bytes: refuse (NpzTooLarge, a ValueError) once the arrays read
+    declare more bytes in total; None: no limit. Before a member's data is read its .npy header
+    is: object and void dtypes are refused (no pickle is ever loaded), and the bytes it declares
+    (shape x itemsize) must equal the zip entry's declared size less the header. zipfile never
+    inflates past that declared size (and checks the CRC at its end), and the declared size must
+    be one the compressed bytes can produce (stored, or deflate at most 1032:1), so the data
+    behind a member costs at most what its bytes can really inflate to. The zip directory is
+    bounded too (MAX_NPZ_MEMBERS, MAX_NPZ_DIRECTORY_BYTES; no zip64 end record).
+    """
+    wanted = None if names is None else set(names)
     try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except Exception as exc:  # zipfile, numpy format and pickle refusals alike
+        _check_zip_directory(data)
+        out: dict[str, np.ndarray] = {}
+        total = 0
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            for info in zf.infolist():
+                key = info.filename.removesuffix(".npy")
+                if wanted is not None and key not in wanted:
+                    continue
+                if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+                    raise ValueError(f"member {key!r} uses zip compression {info.compress_type}; "
+                                     "only stored and deflated members are read")
+                ratio = 1 if info.compress_type == zipfile.ZIP_STORED else DEFLATE_MAX_RATIO
+                if info.compress_size > len(data) or info.file_size > info.compress_size * ratio + 1024:
+                    raise ValueError(f"member {key!r} declares {info.file_size} bytes from "
+                                     f"{info.compress_size} compressed bytes, which the archive's "
+                                     f"{len(data)} bytes cannot hold")
+                with zf.open(info) as f:
+                    shape, fortran, dtype, header_bytes = _npy_header(f, key)
+                    nbytes = math.prod(shape) * dtype.itemsize
+                    total += nbytes
+                    if max_bytes is not None and total > max_bytes:
+                        raise NpzTooLarge(f"member {key!r} declares {shape} {dtype} ({nbytes} "
+                                          f"bytes): the arrays exceed the limit of {max_bytes} bytes")
+                    if info.file_size != header_bytes + nbytes:
+                        raise ValueError(f"member {key!r}: its header declares {nbytes} bytes of "
+                                         f"data but the archive declares {info.file_size} bytes for "
+                                         f"the member with its {header_bytes}-byte header")
+                    out[key] = _read_npy_data(f, shape, fortran, dtype, nbytes, key)
+        return out
+    except NpzTooLarge:
+        raise
+    except Exception as exc:  # zipfile, numpy format and our refusals alike
         raise ValueError(f"not a readable pickle-free npz archive: {exc}") from exc
+
+
+def _check_zip_directory(data: bytes) -> None:
+    """Bound the zip central directory from its end record before zipfile parses it."""
+    end = data.rfind(b"PK\x05\x06", max(0, len(data) - 22 - 65535))
+    if end < 0 or len(data) - end < 22:
+        raise ValueError("not a zip archive (no end-of-central-directory record)")
+    _, _, _, _, members, size, _, _ = struct.unpack_from("<4s4H2LH", data, end)
+    if end >= 20 and data[end - 20:end - 16] == b"PK\x06\x07":
+        raise ValueError("zip64 archives are not read")
+    if members > MAX_NPZ_MEMBERS or size > MAX_NPZ_DIRECTORY_BYTES:
+        raise ValueError(f"the archive declares {members} members in a {size}-byte directory; at "
+                         f"most {MAX_NPZ_MEMBERS} members in {MAX_NPZ_DIRECTORY_BYTES} bytes are read")
+
+
+def _npy_header(f: IO[bytes], key: str) -> tuple[tuple[int, ...], bool, np.dtype, int]:
+    """-> (shape, fortran order, dtype, header length in bytes) of an .npy stream; refuse pickles."""
+    try:
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
+        elif version == (2, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
+        else:
+            raise ValueError(f"unsupported .npy format version {version}")
+    except ValueError as exc:
+        raise ValueError(f"member {key!r} is not a readable .npy array ({exc})") from exc
+    if dtype.hasobject or dtype.kind == "V":
+        raise ValueError(f"member {key!r} has dtype {dtype}: pickled or object arrays are refused")
+    if any(n < 0 for n in shape):
+        raise ValueError(f"member {key!r} declares a negative shape {shape}")
+    return tuple(shape), bool(fortran), dtype, f.tell()
+
+
+def _read_npy_data(f: IO[bytes], shape: tuple[int, ...], fortran: bool, dtype: np.dtype,
+                   nbytes: int, key: str) -> np.ndarray:
+    """Read exactly nbytes into a fresh array, a chunk at a time (no second copy)."""
+    flat = np.empty(math.prod(shape), dtype=dtype)
+    raw = flat.view(np.uint8) if nbytes else None
+    pos = 0
+    while pos < nbytes:
+        chunk = f.read(min(_READ_CHUNK, nbytes - pos))
+        if not chunk:
+            raise ValueError(f"member {key!r} ends after {pos} of its {nbytes} bytes")
+        assert raw is not None
+        raw[pos:pos + len(chunk)] = np.frombuffer(chunk, np.uint8)
+        pos += len(chunk)
+    if f.read(1):
+        raise ValueError(f"member {key!r} holds more than its {nbytes} declared bytes")
+    if fortran:
+        return flat.reshape(shape[::-1]).transpose()
+    return flat.reshape(shape)
 
 
 def stream_header(num_frames: int, faces: np.ndarray, num_vertices: int, fps: float, outfit_id: str) -> bytes:

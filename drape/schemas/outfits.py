@@ -13,12 +13,14 @@ Tri = Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=3, max_lengt
 class Mesh(BaseModel):
     """A triangle mesh in the body's rest pose: vertices (N, 3) metres, faces (F, 3) indices into vertices."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     vertices: list[Vec3] = Field(min_length=3)
     faces: list[Tri] = Field(min_length=1)
 
 
 class RigRequest(Mesh):
+    """A template outfit (strict types: no string-to-number coercion)."""
+
     body: str = Field("neutral", description="body preset the outfit is dressed on (GET /v1/bodies)")
 
 
@@ -41,7 +43,7 @@ class RigResponse(BaseModel):
 class MotionInput(BaseModel):
     """Either an embedded clip name, or poses (T, 24, 3) / (T, 72) axis-angle radians + translation (T, 3) m."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     clip: str | None = Field(None, description="name of an embedded clip (GET /v1/motions)")
     poses: list[list[float]] | list[list[Vec3]] | None = None
     translation: list[Vec3] | None = None
@@ -51,7 +53,7 @@ class MotionInput(BaseModel):
 class RefineOptions(BaseModel):
     """Collision refinement: push vertices out of the body by eps (m), keeping the local shape."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     eps: float = Field(0.003, gt=0, le=0.05, description="distance kept from the body surface, metres")
     max_iterations: int = Field(3, ge=1, le=20, description="fast-path iterations before the progressive pass")
     relief_iterations: int = Field(10, ge=0, le=50, description="rounds of the stretch relief pass after the "
@@ -60,7 +62,7 @@ class RefineOptions(BaseModel):
 
 
 class AnimateRequest(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     outfit: Mesh | None = None
     outfit_id: str | None = Field(None, max_length=128)
     motion: MotionInput
@@ -71,7 +73,7 @@ class AnimateRequest(BaseModel):
 class RefineRequest(BaseModel):
     """A garment stream (T, N, 3) m with its faces, the body motion that goes with it, the body preset."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     vertices: list[list[Vec3]] = Field(min_length=1)
     faces: list[Tri] = Field(min_length=1)
     motion: MotionInput

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import Depends, FastAPI, Request, Response
+from fastapi import Depends, FastAPI
 from fastapi.concurrency import run_in_threadpool
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.openapi.utils import get_openapi
@@ -22,8 +21,9 @@ from drape.schemas.outfits import (
     RigResponse,
 )
 from drape.service import catalog, problems
+from drape.service.admission import Admission
 from drape.service.http import require_api_key
-from drape.service.metrics import Metrics
+from drape.service.metrics import CountRequests, Metrics
 from drape.service.routers import catalog as catalog_router
 from drape.service.routers import health, models, outfits
 from drape.service.settings import Settings
@@ -44,9 +44,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             app.state.engine = engine
 
         await run_in_threadpool(start)
+        app.state.admission = Admission(settings.max_active, settings.max_queue, settings.queue_timeout_s,
+                                        settings.retry_after_s, metrics.admission, metrics.rejection)
         app.state.ready = True
         yield
-        app.state.engine.close()
+        app.state.ready = False
+        await run_in_threadpool(app.state.engine.close)
 
     app = FastAPI(
         title="drape", version=__version__, lifespan=lifespan,
@@ -61,15 +64,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["*"])
 
-    @app.middleware("http")
-    async def count_requests(request: Request, call_next) -> Response:  # noqa: ANN001
-        start = time.perf_counter()
-        response = await call_next(request)
-        route = request.scope.get("route")
-        path = getattr(route, "path", "unmatched")
-        metrics.requests.labels(route=path, method=request.method, status=str(response.status_code)).inc()
-        metrics.latency.labels(route=path, method=request.method).observe(time.perf_counter() - start)
-        return response
+    app.add_middleware(CountRequests, metrics=metrics)  # outside problems.CatchAll: counts its 500s too
 
     app.include_router(health.router)
     auth = [Depends(require_api_key)]

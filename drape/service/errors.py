@@ -2,6 +2,14 @@
 
 from __future__ import annotations
 
+DETAIL_CHARS = 160  # a value quoted in a detail is cut to this many characters
+
+
+def quoted(value: object, limit: int = DETAIL_CHARS) -> str:
+    """repr(value) cut to `limit` characters, so that no detail echoes a large input back."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
 
 class DrapeError(Exception):
     """Base: `field` names the part of the request that is wrong, `detail` says how."""
@@ -24,6 +32,10 @@ class NotFound(DrapeError):
     """An id or name that does not exist."""
 
 
+class RequestTimeout(DrapeError):
+    """The request body did not arrive within the time limit."""
+
+
 class LimitExceeded(DrapeError):
     """Larger than a configured limit; the detail names the limit."""
 
@@ -38,3 +50,11 @@ class NotAcceptable(DrapeError):
 
 class Unauthorized(DrapeError):
     """Missing or wrong API key."""
+
+
+class Overloaded(DrapeError):
+    """Every computing slot and queue place is taken (or the wait was too long): retry later."""
+
+    def __init__(self, detail: str, retry_after_s: int):
+        super().__init__(detail)
+        self.retry_after_s = retry_after_s

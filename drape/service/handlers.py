@@ -11,13 +11,15 @@ import numpy as np
 from drape.assets.body import list_bodies
 from drape.assets.motion import list_clips, load_clip
 from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
-from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotFound
+from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotFound, quoted
 from drape.service.settings import Settings
 
 MESH_FILE_TYPES = {".obj": "obj", ".ply": "ply", ".glb": "glb", ".gltf": "gltf"}
 
 
 def _array(value: Any, field: str, dtype: type, ndim: int) -> np.ndarray:
+    if isinstance(value, np.ndarray) and value.dtype.kind not in "iuf":
+        raise InvalidInput(f"expected real numbers, got dtype {value.dtype}", field)
     try:
         arr: np.ndarray = np.asarray(value, dtype=dtype)
     except (ValueError, TypeError, OverflowError) as exc:
@@ -59,7 +61,7 @@ def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "") -
 def check_body(name: str | None, field: str = "body") -> str:
     name = name or "neutral"
     if name not in list_bodies():
-        raise InvalidInput(f"unknown body preset {name!r}; presets: {', '.join(list_bodies())}", field)
+        raise InvalidInput(f"unknown body preset {quoted(name)}; presets: {', '.join(list_bodies())}", field)
     return name
 
 
@@ -103,7 +105,7 @@ def check_motion(motion: dict, settings: Settings) -> tuple[np.ndarray, np.ndarr
         raise InvalidInput("give exactly one of 'clip' and 'poses'", "motion")
     if clip is not None:
         if clip not in list_clips():
-            raise NotFound(f"unknown clip {clip!r}; see GET /v1/motions", "motion.clip")
+            raise NotFound(f"unknown clip {quoted(clip)}; see GET /v1/motions", "motion.clip")
         m = load_clip(clip)
         p, tr, fps = m.poses.astype(np.float64), m.trans.astype(np.float64), m.fps
     else:
@@ -151,27 +153,36 @@ def check_refine(value: Any) -> RefineSettings | None:
                           relief_iterations=int(value["relief_iterations"]))
 
 
-def plan_animation(engine: Engine, settings: Settings, request: dict, streaming: bool) -> AnimationPlan:
-    """Validate an animate request (a dict shaped like AnimateRequest) into a plan."""
+def check_answer_size(frames: int, vertices: int, max_posed: int | None, field: str) -> None:
+    """frames x vertices against the limit of the answer's format (None: the frame stream, no limit)."""
+    if max_posed is not None and frames * vertices > max_posed:
+        raise LimitExceeded(
+            f"{frames} frames x {vertices} vertices exceed the limit of {max_posed} for one answer in this format; "
+            "ask for application/x-npz or the frame stream (Accept: application/x-drape-frames)", field)
+
+
+def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed: int | None) -> AnimationPlan:
+    """Validate an animate request (a dict shaped like AnimateRequest) into a plan; `max_posed` bounds
+    frames x vertices for the answer's format (None: no bound)."""
     outfit_in, outfit_id = request.get("outfit"), request.get("outfit_id")
     if (outfit_in is None) == (outfit_id is None):
         raise InvalidInput("give exactly one of 'outfit' and 'outfit_id'", "outfit")
     if outfit_id is not None:
         outfit = engine.lookup(outfit_id)
         if outfit is None:
-            raise NotFound(f"unknown outfit_id {outfit_id!r}: rig the outfit again (ids expire from the cache)",
+            raise NotFound(f"unknown outfit_id {quoted(outfit_id)}: rig the outfit again (ids expire from the cache)",
                            "outfit_id")
         if request.get("body") not in (None, outfit.body):
             raise InvalidInput(f"outfit {outfit_id} was rigged on body {outfit.body!r}", "body")
-    else:
+        poses, trans, fps = check_motion(request["motion"], settings)
+        check_answer_size(len(poses), len(outfit.vertices), max_posed, "motion")
+    else:  # every cheap check before the rig
         assert outfit_in is not None
         v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
-        outfit = engine.rig(v, f, check_body(request.get("body")))
-    poses, trans, fps = check_motion(request["motion"], settings)
-    if not streaming and len(poses) * len(outfit.vertices) > settings.max_posed_values:
-        raise LimitExceeded(
-            f"{len(poses)} frames x {len(outfit.vertices)} vertices exceed the limit of {settings.max_posed_values} "
-            f"for one answer; ask for the frame stream (Accept: application/x-drape-frames)", "motion")
+        body = check_body(request.get("body"))
+        poses, trans, fps = check_motion(request["motion"], settings)
+        check_answer_size(len(poses), len(v), max_posed, "motion")
+        outfit = engine.rig(v, f, body)
     return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")))
 
 
@@ -189,20 +200,20 @@ class RefinePlan:
 
 
 def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, body: str | None,
-                options: dict | None, streaming: bool) -> RefinePlan:
+                options: dict | None, max_posed: int | None) -> RefinePlan:
     """Validate a refine request: the stream's shape, the faces, the motion (same frame count)."""
     v = _array(vertices, "vertices", np.float64, 3)
-    if v.shape[2] != 3 or v.shape[1] < 3:
-        raise InvalidInput(f"expected (T, N, 3) with N >= 3, got {v.shape}", "vertices")
+    if v.shape[0] < 1 or v.shape[2] != 3 or v.shape[1] < 3:
+        raise InvalidInput(f"expected (T, N, 3) with T >= 1 and N >= 3, got {v.shape}", "vertices")
+    if v.shape[0] > settings.max_frames:
+        raise LimitExceeded(f"{v.shape[0]} frames exceed the limit of {settings.max_frames}", "vertices")
     _, f = check_mesh(v[0], faces, settings)
     if not np.isfinite(v).all():
         raise InvalidInput("contains NaN or infinite values", "vertices")
     poses, trans, fps = check_motion(motion, settings)
     if len(poses) != len(v):
         raise InvalidInput(f"the motion has {len(poses)} frames, the stream {len(v)}", "motion")
-    if not streaming and v.shape[0] * v.shape[1] > settings.max_posed_values:
-        raise LimitExceeded(f"{v.shape[0]} frames x {v.shape[1]} vertices exceed the limit of "
-                            f"{settings.max_posed_values} for one answer; ask for the frame stream", "vertices")
+    check_answer_size(v.shape[0], v.shape[1], max_posed, "vertices")
     opts = check_refine(options or True)
     assert opts is not None
     return RefinePlan(v.astype(np.float32), f, check_body(body), poses, trans, fps, opts)

@@ -1,15 +1,21 @@
-"""HTTP plumbing shared by the routers: reading bodies within the limit, the engine, auth."""
+"""HTTP plumbing shared by the routers: reading bodies within the size and time limits, multipart
+forms and JSON from the bytes read, the engine and the admission control, auth."""
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 import json
+from dataclasses import dataclass
 from typing import Any
 
 from fastapi import Request
+from python_multipart.exceptions import MultipartParseError
+from python_multipart.multipart import MultipartParser, parse_options_header
 
 from drape.runtime.engine import Engine
-from drape.service.errors import LimitExceeded, MalformedInput, Unauthorized
+from drape.service.admission import Admission
+from drape.service.errors import LimitExceeded, MalformedInput, RequestTimeout, Unauthorized
 from drape.service.settings import Settings
 
 
@@ -21,26 +27,94 @@ def engine_of(request: Request) -> Engine:
     return request.app.state.engine
 
 
+def admission_of(request: Request) -> Admission:
+    return request.app.state.admission
+
+
 async def read_body(request: Request) -> bytes:
-    """The request body, refused with a 413 problem as soon as it passes DRAPE_MAX_BODY_BYTES."""
-    limit = settings_of(request).max_body_bytes
+    """The request body: a 413 problem as soon as it passes DRAPE_MAX_BODY_BYTES (declared or sent), a 408
+    when it has not all arrived within DRAPE_BODY_TIMEOUT_S."""
+    settings = settings_of(request)
+    limit = settings.max_body_bytes
     declared = request.headers.get("content-length")
     if declared and declared.isdigit() and int(declared) > limit:
         raise LimitExceeded(f"{declared} bytes exceed the limit of {limit} bytes", "body")
     chunks, size = [], 0
-    async for chunk in request.stream():
-        size += len(chunk)
-        if size > limit:
-            raise LimitExceeded(f"more than the limit of {limit} bytes", "body")
-        chunks.append(chunk)
+
+    async def receive_all() -> None:
+        nonlocal size
+        async for chunk in request.stream():
+            size += len(chunk)
+            if size > limit:
+                raise LimitExceeded(f"more than the limit of {limit} bytes", "body")
+            chunks.append(chunk)
+
+    try:
+        await asyncio.wait_for(receive_all(), settings.body_timeout_s)
+    except TimeoutError:
+        raise RequestTimeout(f"{size} bytes arrived in {settings.body_timeout_s:g} s, not the whole body",
+                             "body") from None
     return b"".join(chunks)
 
 
+@dataclass(frozen=True)
+class FormPart:
+    """One part of a multipart form: its file name (None for a plain field) and its bytes."""
+
+    filename: str | None
+    data: bytes
+
+
+def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str, FormPart]:
+    """A multipart/form-data body (already read within the limits) -> its parts by name; a 400 for a broken
+    form. Pure CPU work: call it off the event loop."""
+    _, params = parse_options_header(content_type.encode("latin-1", "replace"))
+    boundary = params.get(b"boundary")
+    if not boundary:
+        raise MalformedInput("multipart/form-data without a boundary", "Content-Type")
+    parts: dict[str, FormPart] = {}
+    headers: dict[bytes, bytes] = {}
+    field, value, data = bytearray(), bytearray(), bytearray()
+
+    def on_header_end() -> None:
+        headers[bytes(field).lower()] = bytes(value)
+        field.clear()
+        value.clear()
+
+    def on_part_end() -> None:
+        _, disposition = parse_options_header(headers.get(b"content-disposition", b""))
+        name = disposition.get(b"name", b"").decode("utf-8", "replace")
+        filename = disposition.get(b"filename")
+        if len(parts) >= max_parts:
+            raise MalformedInput(f"more than {max_parts} parts", "body")
+        parts[name] = FormPart(filename.decode("utf-8", "replace") if filename is not None else None, bytes(data))
+        headers.clear()
+        data.clear()
+
+    callbacks = {
+        "on_header_field": lambda b, start, end: field.extend(b[start:end]),
+        "on_header_value": lambda b, start, end: value.extend(b[start:end]),
+        "on_header_end": on_header_end,
+        "on_part_data": lambda b, start, end: data.extend(b[start:end]),
+        "on_part_end": on_part_end,
+    }
+    try:
+        parser = MultipartParser(boundary, callbacks)  # type: ignore[arg-type]
+        parser.write(body)
+        parser.finalize()
+    except MultipartParseError as exc:
+        raise MalformedInput(f"not a readable multipart form ({exc})", "body") from exc
+    return parts
+
+
 def parse_json(data: bytes) -> Any:
+    """JSON -> Python objects; a 400 naming the problem for broken or too deeply nested documents."""
     try:
         return json.loads(data)
+    except RecursionError:
+        raise MalformedInput("JSON nested too deeply", "body") from None
     except (ValueError, UnicodeDecodeError) as exc:
-        raise MalformedInput(f"not valid JSON ({exc})", "body") from exc
+        raise MalformedInput(f"not valid JSON ({str(exc)[:200]})", "body") from exc
 
 
 def media_type(request: Request) -> str:

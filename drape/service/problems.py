@@ -1,17 +1,25 @@
-"""RFC 9457 problem documents: the mapping from domain errors to HTTP, and the responses."""
+"""RFC 9457 problem documents: the mapping from domain errors to HTTP, the responses, and the
+last-resort guard that turns any unhandled exception into a 500 problem on a usable connection."""
 
 from __future__ import annotations
+
+import json
+import logging
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from drape.schemas.outfits import Problem
 from drape.service import errors
 
 PROBLEM = "application/problem+json"
 BASE = "https://drape.dev/problems/"
+MAX_DETAIL = 1000  # characters of a problem's detail
+log = logging.getLogger("drape.service")
 
 # error class -> (status, stable type, title)
 MAPPING: dict[type[errors.DrapeError], tuple[int, str, str]] = {
@@ -19,20 +27,32 @@ MAPPING: dict[type[errors.DrapeError], tuple[int, str, str]] = {
     errors.Unauthorized: (401, "unauthorized", "Missing or wrong API key"),
     errors.NotFound: (404, "not-found", "Not found"),
     errors.NotAcceptable: (406, "not-acceptable", "No acceptable answer format"),
+    errors.RequestTimeout: (408, "request-timeout", "The request body came too slowly"),
     errors.LimitExceeded: (413, "limit-exceeded", "Request exceeds a limit"),
     errors.UnsupportedMediaType: (415, "unsupported-media-type", "Unsupported request format"),
     errors.InvalidInput: (422, "invalid-input", "Invalid input"),
+    errors.Overloaded: (503, "overloaded", "Busy: retry later"),
 }
 
 
+def _document(status: int, type_: str, title: str, detail: str) -> dict:
+    if len(detail) > MAX_DETAIL:
+        detail = detail[:MAX_DETAIL] + "..."
+    return Problem(type=BASE + type_, title=title, status=status, detail=detail).model_dump()
+
+
 def problem(status: int, type_: str, title: str, detail: str, headers: dict | None = None) -> JSONResponse:
-    body = Problem(type=BASE + type_, title=title, status=status, detail=detail).model_dump()
-    return JSONResponse(body, status_code=status, media_type=PROBLEM, headers=headers)
+    return JSONResponse(_document(status, type_, title, detail), status_code=status, media_type=PROBLEM,
+                        headers=headers)
 
 
 def from_error(exc: errors.DrapeError) -> JSONResponse:
     status, type_, title = MAPPING[type(exc)]
-    headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
+    headers = None
+    if isinstance(exc, errors.Unauthorized):
+        headers = {"WWW-Authenticate": "Bearer"}
+    elif isinstance(exc, errors.Overloaded):
+        headers = {"Retry-After": str(exc.retry_after_s)}
     return problem(status, type_, title, exc.detail, headers)
 
 
@@ -41,6 +61,41 @@ def problem_responses(*statuses: int) -> dict[int | str, dict]:
     schema = {"$ref": "#/components/schemas/Problem"}
     return {s: {"description": "problem details (RFC 9457)", "content": {PROBLEM: {"schema": schema}}}
             for s in statuses}
+
+
+class CatchAll:
+    """ASGI middleware: an exception that escapes the app becomes a 500 problem+json (logged once, with
+    its traceback) instead of reaching the server, which would answer text/plain and drop the
+    connection. An exception after the answer has started (a stream cut mid-way) can only be logged."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracking_send)
+        except ClientDisconnect:  # the client went away while sending its body: nobody to answer
+            return
+        except Exception as exc:  # the last resort: never let the server see it
+            log.exception("unhandled error on %s %s", scope.get("method"), scope.get("path"))
+            if started:
+                return
+            body = json.dumps(_document(500, "internal-error", "Internal server error",
+                                        f"an unexpected {type(exc).__name__}; the error is logged")).encode()
+            await send({"type": "http.response.start", "status": 500,
+                        "headers": [(b"content-type", PROBLEM.encode()), (b"content-length", str(len(body)).encode())]})
+            await send({"type": "http.response.body", "body": body})
 
 
 def install(app: FastAPI) -> None:
@@ -60,4 +115,8 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        return problem(exc.status_code, f"http-{exc.status_code}", str(exc.detail), str(exc.detail))
+        # keeps the exception's headers: Allow on a 405
+        return problem(exc.status_code, f"http-{exc.status_code}", str(exc.detail), str(exc.detail),
+                       dict(exc.headers) if exc.headers else None)
+
+    app.add_middleware(CatchAll)

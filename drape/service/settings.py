@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pydantic import field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from drape.runtime.deepsd import MODEL_DIR
@@ -16,13 +17,36 @@ class Settings(BaseSettings):
     port: int = 8000
     model_dir: Path = MODEL_DIR
     ort_threads: int = 2
+    # what one request may hold
     max_vertices: int = 100_000
     max_faces: int = 200_000
     max_frames: int = 10_000
-    max_posed_values: int = 20_000_000  # frames x vertices in one JSON/npz answer (the stream has no such cap)
-    max_body_bytes: int = 64 * 2**20
+    max_posed_values: int = 20_000_000  # frames x vertices in one npz answer (the frame stream has no such cap)
+    max_json_values: int = 5_000_000  # numbers in one JSON answer; larger ones go as npz under Accept: */*
+    max_body_bytes: int = 64 * 2**20  # request body, multipart uploads included
+    max_decoded_bytes: int = 256 * 2**20  # the arrays read from one npz body (as declared in its members)
+    body_timeout_s: float = 30.0  # the whole request body must arrive within this
+    header_timeout_s: float = 10.0  # a new connection must send its request line and headers within this
+    # admission control: heavy requests (rig, animate, refine) computing at once, and waiting for a turn
+    max_active: int = 2
+    max_queue: int = 8
+    queue_timeout_s: float = 30.0  # longest wait for a turn before a 503
+    retry_after_s: int = 5  # the Retry-After of a 503
+    request_budget_s: float = 300.0  # a heavy request's computation stops after this (its answer is cut)
+    # the server
+    limit_concurrency: int = 512  # connections + tasks; over it new connections get a 503
+    timeout_keep_alive_s: int = 5
+    shutdown_grace_s: int = 20  # SIGTERM: in-flight requests get this long, then are cut (below a container's 30 s)
     outfit_cache_bytes: int = 512 * 2**20
     stream_chunk_frames: int = 32
     refine_workers: int = 2  # processes a chunk's refinement is split over (1: in the serving process)
     api_key: str | None = None
     cors_origins: list[str] = []
+
+    @field_validator("api_key")
+    @classmethod
+    def _api_key_not_empty(cls, value: str | None) -> str | None:
+        """An empty DRAPE_API_KEY is a mistake, not a way to turn auth off: refuse to start."""
+        if value is not None and not value.strip():
+            raise ValueError("DRAPE_API_KEY is set but empty: unset it to serve without auth, or give a key")
+        return value

@@ -1,4 +1,5 @@
-"""Liveness, readiness and metrics."""
+"""Liveness, readiness and metrics: async routes that run on the event loop and never wait for the
+thread pool, so they answer while every computing slot is busy."""
 
 from __future__ import annotations
 
@@ -11,13 +12,13 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", response_model=Health)
-def healthz() -> Health:
+async def healthz() -> Health:
     """The process is alive."""
     return Health(status="ok")
 
 
 @router.get("/readyz", response_model=Health, responses={503: {"model": Health}})
-def readyz(request: Request) -> Health | JSONResponse:
+async def readyz(request: Request) -> Health | JSONResponse:
     """Models loaded and warmed up, assets loaded; 503 until then."""
     if not getattr(request.app.state, "ready", False):
         return JSONResponse(status_code=503, content={"status": "starting"})
@@ -26,6 +27,6 @@ def readyz(request: Request) -> Health | JSONResponse:
 
 @router.get("/metrics", response_class=Response,
             responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}}})
-def metrics(request: Request) -> Response:
+async def metrics(request: Request) -> Response:
     """Prometheus text: requests and latencies per route, inference time, frames and vertices served."""
     return Response(request.app.state.metrics.render(), media_type="text/plain; version=0.0.4")

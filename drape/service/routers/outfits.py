@@ -1,35 +1,35 @@
-"""POST /v1/outfits/rig and /v1/outfits/animate: parse, negotiate, stream; the work is in handlers."""
+"""POST /v1/outfits/rig, /v1/outfits/animate and /v1/refine: negotiate, read the body within the limits,
+take a computing slot, then decode, validate and compute off the event loop; the work is in handlers.
+
+The event loop only moves bytes: everything from JSON parsing on runs in the thread pool, under the
+admission control's slot (a 503 + Retry-After when the service is full).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from functools import partial
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse, StreamingResponse
-from pydantic import BaseModel, ValidationError
+from fastapi.responses import JSONResponse
 
 from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
-from drape.schemas.binary import FRAMES, NPZ, decode_npz, encode_npz, stream_chunk, stream_header
-from drape.schemas.outfits import AnimateRequest, RefineOptions, RefineRequest, RigRequest
-from drape.service import handlers
-from drape.service.errors import InvalidInput, MalformedInput, UnsupportedMediaType
-from drape.service.http import engine_of, media_type, parse_json, read_body, settings_of
+from drape.schemas.binary import FRAMES, NPZ, encode_npz
+from drape.service import decode, handlers
+from drape.service.answers import FrameSource, stream_frames
+from drape.service.errors import LimitExceeded, UnsupportedMediaType
+from drape.service.http import admission_of, engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
+from drape.service.settings import Settings
 
 router = APIRouter(prefix="/v1/outfits", tags=["outfits"])
 JSON = "application/json"
 BINARY = {"schema": {"type": "string", "format": "binary"}}
-ERRORS = problem_responses(400, 401, 404, 406, 413, 415, 422)
-
-
-def _validation_detail(exc: ValidationError) -> str:
-    return "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
+ERRORS = problem_responses(400, 401, 404, 406, 408, 413, 415, 422, 503)
 
 
 def _rig_payload(outfit: RiggedOutfit) -> dict[str, np.ndarray]:
@@ -60,39 +60,32 @@ async def rig_outfit(request: Request) -> Response:
     """Template outfit -> blend weights W (N, 24), blend shapes D (P, N, 3), skeleton, outfit_id."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ])
     kind = media_type(request)
-    settings, engine = settings_of(request), engine_of(request)
-    vertices: Any
-    faces: Any
-    if kind == "multipart/form-data":
-        form = await request.form(max_part_size=settings.max_body_bytes)
-        upload = form.get("mesh")
-        if upload is None or isinstance(upload, str):
-            raise InvalidInput("a mesh file is required", "mesh")
-        data = await upload.read()
-        body = form.get("body")
-        vertices, faces = handlers.mesh_from_file(data, upload.filename or "")
-        body_name = body if isinstance(body, str) else None
-    elif kind == NPZ:
-        try:
-            arrays = decode_npz(await read_body(request))
-        except ValueError as exc:
-            raise MalformedInput(str(exc), "body") from exc
-        if "vertices" not in arrays or "faces" not in arrays:
-            raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
-        vertices, faces = arrays["vertices"], arrays["faces"]
-        body_name = str(arrays["body"]) if "body" in arrays else None
-    elif kind in (JSON, ""):
-        try:
-            req = RigRequest.model_validate(parse_json(await read_body(request)))
-        except ValidationError as exc:
-            raise InvalidInput(_validation_detail(exc)) from exc
-        vertices, faces, body_name = req.vertices, req.faces, req.body
-    else:
+    if kind not in ("multipart/form-data", NPZ, JSON, ""):
         raise UnsupportedMediaType(f"send {JSON}, multipart/form-data or {NPZ}, not {kind!r}", "Content-Type")
-    outfit = await run_in_threadpool(handlers.rig, engine, settings, vertices, faces, body_name)
+    settings, engine = settings_of(request), engine_of(request)
+    data = await read_body(request)
+    content_type = request.headers.get("content-type", "")
+
+    def work() -> Response:
+        vertices, faces, body_name = decode.rig_arguments(kind, content_type, data, settings)
+        outfit = handlers.rig(engine, settings, vertices, faces, body_name)
+        return _rig_answer(answer, outfit, settings)
+
+    slot = await admission_of(request).enter()
+    try:
+        return await run_in_threadpool(work)
+    finally:
+        slot.release()
+
+
+def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Response:
     payload = _rig_payload(outfit)
     if answer == NPZ:
         return Response(encode_npz({"outfit_id": np.array(outfit.outfit_id), **payload}), media_type=NPZ)
+    numbers = payload["skinning_weights"].size + payload["blend_shapes"].size
+    if numbers > settings.max_json_values:
+        raise LimitExceeded(f"the rig has {numbers} numbers, over the limit of {settings.max_json_values} for a "
+                            "JSON answer; ask for Accept: application/x-npz", "Accept")
     return JSONResponse({
         "outfit_id": outfit.outfit_id,
         "num_vertices": int(len(outfit.vertices)),
@@ -103,46 +96,9 @@ async def rig_outfit(request: Request) -> Response:
     })
 
 
-def _frames_answer(answer: str, chunks: Callable[[], Iterator[np.ndarray]], faces: np.ndarray, n: int,
-                   num_frames: int, fps: float, outfit_id: str, metrics: Any) -> Response:
-    """Posed or refined frames as JSON, npz or the frame stream; every format from the same chunks."""
-    if answer == FRAMES:
-        def frames() -> Iterator[bytes]:
-            yield stream_header(num_frames, faces, n, fps, outfit_id)
-            for chunk in chunks():
-                metrics.served(len(chunk), n)
-                yield stream_chunk(chunk)
-            yield stream_chunk(np.zeros((0, n, 3), np.float32))
-
-        return StreamingResponse(frames(), media_type=FRAMES)
-    verts = np.concatenate(list(chunks()))
-    metrics.served(len(verts), n)
-    if answer == NPZ:
-        return Response(encode_npz({"vertices": verts, "faces": faces, "fps": np.array(fps, np.float32),
-                                    "outfit_id": np.array(outfit_id)}), media_type=NPZ)
-    return JSONResponse({"outfit_id": outfit_id, "fps": fps, "vertices": verts.tolist(), "faces": faces.tolist()})
-
-
-def _parse(model: type[BaseModel], data: bytes) -> BaseModel:
-    try:
-        return model.model_validate(parse_json(data))
-    except ValidationError as exc:
-        raise InvalidInput(_validation_detail(exc)) from exc
-
-
-def _npz_options(z: dict[str, np.ndarray]) -> dict | None:
-    """The refine options among an npz's arrays (scalars eps, max_iterations, relief_iterations), validated
-    like the JSON request's `options`; None when it has none."""
-    given = {k: z[k] for k in RefineOptions.model_fields if k in z}
-    if not given:
-        return None
-    for k, a in given.items():
-        if a.shape != () or a.dtype.kind not in "iuf":
-            raise InvalidInput(f"expected a numeric scalar, got dtype {a.dtype} and shape {a.shape}", k)
-    try:
-        return RefineOptions.model_validate({k: a.item() for k, a in given.items()}).model_dump()
-    except ValidationError as exc:
-        raise InvalidInput(_validation_detail(exc)) from exc
+def _max_posed(answer: str, settings: Settings) -> int | None:
+    """frames x vertices one answer may hold in this format (None: the frame stream, unbounded)."""
+    return {JSON: settings.max_json_values // 3, NPZ: settings.max_posed_values}.get(answer)
 
 
 FRAME_ANSWERS = {200: {"description": "frames (T, N, 3)", "content": {
@@ -156,17 +112,32 @@ async def animate_outfit(request: Request) -> Response:
     answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
     if media_type(request) not in (JSON, ""):
         raise UnsupportedMediaType(f"send {JSON}, not {media_type(request)!r}", "Content-Type")
-    req = _parse(AnimateRequest, await read_body(request))
     settings, engine = settings_of(request), engine_of(request)
-    plan = await run_in_threadpool(handlers.plan_animation, engine, settings, req.model_dump(), answer == FRAMES)
+    data = await read_body(request)
 
-    def chunks() -> Iterator[np.ndarray]:
-        return engine.pose_chunks(plan.outfit, plan.poses, plan.translation, settings.stream_chunk_frames,
-                                  refine=plan.refine)
+    def plan() -> FrameSource:
+        req = decode.animate_request(data, settings, engine)
+        p = handlers.plan_animation(engine, settings, req, _max_posed(answer, settings))
 
-    build = partial(_frames_answer, answer, chunks, plan.outfit.faces, len(plan.outfit.vertices), plan.num_frames,
-                    plan.fps, plan.outfit.outfit_id, request.app.state.metrics)
-    return build() if answer == FRAMES else await run_in_threadpool(build)
+        def chunks() -> Iterator[np.ndarray]:
+            return engine.pose_chunks(p.outfit, p.poses, p.translation, settings.stream_chunk_frames,
+                                      refine=p.refine)
+
+        return FrameSource(chunks, p.outfit.faces, p.num_frames, len(p.outfit.vertices), p.fps, p.outfit.outfit_id)
+
+    return await _stream(request, answer, plan)
+
+
+async def _stream(request: Request, answer: str, plan: Any) -> Response:
+    """Take a computing slot, plan off the event loop, and stream the answer (which keeps the slot)."""
+    settings = settings_of(request)
+    slot = await admission_of(request).enter()
+    try:
+        source = await run_in_threadpool(plan)
+    except BaseException:
+        slot.release()
+        raise
+    return await stream_frames(answer, source, slot, settings.request_budget_s, request.app.state.metrics)
 
 
 refine_router = APIRouter(prefix="/v1", tags=["refine"])
@@ -182,30 +153,19 @@ async def refine_stream(request: Request) -> Response:
     """Garment stream + faces + body motion -> the stream with body penetration removed (same formats as animate)."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
     kind = media_type(request)
-    settings, engine = settings_of(request), engine_of(request)
-    if kind == NPZ:
-        try:
-            z = decode_npz(await read_body(request))
-        except ValueError as exc:
-            raise MalformedInput(str(exc), "body") from exc
-        missing = [k for k in ("vertices", "faces") if k not in z] + ([] if "poses" in z or "clip" in z else ["poses"])
-        if missing:
-            raise InvalidInput(f"the archive lacks {missing}", "body")
-        motion = {"clip": str(z["clip"]) if "clip" in z else None, "poses": z.get("poses"),
-                  "translation": z.get("translation"), "fps": float(z.get("fps", 30.0))}
-        args = (z["vertices"], z["faces"], motion, str(z["body"]) if "body" in z else None, _npz_options(z))
-    elif kind in (JSON, ""):
-        req = _parse(RefineRequest, await read_body(request))
-        d = req.model_dump()
-        args = (d["vertices"], d["faces"], d["motion"], d["body"], d["options"])
-    else:
+    if kind not in (NPZ, JSON, ""):
         raise UnsupportedMediaType(f"send {JSON} or {NPZ}, not {kind!r}", "Content-Type")
-    plan = await run_in_threadpool(handlers.plan_refine, settings, *args, answer == FRAMES)
+    settings, engine = settings_of(request), engine_of(request)
+    data = await read_body(request)
 
-    def chunks() -> Iterator[np.ndarray]:
-        return engine.refine_chunks(plan.vertices, plan.faces, plan.body, plan.poses, plan.translation, plan.options,
-                                    settings.stream_chunk_frames)
+    def plan() -> FrameSource:
+        args = decode.refine_arguments(kind, data, settings)
+        p = handlers.plan_refine(settings, *args, _max_posed(answer, settings))
 
-    build = partial(_frames_answer, answer, chunks, plan.faces, plan.vertices.shape[1], len(plan.vertices), plan.fps,
-                    "", request.app.state.metrics)
-    return build() if answer == FRAMES else await run_in_threadpool(build)
+        def chunks() -> Iterator[np.ndarray]:
+            return engine.refine_chunks(p.vertices, p.faces, p.body, p.poses, p.translation, p.options,
+                                        settings.stream_chunk_frames)
+
+        return FrameSource(chunks, p.faces, len(p.vertices), p.vertices.shape[1], p.fps, "")
+
+    return await _stream(request, answer, plan)

@@ -1,0 +1,166 @@
+"""Streaming answers of the frame routes (animate, refine): every format (JSON, npz, the frame stream)
+is written chunk by chunk from the computed frames, so an answer's memory is one chunk's, a client that
+goes away stops the work within one chunk, and the request's time budget is kept.
+
+The encoders are plain generators of bytes (no HTTP); `stream_frames` drives one off the event loop.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import struct
+import time
+import zipfile
+from collections.abc import AsyncIterator, Callable, Generator, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import StreamingResponse
+
+from drape.schemas.binary import FRAMES, NPZ, stream_header
+from drape.service.admission import Slot
+from drape.service.metrics import Metrics
+
+JSON = "application/json"
+log = logging.getLogger("drape.service")
+Pieces = Generator[bytes | memoryview, None, None]  # an answer's bytes, piece by piece
+
+
+@dataclass(frozen=True)
+class FrameSource:
+    """What a frame route answers: `chunks()` yields frames (n, N, 3) float32 metres, T in all, with the
+    faces (F, 3) int32 of the garment, the frame rate and the outfit id ('' for a refined stream)."""
+
+    chunks: Callable[[], Iterator[np.ndarray]]
+    faces: np.ndarray
+    num_frames: int
+    num_vertices: int
+    fps: float
+    outfit_id: str
+
+
+def _frames32(chunk: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(chunk, dtype="<f4")
+
+
+def encode_frame_stream(src: FrameSource) -> Pieces:
+    """The frame stream (drape.schemas.binary): header and faces, then each chunk as its count and its
+    float32 bytes, written from the computed array without a copy; a zero count ends it."""
+    yield stream_header(src.num_frames, src.faces, src.num_vertices, src.fps, src.outfit_id)
+    for chunk in src.chunks():
+        c = _frames32(chunk)
+        yield struct.pack("<I", len(c))
+        yield c.data.cast("B")
+    yield struct.pack("<I", 0)
+
+
+class _Pieces(io.RawIOBase):
+    """A write-only, unseekable file that keeps what is written as pieces for the caller to take."""
+
+    def __init__(self) -> None:
+        self.pieces: list[bytes | memoryview] = []
+        self.position = 0
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data) -> int:  # type: ignore[no-untyped-def, override]
+        view = memoryview(data).cast("B")
+        self.pieces.append(view)
+        self.position += len(view)
+        return len(view)
+
+    def tell(self) -> int:
+        return self.position
+
+    def take(self) -> list[bytes | memoryview]:
+        out, self.pieces = self.pieces, []
+        return out
+
+
+def encode_npz_stream(src: FrameSource) -> Pieces:
+    """The npz answer (vertices (T, N, 3) float32, faces, fps, outfit_id), as numpy's uncompressed npz
+    written while the frames are computed: stored zip members, CRCs in data descriptors (np.load reads it)."""
+    sink = _Pieces()
+    with zipfile.ZipFile(sink, "w", zipfile.ZIP_STORED) as zf:
+        for name, arr in (("faces", src.faces), ("fps", np.array(src.fps, np.float32)),
+                          ("outfit_id", np.array(src.outfit_id))):
+            with zf.open(name + ".npy", "w") as f:
+                np.lib.format.write_array(f, np.asarray(arr), allow_pickle=False)
+        yield from sink.take()
+        size = src.num_frames * src.num_vertices * 12
+        with zf.open("vertices.npy", "w", force_zip64=size > 2**30) as f:
+            np.lib.format.write_array_header_1_0(
+                f, {"descr": "<f4", "fortran_order": False, "shape": (src.num_frames, src.num_vertices, 3)})
+            for chunk in src.chunks():
+                f.write(_frames32(chunk).data.cast("B"))
+                yield from sink.take()
+    yield from sink.take()
+
+
+def encode_json(src: FrameSource) -> Pieces:
+    """{"outfit_id", "fps", "faces", "vertices"} as JSON text, the vertices written chunk by chunk."""
+    head = json.dumps({"outfit_id": src.outfit_id, "fps": src.fps, "faces": src.faces.tolist()})
+    yield (head[:-1] + ', "vertices": [').encode()
+    first = True
+    for chunk in src.chunks():
+        text = json.dumps(chunk.tolist())[1:-1]
+        if text:
+            yield (text if first else "," + text).encode()
+            first = False
+    yield b"]}"
+
+
+ENCODERS: dict[str, Callable[[FrameSource], Pieces]] = {
+    JSON: encode_json, NPZ: encode_npz_stream, FRAMES: encode_frame_stream}
+
+
+async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: float,
+                        metrics: Metrics) -> StreamingResponse:
+    """Drive the answer's encoder off the event loop, one piece at a time, holding `slot` until the end.
+
+    The first piece (and so the first chunk's computation) is made before the answer starts, so an error
+    there is still a problem document. Afterwards, the starlette response cancels this generator when the
+    client disconnects: the thread finishes its chunk and nothing more is computed. Past `budget_s` the
+    answer is cut (the client sees an incomplete stream) and the cut is counted and logged.
+    """
+    pieces = ENCODERS[answer](src)
+    deadline = time.monotonic() + budget_s
+
+    def next_piece() -> bytes | memoryview | None:
+        return next(pieces, None)
+
+    try:
+        first = await run_in_threadpool(next_piece)
+    except BaseException:
+        slot.release()
+        pieces.close()
+        raise
+
+    async def body() -> AsyncIterator[bytes | memoryview]:
+        piece, end = first, "disconnected"  # how the answer ended, unless it finishes
+        try:
+            while piece is not None:
+                yield piece
+                if time.monotonic() > deadline:
+                    end = "time_budget"
+                    log.warning("answer cut: the request's time budget of %g s ran out", budget_s)
+                    return
+                try:
+                    piece = await run_in_threadpool(next_piece)
+                except Exception:
+                    end = "error"
+                    log.exception("answer cut by an error after it started")
+                    return
+            end = ""
+            metrics.served(src.num_frames, src.num_vertices)
+        finally:
+            if end:
+                metrics.cut.labels(reason=end).inc()
+            slot.release()
+            pieces.close()
+
+    return StreamingResponse(body(), media_type=answer)

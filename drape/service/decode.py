@@ -1,0 +1,174 @@
+"""Request bodies -> the handlers' arguments: JSON (strict pydantic models), npz (only the members a
+route uses, sizes checked from their headers before reading), multipart mesh uploads (checked by
+`uploads`). Cheap checks come first: sizes and unknown ids are looked at on the parsed document before
+the models validate every number. Pure CPU work, no HTTP: the routers call these off the event loop.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ValidationError
+
+from drape.runtime.engine import Engine
+from drape.schemas.binary import NpzTooLarge, decode_npz
+from drape.schemas.outfits import AnimateRequest, RefineOptions, RefineRequest, RigRequest
+from drape.service import uploads
+from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotFound, quoted
+from drape.service.http import parse_form, parse_json
+from drape.service.settings import Settings
+
+REFINE_OPTIONS = tuple(RefineOptions.model_fields)
+
+
+def validation_detail(exc: ValidationError) -> str:
+    return "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
+
+
+def _model(model: type[BaseModel], doc: Any) -> Any:
+    try:
+        return model.model_validate(doc)
+    except ValidationError as exc:
+        raise InvalidInput(validation_detail(exc)) from exc
+
+
+def _count(value: Any, limit: int, what: str, field: str) -> None:
+    """A list's length against a limit, before its items are validated (a 413 naming the limit)."""
+    if isinstance(value, list) and len(value) > limit:
+        raise LimitExceeded(f"{len(value)} {what} exceed the limit of {limit}", field)
+
+
+def _precheck_mesh(doc: Any, settings: Settings, field: str = "") -> None:
+    if isinstance(doc, dict):
+        pre = f"{field}." if field else ""
+        _count(doc.get("vertices"), settings.max_vertices, "vertices", f"{pre}vertices")
+        _count(doc.get("faces"), settings.max_faces, "faces", f"{pre}faces")
+
+
+def _precheck_motion(doc: Any, settings: Settings) -> None:
+    if isinstance(doc, dict):
+        _count(doc.get("poses"), settings.max_frames, "frames", "motion.poses")
+
+
+def _document(data: bytes) -> dict:
+    doc = parse_json(data)
+    if not isinstance(doc, dict):
+        raise InvalidInput(f"expected a JSON object, got {type(doc).__name__}", "body")
+    return doc
+
+
+# ---- npz ----------------------------------------------------------------------------------------
+
+def npz_members(data: bytes, names: tuple[str, ...], settings: Settings) -> dict[str, np.ndarray]:
+    """The members `names` of an npz body (others are never read), within DRAPE_MAX_DECODED_BYTES."""
+    try:
+        return decode_npz(data, names, max_bytes=settings.max_decoded_bytes)
+    except NpzTooLarge as exc:
+        raise LimitExceeded(str(exc), "body") from exc
+    except ValueError as exc:
+        raise MalformedInput(str(exc), "body") from exc
+
+
+def npz_numbers(z: dict[str, np.ndarray], name: str, integer: bool = False) -> np.ndarray:
+    """A real numeric member (integers only when `integer`): booleans, complex, strings are refused."""
+    a = z[name]
+    kinds = "iu" if integer else "iuf"
+    if a.dtype.kind not in kinds:
+        expected = "integers" if integer else "real numbers"
+        raise InvalidInput(f"expected {expected}, got dtype {a.dtype}", name)
+    return a
+
+
+def npz_text(z: dict[str, np.ndarray], name: str) -> str | None:
+    """A unicode scalar member (a name), or None when absent."""
+    if name not in z:
+        return None
+    a = z[name]
+    if a.dtype.kind != "U" or a.shape != ():
+        raise InvalidInput(f"expected a text scalar, got dtype {a.dtype} and shape {a.shape}", name)
+    return str(a)
+
+
+def npz_scalar(z: dict[str, np.ndarray], name: str) -> float | int | None:
+    """A real numeric scalar member, or None when absent."""
+    if name not in z:
+        return None
+    a = z[name]
+    if a.shape != () or a.dtype.kind not in "iuf":
+        raise InvalidInput(f"expected a numeric scalar, got dtype {a.dtype} and shape {a.shape}", name)
+    return a.item()
+
+
+def npz_options(z: dict[str, np.ndarray]) -> dict | None:
+    """The refine options among an npz's members (scalars eps, max_iterations, relief_iterations), validated
+    like the JSON request's `options`; None when it has none."""
+    given = {k: npz_scalar(z, k) for k in REFINE_OPTIONS if k in z}
+    if not given:
+        return None
+    try:
+        return RefineOptions.model_validate(given).model_dump()
+    except ValidationError as exc:
+        raise InvalidInput(validation_detail(exc)) from exc
+
+
+# ---- the routes' bodies -------------------------------------------------------------------------
+
+def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings) -> tuple[Any, Any, str | None]:
+    """A rig request's body -> (vertices, faces, body preset or None), not yet checked as a mesh."""
+    if kind == "multipart/form-data":
+        parts = parse_form(data, content_type)
+        mesh = parts.get("mesh")
+        if mesh is None or mesh.filename is None:
+            raise InvalidInput("a mesh file is required", "mesh")
+        body = parts.get("body")
+        v, f = uploads.mesh_from_file(mesh.data, mesh.filename, max_vertices=settings.max_vertices,
+                                      max_faces=settings.max_faces)
+        return v, f, body.data.decode("utf-8", "replace") if body is not None else None
+    if kind == "application/x-npz":
+        z = npz_members(data, ("vertices", "faces", "body"), settings)
+        if "vertices" not in z or "faces" not in z:
+            raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
+        return npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), npz_text(z, "body")
+    doc = _document(data)
+    _precheck_mesh(doc, settings)
+    req = _model(RigRequest, doc)
+    return req.vertices, req.faces, req.body
+
+
+def animate_request(data: bytes, settings: Settings, engine: Engine) -> dict:
+    """An animate request's JSON -> a dict shaped like AnimateRequest; an unknown outfit_id and counts over
+    the limits are refused before the numbers are validated."""
+    doc = _document(data)
+    outfit_id = doc.get("outfit_id")
+    if isinstance(outfit_id, str) and doc.get("outfit") is None and engine.lookup(outfit_id) is None:
+        raise NotFound(f"unknown outfit_id {quoted(outfit_id)}: rig the outfit again (ids expire from the cache)",
+                       "outfit_id")
+    _precheck_mesh(doc.get("outfit"), settings, "outfit")
+    _precheck_motion(doc.get("motion"), settings)
+    return _model(AnimateRequest, doc).model_dump()
+
+
+def refine_arguments(kind: str, data: bytes, settings: Settings) -> tuple[Any, Any, dict, str | None, dict | None]:
+    """A refine request's body (JSON or npz) -> (vertices, faces, motion dict, body preset, options)."""
+    if kind == "application/x-npz":
+        names = ("vertices", "faces", "poses", "translation", "fps", "clip", "body", *REFINE_OPTIONS)
+        z = npz_members(data, names, settings)
+        missing = [k for k in ("vertices", "faces") if k not in z] + ([] if "poses" in z or "clip" in z else ["poses"])
+        if missing:
+            raise InvalidInput(f"the archive lacks {missing}", "body")
+        fps = npz_scalar(z, "fps")
+        motion = {"clip": npz_text(z, "clip"), "fps": 30.0 if fps is None else float(fps),
+                  "poses": npz_numbers(z, "poses") if "poses" in z else None,
+                  "translation": npz_numbers(z, "translation") if "translation" in z else None}
+        return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), motion, npz_text(z, "body"),
+                npz_options(z))
+    doc = _document(data)
+    _count(doc.get("vertices"), settings.max_frames, "frames", "vertices")
+    frames = doc.get("vertices")
+    if isinstance(frames, list) and frames:
+        _count(frames[0], settings.max_vertices, "vertices", "vertices")
+    _count(doc.get("faces"), settings.max_faces, "faces", "faces")
+    _precheck_motion(doc.get("motion"), settings)
+    d = _model(RefineRequest, doc).model_dump()
+    return d["vertices"], d["faces"], d["motion"], d["body"], d["options"]

@@ -1,0 +1,790 @@
+"""Uploaded mesh files checked against the limits before any decoder allocates.
+
+`mesh_from_file` reads an OBJ, PLY, GLB or glTF upload with trimesh, exactly as the service always
+has (`process=False, force="mesh", maintain_order=True`), but only after the file's own declarations
+have been checked against the request limits and against the bytes actually sent. Every size
+trimesh would allocate by is bounded first:
+
+* GLB / glTF: the GLB header and chunk lengths must fit the data; the JSON is bounded (a GLB's JSON
+  chunk by `MAX_JSON_BYTES`, every glTF JSON by `MAX_JSON_TOKENS` structural characters; nesting
+  that json.loads cannot take is a 400). Every buffer's `byteLength` must lie within the bytes
+  present (the GLB BIN chunk or a base64 `data:` URI; external file URIs are refused), every
+  bufferView within its buffer, every accessor's `byteOffset + (count - 1) * stride + element size`
+  within its bufferView. Sparse accessors, Draco, meshopt and GPU instancing are refused, and so are
+  primitives that are not triangle lists. The scene is walked the way trimesh walks it, so the
+  vertices and faces of every placed mesh instance (primitives concatenated, as trimesh does) are
+  summed against `max_vertices` / `max_faces` and the instances and node references against
+  `MAX_GLTF_INSTANCES` / `MAX_GLTF_NODE_REFS`. trimesh then gets a rewritten GLB holding only the
+  scene graph and the POSITION / index data of the placed meshes, copied densely: no images,
+  textures, samplers or materials, so no texture is ever decoded. (One deliberate difference: a
+  node carrying both the file's first camera and a mesh keeps its mesh.)
+* OBJ: after trimesh's own normalisation (strip, CRLF, backslash continuations) the `v`, `vt`,
+  `vn` lines, the face lines and the triangles they make (k indices make k - 2) are counted at the
+  bytes level, and every face index must be at most the largest of those line counts (trimesh's
+  `maintain_order` path allocates by the largest index).
+* PLY: the header is parsed like trimesh parses it; `element vertex N` and `element face M` are
+  checked against the limits, other elements against `max_vertices + max_faces`; binary data must
+  be at least as long as the records declared (list lengths read from the first record, as trimesh
+  does), and the face records' triangles (M * (k - 2)) are bounded; ASCII data may not have many
+  more lines than records (trimesh parses every line), and its face rows' triangles are counted.
+
+Errors (all naming the field "mesh"): `LimitExceeded` (413) when a declared count exceeds a limit,
+`MalformedInput` (400) for declarations inconsistent with each other or with the data, and for
+anything trimesh cannot read, `InvalidInput` (422) for a supported file using a feature drape does
+not take (file suffix, external URIs, sparse or compressed geometry, non-triangle primitives) and
+for a file with no triangles.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import io
+import json
+import re
+import struct
+from dataclasses import dataclass
+from typing import Any, NoReturn, cast
+
+import numpy as np
+
+from drape.service.errors import DrapeError, InvalidInput, LimitExceeded, MalformedInput
+
+MESH_FILE_TYPES = {".obj": "obj", ".ply": "ply", ".glb": "glb", ".gltf": "gltf"}
+FIELD = "mesh"
+
+MAX_JSON_BYTES = 16 * 2**20  # a GLB's JSON chunk (a .gltf file is bounded by the body limit)
+MAX_JSON_TOKENS = 200_000  # the characters {}[],: in a glTF JSON (bounds its Python objects)
+MAX_GLTF_INSTANCES = 4096  # mesh primitives placed in the scene: each becomes a trimesh object
+MAX_GLTF_NODE_REFS = 20_000  # parent -> child node references trimesh walks
+MAX_GLB_CHUNKS = 64
+MAX_PLY_HEADER_BYTES = 64 * 2**10
+PLY_LINE_SLACK = 64  # ASCII PLY lines allowed beyond the declared records (blank trailing lines)
+
+
+def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
+                   max_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """Read an uploaded OBJ/PLY/GLB/glTF mesh (by its file name's suffix) into plain arrays.
+
+    -> (vertices (N, 3) float, faces (F, 3) int) as trimesh reads them (other shapes, from broken
+    files, are a MalformedInput); see the module docstring for what is checked before trimesh sees
+    the file, and which domain error answers what.
+    """
+    suffix = "." + filename.rsplit(".", 1)[-1].lower() if "." in filename else ""
+    if suffix not in MESH_FILE_TYPES:
+        raise InvalidInput(f"file name must end in one of {sorted(MESH_FILE_TYPES)}, got {filename!r}",
+                           FIELD)
+    file_type = MESH_FILE_TYPES[suffix]
+    try:
+        if suffix == ".glb":
+            data, file_type = _checked_glb(data, max_vertices, max_faces), "glb"
+        elif suffix == ".gltf":
+            data, file_type = _checked_gltf(data, max_vertices, max_faces), "glb"
+        elif suffix == ".obj":
+            _check_obj(data, max_vertices, max_faces)
+        else:
+            _check_ply(data, max_vertices, max_faces)
+    except DrapeError:
+        raise
+    except Exception as exc:  # a check tripping on a broken file reads as the broken file
+        raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: {exc})",
+                             FIELD) from exc
+    return _load(data, file_type, suffix)
+
+
+def _load(data: bytes, file_type: str, suffix: str) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    try:
+        mesh = cast(trimesh.Trimesh, trimesh.load(io.BytesIO(data), file_type=file_type,
+                                                  process=False, force="mesh", maintain_order=True))
+        v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    except Exception as exc:  # trimesh raises many kinds on broken files
+        raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: {exc})",
+                             FIELD) from exc
+    if len(v) == 0 or len(f) == 0:
+        raise InvalidInput("the file holds no triangles", FIELD)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise MalformedInput(f"the {suffix} file reads as vertices {v.shape} and faces {f.shape}, "
+                             "not (N, 3) and (F, 3)", FIELD)
+    return v, f
+
+
+def _bad(detail: str) -> NoReturn:
+    raise MalformedInput(detail, FIELD)
+
+
+def _over(what: str, count: int, limit: int, at_least: bool = False) -> NoReturn:
+    declares = "declares at least" if at_least else "declares"
+    raise LimitExceeded(f"the file {declares} {count} {what}, over the limit of {limit}", FIELD)
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+# ---------------------------------------------------------------------------------------- glTF
+
+_GLB_JSON, _GLB_BIN = 0x4E4F534A, 0x004E4942
+_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_TYPE_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_INDEX_COMPONENTS = (5121, 5123, 5125)
+_REFUSED_EXTENSIONS = {
+    "KHR_draco_mesh_compression": "Draco-compressed geometry",
+    "EXT_meshopt_compression": "meshopt-compressed geometry",
+    "EXT_mesh_gpu_instancing": "GPU instancing",
+}
+_NODE_TRANSFORMS = {"matrix": 16, "translation": 3, "rotation": 4, "scale": 3}
+
+
+@dataclass(frozen=True)
+class _View:
+    buffer: int
+    offset: int
+    length: int
+    stride: int | None
+
+
+@dataclass(frozen=True)
+class _Accessor:
+    view: int | None
+    offset: int
+    count: int
+    component: int
+    kind: str
+    element: int  # bytes of one element
+    stride: int  # bytes from one element to the next
+
+
+def _checked_glb(data: bytes, max_vertices: int, max_faces: int) -> bytes:
+    """A GLB upload -> the rewritten GLB handed to trimesh (geometry only)."""
+    if len(data) < 20:
+        _bad(f"{len(data)} bytes are too few for a GLB (a 12-byte header and a chunk)")
+    magic, version, length = struct.unpack_from("<4sII", data)
+    if magic != b"glTF":
+        _bad("not a GLB file (the first 4 bytes are not 'glTF')")
+    if version != 2:
+        _bad(f"GLB version {version}: only glTF 2 is supported")
+    if not 20 <= length <= len(data):
+        _bad(f"the GLB header declares {length} bytes but {len(data)} were sent")
+    view = memoryview(data)[:length]
+    pos, chunks = 12, 0
+    json_chunk: memoryview | None = None
+    bin_chunk: memoryview | None = None
+    while pos + 8 <= length and (json_chunk is None or bin_chunk is None):
+        chunk_length, chunk_type = struct.unpack_from("<II", data, pos)
+        pos += 8
+        if chunk_length > length - pos:
+            _bad(f"a GLB chunk declares {chunk_length} bytes but only {length - pos} remain")
+        chunk = view[pos:pos + chunk_length]
+        pos += chunk_length
+        chunks += 1
+        if chunks > MAX_GLB_CHUNKS:
+            _bad(f"more than {MAX_GLB_CHUNKS} GLB chunks")
+        if json_chunk is None:
+            if chunk_type != _GLB_JSON:
+                _bad("the first GLB chunk is not the JSON chunk")
+            json_chunk = chunk
+        elif chunk_type == _GLB_BIN:
+            bin_chunk = chunk
+    if json_chunk is None:
+        _bad("the GLB has no JSON chunk")
+    if len(json_chunk) > MAX_JSON_BYTES:
+        raise LimitExceeded(f"the GLB's JSON chunk has {len(json_chunk)} bytes, over the limit of "
+                            f"{MAX_JSON_BYTES}", FIELD)
+    tree = _parse_json(bytes(json_chunk))
+    return _rewrite(tree, _buffers(tree, bin_chunk, glb=True), max_vertices, max_faces)
+
+
+def _checked_gltf(data: bytes, max_vertices: int, max_faces: int) -> bytes:
+    """A .gltf upload (JSON, buffers as base64 data: URIs) -> the rewritten GLB."""
+    tree = _parse_json(data)
+    return _rewrite(tree, _buffers(tree, None, glb=False), max_vertices, max_faces)
+
+
+def _parse_json(raw: bytes) -> dict[str, Any]:
+    tokens = sum(raw.count(c) for c in (b"{", b"}", b"[", b"]", b",", b":"))
+    if tokens > MAX_JSON_TOKENS:
+        raise LimitExceeded(f"the glTF JSON has {tokens} structural characters, over the limit of "
+                            f"{MAX_JSON_TOKENS}", FIELD)
+    try:
+        tree = json.loads(raw.decode("utf-8-sig"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:  # RecursionError: deep nesting
+        _bad(f"the glTF JSON is unreadable ({type(exc).__name__}: {str(exc)[:200]})")
+    if not isinstance(tree, dict):
+        _bad("the glTF JSON is not an object")
+    asset = tree.get("asset")
+    version = asset.get("version", "2.0") if isinstance(asset, dict) else "2.0"
+    if not isinstance(version, str) or version.split(".", 1)[0] != "2":
+        _bad(f"glTF version {_short(version)}: only glTF 2 is supported")
+    return tree
+
+
+def _items(tree: dict[str, Any], key: str) -> list[dict[str, Any]]:
+    value = tree.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(x, dict) for x in value):
+        _bad(f"glTF '{key}' must be a list of objects")
+    return value
+
+
+def _int(obj: dict[str, Any], key: str, where: str, default: int | None = None,
+         minimum: int = 0) -> int:
+    value = obj.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        _bad(f"{where}.{key} must be an integer >= {minimum}, got {_short(value)}")
+    return value
+
+
+def _index(value: Any, size: int, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < size:
+        _bad(f"{where} must be an index below {size}, got {_short(value)}")
+    return value
+
+
+def _buffers(tree: dict[str, Any], bin_chunk: memoryview | None, glb: bool) -> list[memoryview]:
+    """Each buffer's bytes, checked to hold its declared byteLength."""
+    out = []
+    for i, b in enumerate(_items(tree, "buffers")):
+        declared = _int(b, "byteLength", f"buffers[{i}]")
+        uri = b.get("uri")
+        if uri is None:
+            if not glb or i != 0:
+                _bad(f"buffers[{i}] has no uri (only a GLB's first buffer may use its BIN chunk)")
+            if bin_chunk is None:
+                _bad("buffers[0] refers to the GLB's BIN chunk, which is absent")
+            present = bin_chunk
+        elif not isinstance(uri, str):
+            _bad(f"buffers[{i}].uri must be a string")
+        elif not uri.startswith("data:"):
+            raise InvalidInput(f"buffers[{i}] refers to the external file {_short(uri)}: send a GLB "
+                               "or a .gltf with its buffers embedded as base64 data: URIs", FIELD)
+        else:
+            head, sep, payload = uri.partition(",")
+            if not sep or not head.endswith(";base64"):
+                raise InvalidInput(f"buffers[{i}]: only base64 data: URIs are supported", FIELD)
+            try:
+                present = memoryview(base64.b64decode(payload))
+            except (binascii.Error, ValueError) as exc:
+                _bad(f"buffers[{i}]: the base64 data is unreadable ({exc})")
+        if declared > len(present):
+            _bad(f"buffers[{i}] declares {declared} bytes but only {len(present)} are present")
+        out.append(present[:declared])
+    return out
+
+
+def _views(tree: dict[str, Any], buffers: list[memoryview]) -> list[_View]:
+    out = []
+    for i, v in enumerate(_items(tree, "bufferViews")):
+        where = f"bufferViews[{i}]"
+        buffer = _index(v.get("buffer"), len(buffers), f"{where}.buffer")
+        offset = _int(v, "byteOffset", where, 0)
+        length = _int(v, "byteLength", where, minimum=1)
+        stride = v.get("byteStride")
+        if stride is not None:
+            stride = _int(v, "byteStride", where, minimum=4)
+            if stride > 252:
+                _bad(f"{where}.byteStride must be at most 252, got {stride}")
+        if offset + length > len(buffers[buffer]):
+            _bad(f"{where} (bytes {offset}..{offset + length}) lies beyond buffers[{buffer}] "
+                 f"({len(buffers[buffer])} bytes)")
+        extensions = v.get("extensions")
+        if isinstance(extensions, dict) and "EXT_meshopt_compression" in extensions:
+            raise InvalidInput("meshopt-compressed buffer views are not supported", FIELD)
+        out.append(_View(buffer, offset, length, stride))
+    return out
+
+
+def _accessors(tree: dict[str, Any], views: list[_View]) -> list[_Accessor]:
+    out = []
+    for i, a in enumerate(_items(tree, "accessors")):
+        where = f"accessors[{i}]"
+        if "sparse" in a:
+            raise InvalidInput(f"{where} is sparse; sparse accessors are not supported", FIELD)
+        component, kind = a.get("componentType"), a.get("type")
+        if component not in _COMPONENT_BYTES or kind not in _TYPE_WIDTH:
+            _bad(f"{where} has an unknown componentType {_short(component)} or type {_short(kind)}")
+        count = _int(a, "count", where, minimum=1)
+        element = _COMPONENT_BYTES[component] * _TYPE_WIDTH[kind]
+        view_index = a.get("bufferView")
+        offset = _int(a, "byteOffset", where, 0)
+        stride = element
+        if view_index is not None:
+            view = views[_index(view_index, len(views), f"{where}.bufferView")]
+            stride = view.stride or element
+            if stride < element:
+                _bad(f"{where}: its bufferView's byteStride {stride} is below its element size "
+                     f"{element}")
+            end = offset + (count - 1) * stride + element
+            if end > view.length:
+                _bad(f"{where} ({count} elements, bytes {offset}..{end}) lies beyond bufferViews"
+                     f"[{view_index}] ({view.length} bytes)")
+        out.append(_Accessor(view_index, offset, count, component, kind, element, stride))
+    return out
+
+
+@dataclass(frozen=True)
+class _Mesh:
+    vertices: int
+    faces: int
+    primitives: list[tuple[int, int | None]]  # (POSITION accessor, indices accessor or None)
+
+
+def _meshes(tree: dict[str, Any], accessors: list[_Accessor]) -> list[_Mesh]:
+    def data_accessor(index: Any, where: str) -> _Accessor:
+        acc = accessors[_index(index, len(accessors), where)]
+        if acc.view is None:
+            _bad(f"{where}: accessors[{index}] has no bufferView, so no data behind its "
+                 f"{acc.count} elements")
+        return acc
+
+    out = []
+    for i, m in enumerate(_items(tree, "meshes")):
+        primitives = m.get("primitives", [])
+        if not isinstance(primitives, list) or not all(isinstance(p, dict) for p in primitives):
+            _bad(f"meshes[{i}].primitives must be a list of objects")
+        vertices = faces = 0
+        prims: list[tuple[int, int | None]] = []
+        for j, p in enumerate(primitives):
+            where = f"meshes[{i}].primitives[{j}]"
+            extensions = p.get("extensions")
+            if isinstance(extensions, dict):
+                for name in extensions:
+                    if name in _REFUSED_EXTENSIONS:
+                        raise InvalidInput(f"{where} uses {name}: {_REFUSED_EXTENSIONS[name]} is not "
+                                           "supported", FIELD)
+            mode = p.get("mode", 4)
+            if mode != 4 or isinstance(mode, bool):
+                raise InvalidInput(f"{where} has mode {_short(mode)}: only triangle lists (mode 4) "
+                                   "are supported", FIELD)
+            attributes = p.get("attributes")
+            if not isinstance(attributes, dict) or "POSITION" not in attributes:
+                _bad(f"{where} has no POSITION attribute")
+            position = data_accessor(attributes["POSITION"], f"{where}.attributes.POSITION")
+            if position.kind != "VEC3" or position.component != 5126:
+                raise InvalidInput(f"{where}: POSITION must be float VEC3 (got componentType "
+                                   f"{position.component}, type {position.kind})", FIELD)
+            corners = position.count
+            indices = p.get("indices")
+            if indices is not None:
+                index_acc = data_accessor(indices, f"{where}.indices")
+                if index_acc.kind != "SCALAR" or index_acc.component not in _INDEX_COMPONENTS:
+                    _bad(f"{where}.indices must be unsigned integer scalars")
+                corners = index_acc.count
+            if corners % 3:
+                _bad(f"{where} has {corners} triangle corners, not a multiple of 3")
+            vertices += position.count
+            faces += corners // 3
+            prims.append((attributes["POSITION"], indices))
+        out.append(_Mesh(vertices, faces, prims))
+    return out
+
+
+def _placed_meshes(tree: dict[str, Any], meshes: list[_Mesh], max_vertices: int,
+                   max_faces: int) -> tuple[list[int], set[int]]:
+    """Walk the scene as trimesh does -> (root nodes, meshes placed); refuse over the limits.
+
+    trimesh pops (parent, child) edges from the right of a queue, once per distinct edge; a node
+    whose mesh has one primitive becomes one instance (its frame), a node whose mesh has several
+    becomes one instance per primitive per edge reaching it.
+    """
+    nodes = _items(tree, "nodes")
+    if "scenes" not in tree:
+        return [], set()
+    scenes = _items(tree, "scenes")
+    scene = scenes[_index(tree.get("scene", 0), len(scenes), "scene")]
+    roots = scene.get("nodes", [])
+    if not isinstance(roots, list):
+        _bad("scenes[].nodes must be a list")
+    queue: list[tuple[int, int]] = [(-1, _index(r, len(nodes), "scenes[].nodes[]")) for r in roots]
+    pushed = len(queue)
+    consumed: set[tuple[int, int]] = set()
+    single: set[int] = set()
+    used: set[int] = set()
+    vertices = faces = instances = 0
+    while queue:
+        edge = queue.pop()
+        if edge in consumed:
+            continue
+        consumed.add(edge)
+        b = edge[1]
+        node = nodes[b]
+        children = node.get("children", [])
+        if not isinstance(children, list):
+            _bad(f"nodes[{b}].children must be a list")
+        pushed += len(children)
+        if pushed > MAX_GLTF_NODE_REFS:
+            _over("node references in the scene", pushed, MAX_GLTF_NODE_REFS)
+        queue.extend((b, _index(c, len(nodes), f"nodes[{b}].children[]")) for c in children)
+        if "mesh" not in node:
+            continue
+        m = _index(node["mesh"], len(meshes), f"nodes[{b}].mesh")
+        mesh = meshes[m]
+        if len(mesh.primitives) == 1 and b in single:
+            continue
+        single.add(b)
+        used.add(m)
+        vertices += mesh.vertices
+        faces += mesh.faces
+        instances += len(mesh.primitives)
+        if vertices > max_vertices:
+            _over("vertices in its placed meshes", vertices, max_vertices, at_least=True)
+        if faces > max_faces:
+            _over("triangles in its placed meshes", faces, max_faces, at_least=True)
+        if instances > MAX_GLTF_INSTANCES:
+            _over("placed mesh primitives", instances, MAX_GLTF_INSTANCES, at_least=True)
+    return roots, used
+
+
+def _dense(acc: _Accessor, views: list[_View], buffers: list[memoryview]) -> bytes:
+    """The accessor's elements, tightly packed (the bounds were checked in `_accessors`)."""
+    assert acc.view is not None
+    view = views[acc.view]
+    start = view.offset + acc.offset
+    buf = buffers[view.buffer]
+    if acc.stride == acc.element:
+        return bytes(buf[start:start + acc.count * acc.element])
+    raw = np.frombuffer(buf, np.uint8, count=(acc.count - 1) * acc.stride + acc.element,
+                        offset=start)
+    rows = np.lib.stride_tricks.as_strided(raw, (acc.count, acc.element), (acc.stride, 1))
+    return rows.tobytes()
+
+
+def _node(node: dict[str, Any], index: int, mesh_map: dict[int, int]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if isinstance(node.get("name"), str):
+        out["name"] = node["name"]
+    children = node.get("children")
+    if isinstance(children, list) and all(isinstance(c, int) for c in children):
+        out["children"] = children  # in range where reached: checked by the walk
+    mesh = node.get("mesh")
+    if isinstance(mesh, int) and not isinstance(mesh, bool) and mesh in mesh_map:
+        out["mesh"] = mesh_map[mesh]
+    for key, size in _NODE_TRANSFORMS.items():
+        if key in node:
+            value = node[key]
+            if (not isinstance(value, list) or len(value) != size
+                    or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in value)):
+                _bad(f"nodes[{index}].{key} must be a list of {size} numbers")
+            out[key] = value
+    return out
+
+
+def _rewrite(tree: dict[str, Any], buffers: list[memoryview], max_vertices: int,
+             max_faces: int) -> bytes:
+    """Check the declarations, then build a GLB of the placed geometry alone."""
+    required = tree.get("extensionsRequired", [])
+    if isinstance(required, list):
+        for name in required:
+            if name in _REFUSED_EXTENSIONS:
+                raise InvalidInput(f"the file requires {name}: {_REFUSED_EXTENSIONS[name]} is not "
+                                   "supported", FIELD)
+    views = _views(tree, buffers)
+    accessors = _accessors(tree, views)
+    meshes = _meshes(tree, accessors)
+    roots, used = _placed_meshes(tree, meshes, max_vertices, max_faces)
+    if not used:
+        raise InvalidInput("the file holds no triangles (no mesh is placed in its scene)", FIELD)
+    mesh_map = {m: k for k, m in enumerate(sorted(used))}
+    acc_map: dict[int, int] = {}
+    new_accessors: list[dict[str, Any]] = []
+    new_views: list[dict[str, Any]] = []
+    blob = bytearray()
+
+    def copy(index: int) -> int:
+        if index not in acc_map:
+            acc = accessors[index]
+            data = _dense(acc, views, buffers)
+            blob.extend(bytes(-len(blob) % 4))
+            new_views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)})
+            blob.extend(data)
+            acc_map[index] = len(new_accessors)
+            new_accessors.append({"bufferView": len(new_views) - 1, "componentType": acc.component,
+                                  "type": acc.kind, "count": acc.count})
+        return acc_map[index]
+
+    new_meshes = []
+    for m in sorted(used):
+        prims = []
+        for position, indices in meshes[m].primitives:
+            prim: dict[str, Any] = {"attributes": {"POSITION": copy(position)}, "mode": 4}
+            if indices is not None:
+                prim["indices"] = copy(indices)
+            prims.append(prim)
+        name = tree["meshes"][m].get("name")
+        new_meshes.append({"primitives": prims, **({"name": name} if isinstance(name, str) else {})})
+    nodes = [_node(n, i, mesh_map) for i, n in enumerate(_items(tree, "nodes"))]
+    blob.extend(bytes(-len(blob) % 4))
+    header = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": roots}], "nodes": nodes,
+              "meshes": new_meshes, "accessors": new_accessors, "bufferViews": new_views,
+              "buffers": [{"byteLength": len(blob)}]}
+    text = json.dumps(header, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    return b"".join([struct.pack("<4sII", b"glTF", 2, total), struct.pack("<II", len(text), _GLB_JSON),
+                     text, struct.pack("<II", len(blob), _GLB_BIN), bytes(blob)])
+
+
+# ----------------------------------------------------------------------------------------- OBJ
+
+_DIGIT = np.zeros(256, bool)
+_DIGIT[48:58] = True
+_INDEX_BATCH = 4 * 2**20  # bytes of face lines gathered for one index check
+_INDEX_WINDOW = 2**20  # bytes of them scanned at a time
+
+
+def _check_obj(data: bytes, max_vertices: int, max_faces: int) -> None:
+    """Count what trimesh's OBJ reader will build, at the bytes level, before it runs."""
+    # trimesh reads text.strip() with CRLF -> LF and backslash continuations joined; the strip
+    # only moves the first line's start, so it is not copied
+    text = data.replace(b"\r\n", b"\n") if b"\r\n" in data else data
+    text = text.replace(b"\\\n", b"") if b"\\\n" in text else text
+    start = cast(re.Match, re.match(rb"\s*", text)).end()
+
+    def lines_starting(prefix: bytes) -> int:
+        return text.count(b"\n" + prefix, start) + text.startswith(prefix, start)
+
+    nv = lines_starting(b"v ")
+    if nv > max_vertices:
+        _over("vertices ('v' lines)", nv, max_vertices)
+    corner_limit = max_vertices + 3 * max_faces  # UVs and normals belong to face corners
+    nvt, nvn = lines_starting(b"vt "), lines_starting(b"vn ")
+    for key, n in (("vt", nvt), ("vn", nvn)):
+        if n > corner_limit:
+            _over(f"'{key}' lines", n, corner_limit)
+    face_lines = lines_starting(b"f")
+    if face_lines > max_faces:
+        _over("face lines (each makes at least one triangle)", face_lines, max_faces)
+    # trimesh's maintain_order path allocates (3, largest index + 1) arrays: bound every index by
+    # the most lines of a kind an index can refer to (no vertices: trimesh reads no geometry)
+    bound = max(nv, nvt, nvn)
+    triangles = 0
+    batch = bytearray()
+    pos: int | None = start - 1  # the newline before a face line (virtual for the first line)
+    if not text.startswith(b"f", start):
+        found = text.find(b"\nf", start)
+        pos = found if found >= 0 else None
+    while pos is not None:
+        end = text.find(b"\n", pos + 1)
+        end = len(text) if end < 0 else end
+        line = text[pos + 2:end]
+        found = text.find(b"\nf", end)
+        pos = found if found >= 0 else None
+        triangles += max(len(line.split(None, max_faces - triangles + 3)) - 2, 0)
+        if triangles > max_faces:
+            _over("triangles (a face with k indices makes k - 2)", triangles, max_faces,
+                  at_least=True)
+        if bound:
+            batch += line
+            batch += b"\n"
+            if len(batch) >= _INDEX_BATCH:
+                _check_indices(batch, bound)
+                batch.clear()
+    if batch:
+        _check_indices(batch, bound)
+
+
+def _too_many_digits(digits: int, bound: int) -> NoReturn:
+    _bad(f"a face index has more than {digits} digit{'s' * (digits > 1)}, beyond the file's {bound} "
+         "vertices")
+
+
+def _check_indices(text: bytes | bytearray, bound: int) -> None:
+    """Refuse a number (digit run) in text above bound, in windows (no run spans two)."""
+    digits = len(str(bound))
+    scale = 10 ** np.arange(digits - 1, -1, -1, dtype=np.int64)
+    pos = 0
+    while pos < len(text):
+        arr = np.frombuffer(text, np.uint8, count=min(_INDEX_WINDOW, len(text) - pos), offset=pos)
+        is_digit = _DIGIT[arr]
+        if pos + len(arr) < len(text):  # end the window after its last non-digit
+            tail = int(np.argmin(is_digit[::-1]))
+            if is_digit[-1 - tail]:
+                _too_many_digits(digits, bound)
+            arr, is_digit = arr[:len(arr) - tail], is_digit[:len(arr) - tail]
+        pos += len(arr)
+        edges = np.diff(np.concatenate(([False], is_digit, [False])).view(np.int8))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        lengths = ends - starts
+        if not len(lengths):
+            continue
+        if lengths.max() > digits:
+            _too_many_digits(digits, bound)
+        longest = starts[lengths == digits]
+        if len(longest):
+            values = np.zeros(len(longest), np.int64)
+            for j in range(digits):
+                values += (arr[longest + j].astype(np.int64) - 48) * scale[j]
+            if values.max() > bound:
+                _bad(f"a face refers to index {values.max()}, beyond the file's {bound} vertices")
+
+
+# ----------------------------------------------------------------------------------------- PLY
+
+_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "int8": "i1",
+              "int16": "i2", "int32": "i4", "int64": "i8", "uint": "u4", "uint8": "u1",
+              "uint16": "u2", "uint32": "u4", "uint64": "u8", "float": "f4", "float16": "f2",
+              "float32": "f4", "float64": "f8", "double": "f8"}
+_PLY_INDEX_NAMES = ("vertex_index", "vertex_indices")
+_LINE_BREAKS = (b"\n", b"\r", b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e", b"\xc2\x85",
+                b"\xe2\x80\xa8", b"\xe2\x80\xa9")  # what str.splitlines splits on, in UTF-8
+
+
+@dataclass
+class _PlyProperty:
+    name: str
+    dtype: np.dtype  # the value, or the list's items
+    count_dtype: np.dtype | None  # the list length; None for a scalar
+
+
+@dataclass
+class _PlyElement:
+    name: str
+    count: int
+    properties: list[_PlyProperty]
+
+
+def _ply_header(data: bytes) -> tuple[list[_PlyElement], bool, str, int]:
+    """Parse the header the way trimesh does -> (elements, is_ascii, endian, data offset)."""
+    f = io.BytesIO(data)
+
+    def readline() -> bytes:
+        line = f.readline(MAX_PLY_HEADER_BYTES + 1)
+        if f.tell() > MAX_PLY_HEADER_BYTES:
+            _bad(f"the PLY header is longer than {MAX_PLY_HEADER_BYTES} bytes or has no end_header")
+        return line
+
+    if b"ply" not in readline().lower():
+        _bad("not a PLY file (no 'ply' on the first line)")
+    encoding = readline().decode("utf-8").strip().lower()
+    is_ascii = "ascii" in encoding
+    endian = ">" if "big" in encoding else "<"
+    elements: list[_PlyElement] = []
+    while True:
+        raw = readline()
+        if not raw:
+            _bad("the PLY header has no end_header")
+        line = raw.decode("utf-8").strip().split()
+        if "end_header" in line:
+            return elements, is_ascii, endian, f.tell()
+        if not line:
+            _bad("the PLY header has an empty line")
+        if "element" in line[0]:
+            if len(line) != 3:
+                _bad(f"bad PLY element line {_short(raw)}")
+            try:
+                count = int(line[2])
+            except ValueError:
+                _bad(f"bad PLY element count in {_short(raw)}")
+            if count < 0:
+                _bad(f"PLY element {line[1]!r} has a negative count")
+            if any(e.name == line[1] for e in elements):
+                _bad(f"PLY element {line[1]!r} is declared twice")
+            elements.append(_PlyElement(line[1], count, []))
+        elif "property" in line[0]:
+            if not elements:
+                _bad("a PLY property comes before any element")
+            try:
+                if len(line) == 3:
+                    prop = _PlyProperty(line[2], np.dtype(endian + _PLY_TYPES[line[1]]), None)
+                elif "list" in line[1] and len(line) == 5:
+                    prop = _PlyProperty(line[4], np.dtype(endian + _PLY_TYPES[line[3]]),
+                                        np.dtype(endian + _PLY_TYPES[line[2]]))
+                else:
+                    continue  # trimesh skips these too
+            except KeyError as exc:
+                _bad(f"unknown PLY type {exc}")
+            elements[-1].properties.append(prop)
+
+
+def _face_list(face: _PlyElement) -> int | None:
+    """Position of the face element's vertex index list among its properties (None: none)."""
+    lists = [i for i, p in enumerate(face.properties) if p.count_dtype is not None]
+    named = [i for i in lists if face.properties[i].name in _PLY_INDEX_NAMES]
+    return named[0] if named else (lists[0] if len(lists) == 1 else None)
+
+
+def _check_ply(data: bytes, max_vertices: int, max_faces: int) -> None:
+    """Bound a PLY's declared records by the limits and by the data present."""
+    elements, is_ascii, endian, start = _ply_header(data)
+    others = 0
+    for e in elements:
+        if e.name == "vertex" and e.count > max_vertices:
+            _over("vertices", e.count, max_vertices)
+        elif e.name == "face" and e.count > max_faces:
+            _over("faces", e.count, max_faces)
+        elif e.name not in ("vertex", "face"):
+            others += e.count
+    if others > max_vertices + max_faces:
+        _over("records in elements other than vertex and face", others, max_vertices + max_faces)
+    body = memoryview(data)[start:]
+    if is_ascii:
+        _check_ply_ascii(bytes(body), elements, max_faces)
+    else:
+        _check_ply_binary(body, elements, max_faces)
+
+
+def _check_ply_binary(body: memoryview, elements: list[_PlyElement], max_faces: int) -> None:
+    """Record sizes as trimesh computes them: list lengths from each element's first record."""
+    pos = 0
+    for e in elements:
+        size = 0
+        face_k = None
+        face_list = _face_list(e) if e.name == "face" else None
+        for i, p in enumerate(e.properties):
+            if p.count_dtype is None:
+                size += p.dtype.itemsize
+                continue
+            at = pos + size
+            if at + p.count_dtype.itemsize > len(body):
+                if e.count:
+                    _bad(f"the PLY data ends inside the first {e.name!r} record")
+                break
+            k = int(np.frombuffer(body, p.count_dtype, count=1, offset=at)[0])
+            if k < 0:
+                _bad(f"the first {e.name!r} record has a negative list length")
+            size += p.count_dtype.itemsize + k * p.dtype.itemsize
+            if i == face_list:
+                face_k = k
+        if face_k is not None and e.count * max(face_k - 2, 1) > max_faces:
+            _over(f"triangles ({e.count} faces of {face_k} corners)", e.count * max(face_k - 2, 1),
+                  max_faces)
+        need = e.count * size
+        if need > len(body) - pos:
+            _bad(f"the PLY header declares {e.count} {e.name!r} records of {size} bytes, but only "
+                 f"{max(len(body) - pos, 0)} bytes of data are left")
+        pos += need
+
+
+def _check_ply_ascii(body: bytes, elements: list[_PlyElement], max_faces: int) -> None:
+    """trimesh parses every line: bound the lines, then count the face rows' triangles."""
+    records = sum(e.count for e in elements)
+    breaks = sum(body.count(b) for b in _LINE_BREAKS) - body.count(b"\r\n")
+    if breaks > records + PLY_LINE_SLACK:
+        _bad(f"the PLY data has {breaks} lines for the {records} records its header declares")
+    first = 0
+    for e in elements:
+        if e.name == "face":
+            break
+        first += e.count
+    else:
+        return
+    lines = body.decode("utf-8").splitlines()[first:first + e.count]
+    face_list = _face_list(e)
+    k_first = None
+    triangles = 0
+    for row in lines:
+        values = row.split(None, max_faces - triangles + 4)
+        n = len(values) - 1
+        corners = n
+        if face_list == 0 and values:
+            try:
+                k = int(float(values[0]))
+            except ValueError:
+                k = n
+            k_first = k if k_first is None else k_first
+            corners = min(max(k, k_first), n)  # trimesh may slice every row by the first's length
+        triangles += max(corners - 2, 0)
+        if triangles > max_faces:
+            _over("triangles (a face with k corners makes k - 2)", triangles, max_faces,
+                  at_least=True)

@@ -1,0 +1,314 @@
+"""Hostile and unlucky requests: each answers a 4xx problem naming the field (never a 500), the
+connection stays usable, and the service's limits (body time, header time, admission) hold."""
+
+import io
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import httpx
+import numpy as np
+import pytest
+from svc_env import live_server
+
+from drape.service import handlers
+from drape.service.settings import Settings
+
+PROBLEM = "application/problem+json"
+V = [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]]
+F = [[0, 1, 2], [1, 3, 2]]
+POST_ROUTES = ["/v1/outfits/rig", "/v1/outfits/animate", "/v1/refine"]
+
+
+def problem(r, status, *words):
+    assert r.status_code == status, r.text[:500]
+    assert r.headers["content-type"].startswith(PROBLEM)
+    p = r.json()
+    assert p["status"] == status and p["type"].startswith("https://drape.dev/problems/")
+    for w in words:
+        assert w in p["detail"], p["detail"]
+    return p
+
+
+def npz(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("path", POST_ROUTES)
+def test_deeply_nested_json_is_a_400(http, path):
+    for depth in (1_000, 100_000):
+        body = b"[" * depth + b"]" * depth
+        problem(http.post(path, content=b'{"vertices": ' + body + b"}", headers={"content-type": "application/json"}),
+                400, "nested")
+
+
+def test_refine_npz_scalars_and_empty_stream(http):
+    base = {"vertices": np.array([V] * 2, np.float32), "faces": np.array(F), "poses": np.zeros((2, 72))}
+    post = lambda **a: http.post("/v1/refine", content=npz(**{**base, **a}),  # noqa: E731
+                                 headers={"content-type": "application/x-npz"})
+    problem(post(fps=np.array([30.0, 30.0])), 422, "fps", "scalar")
+    problem(post(fps=np.array("abc")), 422, "fps", "scalar")
+    problem(post(vertices=np.zeros((0, 4, 3), np.float32), poses=np.zeros((0, 72))), 422, "vertices")
+    problem(post(body=np.array(3.0)), 422, "body", "text")
+    problem(post(vertices=np.array([V] * 2, np.complex64)), 422, "vertices", "real")
+    problem(post(faces=np.array(F, np.float32)), 422, "faces", "integer")
+
+
+def test_strict_types_no_coercion(http):
+    animate = {"outfit": {"vertices": V, "faces": F}, "motion": {"clip": "kick"}}
+    problem(http.post("/v1/outfits/animate", json={**animate, "refine": "yes"}), 422, "refine")
+    problem(http.post("/v1/outfits/rig", json={"vertices": V, "faces": [["0", "1", "2"]]}), 422, "faces")
+    problem(http.post("/v1/outfits/rig", json={"vertices": [["0", 1, 0.2]] + V[1:], "faces": F}), 422, "vertices")
+    problem(http.post("/v1/outfits/rig", content=npz(vertices=np.array(V, np.complex128), faces=np.array(F)),
+                      headers={"content-type": "application/x-npz"}), 422, "vertices", "real")
+
+
+def test_405_names_the_allowed_methods(http):
+    r = http.get("/v1/outfits/rig")
+    problem(r, 405)
+    assert r.headers["allow"] == "POST"
+
+
+def test_large_strings_are_not_echoed(http):
+    name = "x" * (3 * 2**20)
+    p = problem(http.post("/v1/outfits/animate", json={"outfit": {"vertices": V, "faces": F}, "motion": {"clip": name}}),
+                404, "motion.clip")
+    assert len(p["detail"]) < 400
+    p = problem(http.post("/v1/outfits/rig", json={"vertices": V, "faces": F, "body": name}), 422, "body")
+    assert len(p["detail"]) < 400
+
+
+def test_unknown_outfit_id_before_the_poses_are_validated(http, settings):
+    poses = [[0.0] * 72] * settings.max_frames
+    t = time.perf_counter()
+    problem(http.post("/v1/outfits/animate", json={"outfit_id": "nope", "motion": {"poses": poses}}), 404, "outfit_id")
+    too_many = [[0.0] * 72] * (settings.max_frames + 1)
+    problem(http.post("/v1/outfits/animate", json={"outfit_id": "nope", "motion": {"poses": too_many}}), 404)
+    assert time.perf_counter() - t < 2.0
+
+
+def test_unexpected_error_is_a_500_problem_on_a_kept_connection(server_url, monkeypatch):
+    def boom(*args, **kwargs):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(handlers, "rig", boom)
+    with httpx.Client(base_url=server_url) as c:
+        p = problem(c.post("/v1/outfits/rig", json={"vertices": V, "faces": F}), 500)
+        assert "RuntimeError" in p["detail"] and "a bug" not in p["detail"]
+        assert c.get("/healthz").status_code == 200  # the same keep-alive connection
+        assert c.get("/metrics").status_code == 200
+
+
+def test_empty_api_key_is_refused_at_start_up():
+    with pytest.raises(ValueError, match="empty"):
+        Settings(api_key="")
+    with pytest.raises(ValueError, match="empty"):
+        Settings(api_key="  ")
+
+
+def test_multipart_obeys_the_body_limit(http, settings):
+    big = b"v 0 0 0\n" * (settings.max_body_bytes // 8 + 10)
+    problem(http.post("/v1/outfits/rig", files={"mesh": ("a.obj", big)}), 413, str(settings.max_body_bytes))
+    r = http.post("/v1/outfits/rig", content=b"--x\r\n", headers={
+        "content-type": "multipart/form-data; boundary=x", "content-length": str(2 * 2**30)})
+    problem(r, 413, str(settings.max_body_bytes))
+
+
+def _raw(url: str, data: bytes) -> socket.socket:
+    host, port = url.removeprefix("http://").split(":")
+    s = socket.create_connection((host, int(port)), timeout=10)
+    if data:
+        s.sendall(data)
+    return s
+
+
+def _read_all(s: socket.socket) -> bytes:
+    out = b""
+    while chunk := s.recv(65536):
+        out += chunk
+    return out
+
+
+def test_slow_body_is_a_408_and_silent_connections_are_closed(settings):
+    quick = settings.model_copy(update={"body_timeout_s": 1.0, "header_timeout_s": 1.0})
+    with live_server(quick) as url:
+        t = time.perf_counter()
+        s = _raw(url, b"POST /v1/outfits/rig HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                      b"Content-Length: 1000\r\n\r\n{\"vertices\"")
+        answer = s.recv(65536)
+        assert answer.startswith(b"HTTP/1.1 408") and b"body" in answer, answer[:300]
+        assert time.perf_counter() - t < 3
+        s.close()
+        t = time.perf_counter()
+        silent, slow = _raw(url, b""), _raw(url, b"GET /healthz HTTP/1.1\r\nHo")  # half-open, slow head
+        assert _read_all(silent) == b"" and _read_all(slow) == b""  # closed by the server
+        assert time.perf_counter() - t < 3
+        assert httpx.get(f"{url}/healthz").status_code == 200
+
+
+def test_admission_bounds_the_work_and_healthz_stays_fast(settings, monkeypatch):
+    """1 computing at most, 1 waiting: of 8 heavy requests at once, 6 get a 503 + Retry-After at once,
+    the other 2 finish; /healthz answers quickly all along, and the metrics show it."""
+    from drape.runtime.engine import Engine
+
+    gate = threading.Event()
+    pose_chunks = Engine.pose_chunks
+
+    def gated(self, *args, **kwargs):
+        gate.wait(30)  # the computation holds its slot until the test lets it go
+        return pose_chunks(self, *args, **kwargs)
+
+    monkeypatch.setattr(Engine, "pose_chunks", gated)
+    small = settings.model_copy(update={"max_active": 1, "max_queue": 1, "retry_after_s": 7})
+    body = {"outfit": {"vertices": V, "faces": F}, "motion": {"clip": "kick"}}
+    with live_server(small) as url:
+        results: list[httpx.Response] = []
+
+        def heavy() -> None:
+            results.append(httpx.post(f"{url}/v1/outfits/animate", json=body,
+                                      headers={"accept": "application/x-npz"}, timeout=60))
+
+        threads = [threading.Thread(target=heavy) for _ in range(8)]
+        for t in threads:
+            t.start()
+        deadline = time.time() + 20
+        while len(results) < 6 and time.time() < deadline:
+            time.sleep(0.05)
+        lat = []
+        for _ in range(20):
+            t0 = time.perf_counter()
+            assert httpx.get(f"{url}/healthz").status_code == 200
+            lat.append(time.perf_counter() - t0)
+        metrics = httpx.get(f"{url}/metrics").text
+        assert "drape_inflight_requests 1.0" in metrics and "drape_queue_depth 1.0" in metrics, metrics[-2000:]
+        assert 'drape_rejections_total{reason="queue_full"} 6.0' in metrics
+        gate.set()
+        for t in threads:
+            t.join()
+        codes = sorted(r.status_code for r in results)
+        assert codes == [200] * 2 + [503] * 6, codes
+        refused = [r for r in results if r.status_code == 503]
+        assert all(r.headers["retry-after"] == "7" for r in refused)
+        problem(refused[0], 503, "retry")
+    assert max(lat) < 0.5, lat
+
+
+def test_a_large_json_answer_is_refused_with_a_way_to_binary(http, settings):
+    n = 2000
+    verts = np.random.default_rng(1).normal(size=(n, 3)).round(3) * 0.1 + [0, 1, 0]
+    faces = np.stack([np.arange(n - 2), np.arange(1, n - 1), np.arange(2, n)], 1)
+    frames = settings.max_json_values // (3 * n) + 1
+    req = {"outfit": {"vertices": verts.tolist(), "faces": faces.tolist()},
+           "motion": {"poses": np.zeros((frames, 72)).tolist()}}
+    for accept in ("*/*", "application/json"):
+        problem(http.post("/v1/outfits/animate", json=req, headers={"accept": accept}), 413, "application/x-npz")
+    assert http.post("/v1/outfits/animate", json=req, headers={"accept": "application/x-npz"}).status_code == 200
+
+
+@pytest.mark.parametrize("accept", ["application/x-drape-frames", "application/x-npz", "application/json"])
+def test_a_client_that_goes_away_stops_the_work_within_a_chunk(settings, monkeypatch, accept):
+    from drape.runtime.engine import Engine
+
+    made = []
+    pose_chunks = Engine.pose_chunks
+
+    def slow(self, *args, **kwargs):
+        for chunk in pose_chunks(self, *args, **kwargs):
+            time.sleep(0.15)
+            made.append(len(chunk))
+            yield chunk
+
+    monkeypatch.setattr(Engine, "pose_chunks", slow)
+    small = settings.model_copy(update={"stream_chunk_frames": 4})
+    body = {"outfit": {"vertices": V, "faces": F}, "motion": {"poses": np.zeros((160, 72)).tolist()}}
+    with live_server(small) as url:
+        with httpx.Client() as c, c.stream("POST", f"{url}/v1/outfits/animate", json=body,
+                                             headers={"accept": accept}) as r:
+            assert r.status_code == 200
+            next(r.iter_raw())
+        time.sleep(1.0)
+        assert 1 <= len(made) <= 4, made  # 40 chunks asked; stopped within one of the disconnect
+        metrics = httpx.get(f"{url}/metrics").text
+        assert 'drape_answers_cut_total{reason="disconnected"} 1.0' in metrics
+        assert "drape_inflight_requests 0.0" in metrics  # the slot came back
+
+
+def _descendants(pid: int) -> set[int]:
+    """Every live process under `pid` (from /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = open(f"/proc/{entry}/stat").read()
+            except OSError:
+                continue
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            children.setdefault(ppid, []).append(int(entry))
+    out, todo = set(), [pid]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            out.add(c)
+            todo.append(c)
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_sigterm_mid_stream_ends_within_the_grace_and_leaves_no_process(settings):
+    port = socket.socket()
+    port.bind(("127.0.0.1", 0))
+    number = port.getsockname()[1]
+    port.close()
+    env = {**os.environ, "DRAPE_MODEL_DIR": str(settings.model_dir), "DRAPE_PORT": str(number),
+           "DRAPE_SHUTDOWN_GRACE_S": "2", "DRAPE_REFINE_WORKERS": "2", "DRAPE_STREAM_CHUNK_FRAMES": "2"}
+    server = subprocess.Popen([sys.executable, "-c", "from drape.cli import main; main()", "serve"], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    url = f"http://127.0.0.1:{number}"
+    try:
+        deadline = time.time() + 90
+        while time.time() < deadline:
+            try:
+                if httpx.get(f"{url}/readyz").status_code == 200:
+                    break
+            except httpx.TransportError:
+                time.sleep(0.3)
+        family = _descendants(server.pid)
+        assert len(family) >= 3, family  # the fork server and two refinement workers
+        # ~3,000 chunks of 2 refined frames: far longer than the grace period
+        body = {"outfit": {"vertices": V, "faces": F}, "motion": {"poses": np.zeros((6000, 72)).tolist()},
+                "refine": True}
+        ended: list[float] = []
+        waiter = threading.Thread(target=lambda: (server.wait(30), ended.append(time.perf_counter())))
+        received = 0
+        with httpx.Client(timeout=30) as c, c.stream("POST", f"{url}/v1/outfits/animate", json=body,
+                                                     headers={"accept": "application/x-drape-frames"}) as r:
+            assert r.status_code == 200
+            try:
+                for piece in r.iter_raw():
+                    if not received:
+                        server.send_signal(signal.SIGTERM)
+                        t0 = time.perf_counter()
+                        waiter.start()
+                    received += len(piece)
+            except httpx.HTTPError:
+                pass  # the stream is cut at the end of the grace period
+        waiter.join(30)
+        assert ended and ended[0] - t0 < 2 + 3, "SIGTERM took longer than the grace period + 3 s"
+        assert 0 < received < 6000 * 4 * 12, received  # cut, not finished
+        time.sleep(1.5)  # the workers notice within their watch period
+        assert not [p for p in family if _alive(p)], "orphaned processes"
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait()
