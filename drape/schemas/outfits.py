@@ -18,8 +18,14 @@ class Mesh(BaseModel):
     faces: list[Tri] = Field(min_length=1)
 
 
+EXAMPLE_MESH = {"vertices": [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]],
+                "faces": [[0, 1, 2], [1, 3, 2]]}
+
+
 class RigRequest(Mesh):
     """A template outfit (strict types: no string-to-number coercion)."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [{**EXAMPLE_MESH, "body": "neutral"}]})
 
     body: str = Field("neutral", description="body preset the outfit is dressed on (GET /v1/bodies)")
 
@@ -62,7 +68,10 @@ class RefineOptions(BaseModel):
 
 
 class AnimateRequest(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [
+        {"outfit": EXAMPLE_MESH, "motion": {"clip": "kick"}},
+        {"outfit": EXAMPLE_MESH, "motion": {"poses": [[0.0] * 72, [0.1] * 72], "translation": [[0, 0, 0]] * 2,
+                                            "fps": 24.0}, "refine": True}]})
     outfit: Mesh | None = None
     outfit_id: str | None = Field(None, max_length=128)
     motion: MotionInput
@@ -73,7 +82,9 @@ class AnimateRequest(BaseModel):
 class RefineRequest(BaseModel):
     """A garment stream (T, N, 3) m with its faces, the body motion that goes with it, the body preset."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [
+        {"vertices": [EXAMPLE_MESH["vertices"]] * 2, "faces": EXAMPLE_MESH["faces"],
+         "motion": {"poses": [[0.0] * 72, [0.2] * 72]}, "options": {"relief_iterations": 0}}]})
     vertices: list[list[Vec3]] = Field(min_length=1)
     faces: list[Tri] = Field(min_length=1)
     motion: MotionInput
