@@ -11,14 +11,33 @@ import numpy as np
 ASSETS = Path(__file__).parent / "assets"
 
 
-def _serve(args: argparse.Namespace) -> None:
-    import uvicorn
+def _require(module: str, extra: str, command: str) -> None:
+    """Exit with a message naming the extra when `command` needs a package that serving does not install."""
+    import importlib.util
 
-    from drape.service.app import create_app
+    if importlib.util.find_spec(module) is None:
+        raise SystemExit(f"`drape {command}` needs {module}, which is not installed (it is not in [serve]): "
+                         f"pip install 'drape[{extra}]'")
+
+
+def _serve(args: argparse.Namespace) -> None:
+    from drape.service.server import serve
     from drape.service.settings import Settings
 
-    settings = Settings(host=args.host, port=args.port)
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port)
+    given = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
+    settings = Settings(**given)  # DRAPE_* environment variables for everything not given here
+    if args.ray is None:
+        if args.replicas != 1 or args.replica_cpus != 1.0:
+            raise SystemExit("--replicas and --replica-cpus need --ray ADDRESS")
+        serve(settings)
+        return
+    try:
+        import ray.serve  # noqa: F401
+    except ImportError as e:
+        raise SystemExit(f"`drape serve --ray` needs Ray Serve ({e}): pip install 'drape[serve,cluster]'") from None
+    from drape.service.ray_serve import deploy
+
+    deploy(args.ray, args.replicas, settings, replica_cpus=args.replica_cpus)
 
 
 def _bake_body(args: argparse.Namespace) -> None:
@@ -58,6 +77,7 @@ def _motions_import(args: argparse.Namespace) -> None:
 
     src = Path(args.file)
     if src.suffix.lower() == ".bvh":
+        _require("pymotion", "tools", "motions import FILE.bvh")
         from drape.assets.bvh import import_bvh
 
         motion = import_bvh(src, load_body(args.body))
@@ -89,6 +109,7 @@ def _frames_arg(text: str, num_frames: int) -> list[int]:
 
 
 def _render(args: argparse.Namespace) -> None:
+    _require("matplotlib", "tools", "render")
     from drape.assets.body import load_body
     from drape.assets.motion import load_clip, load_motion_npz
     from drape.geometry.lbs import linear_blend_skinning, smooth_weights
@@ -252,8 +273,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("serve", help="run the HTTP service")
-    s.add_argument("--host", default="127.0.0.1")
-    s.add_argument("--port", type=int, default=8000)
+    s.add_argument("--host", help="default: DRAPE_HOST or 127.0.0.1")
+    s.add_argument("--port", type=int, help="default: DRAPE_PORT or 8000")
+    s.add_argument("--ray", metavar="ADDRESS", default=None,
+                   help="deploy on this Ray cluster with Ray Serve (auto, or the head's HOST:6379); "
+                        "Serve's HTTP proxies listen on host:port")
+    s.add_argument("--replicas", type=int, default=1, help="with --ray: copies of the service (default 1)")
+    s.add_argument("--replica-cpus", type=float, default=1.0, help="with --ray: CPUs reserved per replica (default 1)")
     s.set_defaults(func=_serve)
 
     assets = sub.add_parser("assets", help="re-create the embedded assets").add_subparsers(dest="what", required=True)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -18,7 +18,7 @@ class Mesh(BaseModel):
     faces: list[Tri] = Field(min_length=1)
 
 
-EXAMPLE_MESH = {"vertices": [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]],
+EXAMPLE_MESH: dict[str, Any] = {"vertices": [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]],
                 "faces": [[0, 1, 2], [1, 3, 2]]}
 
 
