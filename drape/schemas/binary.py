@@ -76,7 +76,8 @@ def decode_npz(data: bytes, names: Iterable[str] | None = None, *,
                     raise ValueError(f"member {key!r} uses zip compression {info.compress_type}; "
                                      "only stored and deflated members are read")
                 ratio = 1 if info.compress_type == zipfile.ZIP_STORED else DEFLATE_MAX_RATIO
-                if info.compress_size > len(data) or info.file_size > info.compress_size * ratio + 1024:
+                possible = info.compress_size * ratio + 1024
+                if info.compress_size > len(data) or info.file_size > possible:
                     raise ValueError(f"member {key!r} declares {info.file_size} bytes from "
                                      f"{info.compress_size} compressed bytes, which the archive's "
                                      f"{len(data)} bytes cannot hold")
@@ -86,11 +87,13 @@ def decode_npz(data: bytes, names: Iterable[str] | None = None, *,
                     total += nbytes
                     if max_bytes is not None and total > max_bytes:
                         raise NpzTooLarge(f"member {key!r} declares {shape} {dtype} ({nbytes} "
-                                          f"bytes): the arrays exceed the limit of {max_bytes} bytes")
+                                          f"bytes): the arrays exceed the limit of {max_bytes} "
+                                          "bytes")
                     if info.file_size != header_bytes + nbytes:
-                        raise ValueError(f"member {key!r}: its header declares {nbytes} bytes of "
-                                         f"data but the archive declares {info.file_size} bytes for "
-                                         f"the member with its {header_bytes}-byte header")
+                        raise ValueError(f"member {key!r}: its header declares {nbytes} bytes "
+                                         f"of data but the archive declares {info.file_size} "
+                                         f"bytes for the member with its {header_bytes}-byte "
+                                         "header")
                     out[key] = _read_npy_data(f, shape, fortran, dtype, nbytes, key)
         return out
     except NpzTooLarge:
@@ -108,12 +111,13 @@ def _check_zip_directory(data: bytes) -> None:
     if end >= 20 and data[end - 20:end - 16] == b"PK\x06\x07":
         raise ValueError("zip64 archives are not read")
     if members > MAX_NPZ_MEMBERS or size > MAX_NPZ_DIRECTORY_BYTES:
-        raise ValueError(f"the archive declares {members} members in a {size}-byte directory; at "
-                         f"most {MAX_NPZ_MEMBERS} members in {MAX_NPZ_DIRECTORY_BYTES} bytes are read")
+        raise ValueError(f"the archive declares {members} members in a {size}-byte directory; "
+                         f"at most {MAX_NPZ_MEMBERS} members in {MAX_NPZ_DIRECTORY_BYTES} bytes "
+                         "are read")
 
 
 def _npy_header(f: IO[bytes], key: str) -> tuple[tuple[int, ...], bool, np.dtype, int]:
-    """-> (shape, fortran order, dtype, header length in bytes) of an .npy stream; refuse pickles."""
+    """-> (shape, fortran order, dtype, header bytes) of an .npy stream; refuse pickles."""
     try:
         version = np.lib.format.read_magic(f)
         if version == (1, 0):

@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
-import io
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from drape.assets.body import list_bodies
 from drape.assets.motion import list_clips, load_clip
 from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
-from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotFound, quoted
+from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
 from drape.service.settings import Settings
-
-MESH_FILE_TYPES = {".obj": "obj", ".ply": "ply", ".glb": "glb", ".gltf": "gltf"}
 
 
 def _array(value: Any, field: str, dtype: type, ndim: int) -> np.ndarray:
@@ -63,24 +60,6 @@ def check_body(name: str | None, field: str = "body") -> str:
     if name not in list_bodies():
         raise InvalidInput(f"unknown body preset {quoted(name)}; presets: {', '.join(list_bodies())}", field)
     return name
-
-
-def mesh_from_file(data: bytes, filename: str) -> tuple[np.ndarray, np.ndarray]:
-    """Read an uploaded OBJ/PLY/GLB/glTF mesh (by its file name's suffix) into plain arrays."""
-    import trimesh
-
-    suffix = "." + filename.rsplit(".", 1)[-1].lower() if "." in filename else ""
-    if suffix not in MESH_FILE_TYPES:
-        raise InvalidInput(f"file name must end in one of {sorted(MESH_FILE_TYPES)}, got {filename!r}", "mesh")
-    try:
-        mesh = cast(trimesh.Trimesh, trimesh.load(io.BytesIO(data), file_type=MESH_FILE_TYPES[suffix],
-                                                  process=False, force="mesh", maintain_order=True))
-        v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    except Exception as exc:  # trimesh raises many kinds on broken files
-        raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: {exc})", "mesh") from exc
-    if len(v) == 0 or len(f) == 0:
-        raise InvalidInput("the file holds no triangles", "mesh")
-    return v, f
 
 
 @dataclass(frozen=True)

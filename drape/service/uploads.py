@@ -13,11 +13,13 @@ trimesh would allocate by is bounded first:
   within its bufferView. Sparse accessors, Draco, meshopt and GPU instancing are refused, and so are
   primitives that are not triangle lists. The scene is walked the way trimesh walks it, so the
   vertices and faces of every placed mesh instance (primitives concatenated, as trimesh does) are
-  summed against `max_vertices` / `max_faces` and the instances and node references against
-  `MAX_GLTF_INSTANCES` / `MAX_GLTF_NODE_REFS`. trimesh then gets a rewritten GLB holding only the
-  scene graph and the POSITION / index data of the placed meshes, copied densely: no images,
-  textures, samplers or materials, so no texture is ever decoded. (One deliberate difference: a
-  node carrying both the file's first camera and a mesh keeps its mesh.)
+  summed against `max_vertices` / `max_faces`, the instances and node references against
+  `MAX_GLTF_INSTANCES` / `MAX_GLTF_NODE_REFS`, the nesting against `MAX_GLTF_DEPTH`, and the sum
+  of each instance's depth cubed against `MAX_GLTF_PATH_COST` (trimesh's transform lookup costs
+  about depth^3 per instance: 200 nested nodes took it 20 s). trimesh then gets a rewritten GLB
+  holding only the scene graph and the POSITION / index data of the placed meshes, copied
+  densely: no images, textures, samplers or materials, so no texture is ever decoded. (One
+  deliberate difference: a node carrying both the file's first camera and a mesh keeps its mesh.)
 * OBJ: after trimesh's own normalisation (strip, CRLF, backslash continuations) the `v`, `vt`,
   `vn` lines, the face lines and the triangles they make (k indices make k - 2) are counted at the
   bytes level, and every face index must be at most the largest of those line counts (trimesh's
@@ -57,6 +59,8 @@ MAX_JSON_BYTES = 16 * 2**20  # a GLB's JSON chunk (a .gltf file is bounded by th
 MAX_JSON_TOKENS = 200_000  # the characters {}[],: in a glTF JSON (bounds its Python objects)
 MAX_GLTF_INSTANCES = 4096  # mesh primitives placed in the scene: each becomes a trimesh object
 MAX_GLTF_NODE_REFS = 20_000  # parent -> child node references trimesh walks
+MAX_GLTF_DEPTH = 64  # levels of nested nodes
+MAX_GLTF_PATH_COST = 2**22  # sum over placed instances of depth^3 (trimesh's transform lookups)
 MAX_GLB_CHUNKS = 64
 MAX_PLY_HEADER_BYTES = 64 * 2**10
 PLY_LINE_SLACK = 64  # ASCII PLY lines allowed beyond the declared records (blank trailing lines)
@@ -72,8 +76,8 @@ def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
     """
     suffix = "." + filename.rsplit(".", 1)[-1].lower() if "." in filename else ""
     if suffix not in MESH_FILE_TYPES:
-        raise InvalidInput(f"file name must end in one of {sorted(MESH_FILE_TYPES)}, got {filename!r}",
-                           FIELD)
+        raise InvalidInput(f"file name must end in one of {sorted(MESH_FILE_TYPES)}, "
+                           f"got {filename!r}", FIELD)
     file_type = MESH_FILE_TYPES[suffix]
     try:
         if suffix == ".glb":
@@ -257,8 +261,9 @@ def _buffers(tree: dict[str, Any], bin_chunk: memoryview | None, glb: bool) -> l
         elif not isinstance(uri, str):
             _bad(f"buffers[{i}].uri must be a string")
         elif not uri.startswith("data:"):
-            raise InvalidInput(f"buffers[{i}] refers to the external file {_short(uri)}: send a GLB "
-                               "or a .gltf with its buffers embedded as base64 data: URIs", FIELD)
+            raise InvalidInput(f"buffers[{i}] refers to the external file {_short(uri)}: send a "
+                               "GLB or a .gltf with its buffers embedded as base64 data: URIs",
+                               FIELD)
         else:
             head, sep, payload = uri.partition(",")
             if not sep or not head.endswith(";base64"):
@@ -351,8 +356,8 @@ def _meshes(tree: dict[str, Any], accessors: list[_Accessor]) -> list[_Mesh]:
             if isinstance(extensions, dict):
                 for name in extensions:
                     if name in _REFUSED_EXTENSIONS:
-                        raise InvalidInput(f"{where} uses {name}: {_REFUSED_EXTENSIONS[name]} is not "
-                                           "supported", FIELD)
+                        raise InvalidInput(f"{where} uses {name}: {_REFUSED_EXTENSIONS[name]} is "
+                                           "not supported", FIELD)
             mode = p.get("mode", 4)
             if mode != 4 or isinstance(mode, bool):
                 raise InvalidInput(f"{where} has mode {_short(mode)}: only triangle lists (mode 4) "
@@ -386,7 +391,9 @@ def _placed_meshes(tree: dict[str, Any], meshes: list[_Mesh], max_vertices: int,
 
     trimesh pops (parent, child) edges from the right of a queue, once per distinct edge; a node
     whose mesh has one primitive becomes one instance (its frame), a node whose mesh has several
-    becomes one instance per primitive per edge reaching it.
+    becomes one instance per primitive per edge reaching it (each a frame below the node's).
+    Placing an instance d frames below the base costs trimesh's transform lookup (numpy's
+    multi_dot chain ordering) about d^3 steps, so the sum of d^3 is bounded too.
     """
     nodes = _items(tree, "nodes")
     if "scenes" not in tree:
@@ -396,18 +403,19 @@ def _placed_meshes(tree: dict[str, Any], meshes: list[_Mesh], max_vertices: int,
     roots = scene.get("nodes", [])
     if not isinstance(roots, list):
         _bad("scenes[].nodes must be a list")
-    queue: list[tuple[int, int]] = [(-1, _index(r, len(nodes), "scenes[].nodes[]")) for r in roots]
+    queue = [(-1, _index(r, len(nodes), "scenes[].nodes[]"), 1) for r in roots]
     pushed = len(queue)
     consumed: set[tuple[int, int]] = set()
-    single: set[int] = set()
+    single: dict[int, int] = {}  # node placing a one-primitive mesh -> its deepest depth
     used: set[int] = set()
-    vertices = faces = instances = 0
+    vertices = faces = instances = path_cost = 0
     while queue:
-        edge = queue.pop()
-        if edge in consumed:
+        a, b, depth = queue.pop()
+        if (a, b) in consumed:
             continue
-        consumed.add(edge)
-        b = edge[1]
+        consumed.add((a, b))
+        if depth > MAX_GLTF_DEPTH:
+            _over("levels of nested nodes in the scene", depth, MAX_GLTF_DEPTH, at_least=True)
         node = nodes[b]
         children = node.get("children", [])
         if not isinstance(children, list):
@@ -415,14 +423,19 @@ def _placed_meshes(tree: dict[str, Any], meshes: list[_Mesh], max_vertices: int,
         pushed += len(children)
         if pushed > MAX_GLTF_NODE_REFS:
             _over("node references in the scene", pushed, MAX_GLTF_NODE_REFS)
-        queue.extend((b, _index(c, len(nodes), f"nodes[{b}].children[]")) for c in children)
+        queue.extend((b, _index(c, len(nodes), f"nodes[{b}].children[]"), depth + 1)
+                     for c in children)
         if "mesh" not in node:
             continue
         m = _index(node["mesh"], len(meshes), f"nodes[{b}].mesh")
         mesh = meshes[m]
-        if len(mesh.primitives) == 1 and b in single:
-            continue
-        single.add(b)
+        if len(mesh.primitives) == 1:
+            seen = b in single
+            single[b] = max(single.get(b, 0), depth)
+            if seen:
+                continue
+        else:
+            path_cost += len(mesh.primitives) * (depth + 1) ** 3
         used.add(m)
         vertices += mesh.vertices
         faces += mesh.faces
@@ -433,6 +446,9 @@ def _placed_meshes(tree: dict[str, Any], meshes: list[_Mesh], max_vertices: int,
             _over("triangles in its placed meshes", faces, max_faces, at_least=True)
         if instances > MAX_GLTF_INSTANCES:
             _over("placed mesh primitives", instances, MAX_GLTF_INSTANCES, at_least=True)
+    path_cost += sum(d**3 for d in single.values())
+    if path_cost > MAX_GLTF_PATH_COST:
+        _over("(node depth)^3 summed over its placed meshes", path_cost, MAX_GLTF_PATH_COST)
     return roots, used
 
 
@@ -463,8 +479,9 @@ def _node(node: dict[str, Any], index: int, mesh_map: dict[int, int]) -> dict[st
     for key, size in _NODE_TRANSFORMS.items():
         if key in node:
             value = node[key]
-            if (not isinstance(value, list) or len(value) != size
-                    or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in value)):
+            numbers = isinstance(value, list) and all(
+                isinstance(x, int | float) and not isinstance(x, bool) for x in value)
+            if not numbers or len(value) != size:
                 _bad(f"nodes[{index}].{key} must be a list of {size} numbers")
             out[key] = value
     return out
@@ -512,7 +529,8 @@ def _rewrite(tree: dict[str, Any], buffers: list[memoryview], max_vertices: int,
                 prim["indices"] = copy(indices)
             prims.append(prim)
         name = tree["meshes"][m].get("name")
-        new_meshes.append({"primitives": prims, **({"name": name} if isinstance(name, str) else {})})
+        named = {"name": name} if isinstance(name, str) else {}
+        new_meshes.append({"primitives": prims, **named})
     nodes = [_node(n, i, mesh_map) for i, n in enumerate(_items(tree, "nodes"))]
     blob.extend(bytes(-len(blob) % 4))
     header = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": roots}], "nodes": nodes,
@@ -521,8 +539,9 @@ def _rewrite(tree: dict[str, Any], buffers: list[memoryview], max_vertices: int,
     text = json.dumps(header, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
     total = 12 + 8 + len(text) + 8 + len(blob)
-    return b"".join([struct.pack("<4sII", b"glTF", 2, total), struct.pack("<II", len(text), _GLB_JSON),
-                     text, struct.pack("<II", len(blob), _GLB_BIN), bytes(blob)])
+    return b"".join([struct.pack("<4sII", b"glTF", 2, total),
+                     struct.pack("<II", len(text), _GLB_JSON), text,
+                     struct.pack("<II", len(blob), _GLB_BIN), bytes(blob)])
 
 
 # ----------------------------------------------------------------------------------------- OBJ
@@ -585,8 +604,8 @@ def _check_obj(data: bytes, max_vertices: int, max_faces: int) -> None:
 
 
 def _too_many_digits(digits: int, bound: int) -> NoReturn:
-    _bad(f"a face index has more than {digits} digit{'s' * (digits > 1)}, beyond the file's {bound} "
-         "vertices")
+    _bad(f"a face index has more than {digits} digit{'s' * (digits > 1)}, beyond the file's "
+         f"{bound} vertices")
 
 
 def _check_indices(text: bytes | bytearray, bound: int) -> None:

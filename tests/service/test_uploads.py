@@ -2,7 +2,7 @@
 
 Hostile files are crafted small: each must be refused quickly with a domain error (or a
 ValueError for npz) while tracemalloc sees almost nothing allocated; good files must read exactly
-as `handlers.mesh_from_file` (trimesh straight on the bytes) reads them.
+as `plain_read` (trimesh straight on the bytes, the reader before these checks) reads them.
 """
 
 from __future__ import annotations
@@ -25,11 +25,22 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drape.schemas.binary import NpzTooLarge, decode_npz, encode_npz
-from drape.service import handlers, uploads
+from drape.service import uploads
 from drape.service.errors import DrapeError, InvalidInput, LimitExceeded, MalformedInput
 
 MAXV, MAXF = 3000, 6000  # the service tests' limits
 MB = 2**20
+
+
+def plain_read(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """trimesh straight on the bytes, as the service read uploads before these checks: the reference for
+    good files, and the contrast for hostile ones. Raises MalformedInput when trimesh fails."""
+    try:
+        mesh = trimesh.load(io.BytesIO(data), file_type=name.rsplit(".", 1)[-1].lower(), process=False,
+                            force="mesh", maintain_order=True)
+        return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    except Exception as exc:
+        raise MalformedInput(f"trimesh: {exc}", "mesh") from exc
 
 
 def load(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +129,8 @@ def test_probe_glb_declaring_1_2e9_indices_without_data():
     data = glb(tree)  # no BIN chunk at all
     assert len(data) < 600
     refused(MalformedInput, data, "probe.glb", "BIN chunk")
-    refused(MalformedInput, glb(tree, TRI_BIN), "probe.glb", "accessors[1]", "beyond bufferViews[1]")
+    refused(MalformedInput, glb(tree, TRI_BIN), "probe.glb", "accessors[1]",
+            "beyond bufferViews[1]")
     del tree["accessors"][1]["bufferView"]  # an accessor with no data at all
     refused(MalformedInput, glb(tree, TRI_BIN), "probe.glb", "no bufferView", "1200000000")
 
@@ -144,9 +156,46 @@ def test_glb_instances_count_against_the_limits():
     m = grid(30)  # 900 vertices, 1682 triangles
     tree, bin_chunk = glb_parts(m.export(file_type="glb"))
     assert len(load(glb(tree, bin_chunk), "one.glb")[0]) == 900
-    tree["nodes"] = [{"children": [1, 2, 3, 4]}] + [{"mesh": 0, "translation": [0, 0, i]} for i in range(4)]
+    tree["nodes"] = [{"children": [1, 2, 3, 4]}]
+    tree["nodes"] += [{"mesh": 0, "translation": [0, 0, i]} for i in range(4)]
     tree["scenes"] = [{"nodes": [0]}]
     refused(LimitExceeded, glb(tree, bin_chunk), "four.glb", "at least", str(MAXV))
+
+
+def test_scene_walk_counts_instances_as_trimesh_makes_them():
+    """A node reached by two parents: one instance of a one-primitive mesh, but one per primitive
+    per parent of a two-primitive mesh (trimesh's frames)."""
+    tree = tri_tree()
+    tree["nodes"] = [{"children": [2]}, {"children": [2], "translation": [1, 0, 0]}, {"mesh": 0}]
+    tree["scenes"] = [{"nodes": [0, 1]}]
+    for primitives, vertices in ((1, 3), (2, 12)):
+        tree["meshes"][0]["primitives"] = tree["meshes"][0]["primitives"][:1] * primitives
+        data = glb(tree, TRI_BIN)
+        v, f = load(data, "dag.glb")
+        v0, f0 = plain_read(data, "dag.glb")
+        assert len(v) == vertices and np.array_equal(v, v0) and np.array_equal(f, f0)
+    with pytest.raises(LimitExceeded, match="at least 12 vertices"):
+        uploads.mesh_from_file(data, "dag.glb", max_vertices=11, max_faces=MAXF)
+
+
+def test_scene_nesting_is_bounded():
+    """trimesh's transform lookup costs ~depth^3 per placed instance (numpy's multi_dot chain
+    ordering): 200 nested nodes that each place a triangle took it 20 s, 1000 nested nodes above
+    one triangle about a minute. Both are refused from the JSON; 32 nested meshes still read."""
+    def chain(n: int, every: bool) -> bytes:
+        tree = tri_tree()
+        mesh = {"mesh": 0} if every else {}
+        tree["nodes"] = [{"children": [i + 1], "translation": [0, 0, 0.01], **mesh}
+                         for i in range(n - 1)] + [{"mesh": 0}]
+        return glb(tree, TRI_BIN)
+
+    refused(LimitExceeded, chain(200, True), "deep.glb", "levels of nested nodes", "64")
+    refused(LimitExceeded, chain(1000, False), "deep.glb", "levels of nested nodes", "64")
+    refused(LimitExceeded, chain(64, True), "deep.glb", "(node depth)^3",
+            str(uploads.MAX_GLTF_PATH_COST))
+    t0 = time.perf_counter()
+    v, f = load(chain(32, True), "ok.glb")
+    assert len(f) == 32 and time.perf_counter() - t0 < 1.0
 
 
 def test_glb_declarations_beyond_the_bytes():
@@ -160,7 +209,7 @@ def test_glb_declarations_beyond_the_bytes():
     tree["buffers"][0]["byteLength"] = 4800
     refused(MalformedInput, glb(tree, TRI_BIN), "a.glb", "buffers[0]", "4800", "48")
     tree = tri_tree()
-    tree["bufferViews"][0]["byteStride"] = 4  # below a VEC3's 12 bytes: count * 12 from 4-byte steps
+    tree["bufferViews"][0]["byteStride"] = 4  # below a VEC3's 12 bytes
     refused(MalformedInput, glb(tree, TRI_BIN), "a.glb", "byteStride")
     data = glb(tri_tree(), TRI_BIN)
     refused(MalformedInput, data[:-8], "a.glb", "declares")  # header length beyond the data
@@ -224,7 +273,8 @@ def test_node_cycles_end():
 
 def png_header(width: int, height: int) -> bytes:
     def chunk(kind: bytes, body: bytes) -> bytes:
-        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        crc = struct.pack(">I", zlib.crc32(kind + body))
+        return struct.pack(">I", len(body)) + kind + body + crc
 
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
@@ -260,7 +310,7 @@ def test_textures_are_never_decoded(monkeypatch):
     assert np.array_equal(v, TRI_V) and f.tolist() == [[0, 1, 2]]
     assert opened == []
     try:  # today's reader hands the PNG to PIL (which then decodes it on use)
-        handlers.mesh_from_file(data, "textured.glb")
+        plain_read(data, "textured.glb")
     except DrapeError:
         pass
     assert len(opened) == 1
@@ -289,7 +339,7 @@ def test_interleaved_positions_read_as_trimesh_reads_them():
     }
     data = glb(tree, blob)
     v, f = load(data, "inter.glb")
-    v0, f0 = handlers.mesh_from_file(data, "inter.glb")
+    v0, f0 = plain_read(data, "inter.glb")
     assert np.array_equal(v, v0) and np.array_equal(f, f0)
     assert np.allclose(v, m.vertices + [0, 0.5, 0]) and np.array_equal(f, m.faces)
 
@@ -308,7 +358,8 @@ def test_obj_quads_make_more_triangles_than_the_limit():
     refused(LimitExceeded, one_face, "ngon.obj", str(MAXF), "triangles")
     continued = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" + b"f 1 2 \\\n3 4\n" * (MAXF // 2 + 1)
     refused(LimitExceeded, continued, "continued.obj", str(MAXF))  # trimesh joins `\` lines
-    assert load(b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" + b"f 1 2 3 4\n" * 10, "ok.obj")[1].shape == (20, 3)
+    quads = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" + b"f 1 2 3 4\n" * 10
+    assert load(quads, "ok.obj")[1].shape == (20, 3)
 
 
 def test_obj_face_index_values_are_bounded():
@@ -320,7 +371,7 @@ def test_obj_face_index_values_are_bounded():
     assert load(many.replace(b"1001", b"1000"), "ok.obj")[1].shape == (2, 3)
     tracemalloc.start()
     try:  # today's reader on the 47-byte file: tens of MB (an index of 2e9: hundreds of GB)
-        handlers.mesh_from_file(data, "idx.obj")
+        plain_read(data, "idx.obj")
     except DrapeError:
         pass
     peak = tracemalloc.get_traced_memory()[1]
@@ -345,9 +396,9 @@ def test_obj_check_stays_fast_on_a_big_file():
 # ----------------------------------------------------------------------------------------- PLY
 
 def ply_header(fmt: str, vertices: int, faces: int) -> bytes:
-    return (f"ply\nformat {fmt} 1.0\nelement vertex {vertices}\nproperty float x\nproperty float y\n"
-            f"property float z\nelement face {faces}\nproperty list uchar int vertex_indices\n"
-            "end_header\n").encode()
+    return (f"ply\nformat {fmt} 1.0\nelement vertex {vertices}\nproperty float x\n"
+            f"property float y\nproperty float z\nelement face {faces}\n"
+            "property list uchar int vertex_indices\nend_header\n").encode()
 
 
 def test_binary_ply_declaring_1e9_vertices_without_data():
@@ -381,7 +432,8 @@ def garment() -> trimesh.Trimesh:
 def good_files(m: trimesh.Trimesh) -> dict[str, bytes]:
     scene = trimesh.Scene()
     scene.add_geometry(m, node_name="a")
-    scene.add_geometry(m, node_name="b", transform=trimesh.transformations.translation_matrix([0, 0, 1]))
+    shift = trimesh.transformations.translation_matrix([0, 0, 1])
+    scene.add_geometry(m, node_name="b", transform=shift)
     return {
         "a.obj": m.export(file_type="obj").encode(),
         "ascii.ply": m.export(file_type="ply", encoding="ascii"),
@@ -395,11 +447,12 @@ def good_files(m: trimesh.Trimesh) -> dict[str, bytes]:
 def test_good_files_read_as_before(garment):
     for name, data in good_files(garment).items():
         v, f = load(data, name)
-        v0, f0 = handlers.mesh_from_file(data, name)
+        v0, f0 = plain_read(data, name)
         assert np.array_equal(v, v0) and np.array_equal(f, f0), name
         assert f.shape[1] == 3 and len(f) >= len(garment.faces), name
         if "scene" not in name:
-            assert np.allclose(v, garment.vertices, atol=1e-6) and np.array_equal(f, garment.faces), name
+            assert np.allclose(v, garment.vertices, atol=1e-6), name
+            assert np.array_equal(f, garment.faces), name
 
 
 def test_unsupported_suffix_is_422():
@@ -411,7 +464,8 @@ def test_unsupported_suffix_is_422():
 
 def npy_bytes(shape: tuple[int, ...], descr: str = "<f4", data: bytes = b"") -> bytes:
     buf = io.BytesIO()
-    np.lib.format.write_array_header_1_0(buf, {"descr": descr, "fortran_order": False, "shape": shape})
+    header = {"descr": descr, "fortran_order": False, "shape": shape}
+    np.lib.format.write_array_header_1_0(buf, header)
     return buf.getvalue() + data
 
 
@@ -524,7 +578,8 @@ def _mesh_samples() -> dict[str, bytes]:
 
 
 SAMPLES = _mesh_samples()
-BIG_INTS = st.one_of(st.integers(0, 100), st.integers(0, 2**40), st.sampled_from([2**31, 2**32 - 1]))
+BIG_INTS = st.one_of(st.integers(0, 100), st.integers(0, 2**40),
+                    st.sampled_from([2**31, 2**32 - 1]))
 
 
 def npz_with_header(draw: st.DrawFn) -> bytes:
