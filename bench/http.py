@@ -1,8 +1,10 @@
 """Moving a posed vertex stream over HTTP on loopback, beside a raw socket moving the same bytes, in one run.
 
 A ~10k-vertex outfit posed for 300 frames (36 MB of float32) is fetched from a real uvicorn server on
-127.0.0.1 (drape's own server configuration) through the Python client: as npz (`Client.animate`),
-as the frame stream (`Client.animate_stream`, frames stacked) and, for scale, as JSON. Each time
+127.0.0.1 (drape's own server configuration), the request an npz of the motion's arrays (as the client
+sends it; JSON for the JSON row): as npz (httpx + `decode_npz`), as the frame stream read
+into one preallocated array (`Client.animate`), as the frame stream frame by frame
+(`Client.animate_stream`, then stacked) and, for scale, as JSON. Each time
 includes posing, encoding, transfer and decoding into one numpy array on the client. The baseline is a
 plain TCP socket on loopback sending the same number of bytes into a preallocated buffer (no HTTP, no
 posing): the ceiling for this machine. Prints MB/s (of float32 payload) and the ratio to the raw socket.
@@ -26,6 +28,7 @@ import uvicorn
 import drape
 from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
+from drape.schemas.binary import NPZ, decode_npz, encode_npz
 from drape.service.app import create_app
 from drape.service.server import server_config
 from drape.service.settings import Settings
@@ -111,10 +114,20 @@ def measure(args: argparse.Namespace, url: str) -> None:
             r.raise_for_status()
             return np.asarray(r.json()["vertices"], dtype=np.float32)
 
+        npz_request = encode_npz({"outfit_id": np.array(oid), "poses": clip.poses[idx], "translation": clip.trans[idx],
+                                  "fps": np.array(clip.fps)})
+
+        def via_npz() -> np.ndarray:  # the request as npz too, as the client sends it
+            r = httpx.post(f"{url}/v1/outfits/animate", content=npz_request, timeout=600,
+                           headers={"accept": NPZ, "content-type": NPZ})
+            r.raise_for_status()
+            return decode_npz(r.content, ("vertices",))["vertices"]
+
         ways: dict[str, Callable[[], np.ndarray | None]] = {
             "raw socket": lambda: None,
-            "npz": lambda: client.animate(outfit_id=oid, motion=motion),
-            "frame stream": lambda: np.stack(list(client.animate_stream(outfit_id=oid, motion=motion))),
+            "npz": via_npz,
+            "frame stream": lambda: client.animate(outfit_id=oid, motion=motion),
+            "per frame": lambda: np.stack(list(client.animate_stream(outfit_id=oid, motion=motion))),
         }
         if not args.no_json:
             ways["json"] = via_json

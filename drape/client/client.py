@@ -11,7 +11,7 @@ from typing import Any
 import httpx
 import numpy as np
 
-from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, decode_npz, encode_npz
+from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, FrameReader, decode_npz, encode_npz
 from drape.schemas.catalog import BodyList, Health, MotionList
 from drape.schemas.models import ModelList
 
@@ -74,10 +74,6 @@ def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
     return out
 
 
-def _motion_json(motion: MotionLike) -> dict:
-    return {k: a.tolist() if a.ndim else a.item() for k, a in _motion_arrays(motion).items()}
-
-
 def _rig_request(outfit: OutfitLike, body: str) -> dict:
     arrays = _mesh_arrays(outfit)
     if arrays is None:
@@ -93,16 +89,17 @@ def _rig_result(response: httpx.Response) -> RigResult:
                      [str(n) for n in z["joint_names"]], z["parents"], z["rest_joints"])
 
 
-def _animate_json(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
-                  refine: bool) -> dict:
-    req: dict = {"motion": _motion_json(motion), "refine": refine}
+def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
+                 refine: bool) -> bytes:
+    """The animate request as an npz: the motion's arrays in binary instead of JSON text."""
+    req: dict[str, np.ndarray] = {**_motion_arrays(motion), "refine": np.array(bool(refine))}
     if outfit_id is not None:
-        req["outfit_id"] = outfit_id
+        req["outfit_id"] = np.array(outfit_id)
     elif arrays is not None:
-        req["outfit"] = {"vertices": arrays[0].tolist(), "faces": arrays[1].tolist()}
+        req["vertices"], req["faces"] = arrays
     if body is not None:
-        req["body"] = body
-    return req
+        req["body"] = np.array(body)
+    return encode_npz(req)
 
 
 def _refine_npz(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float | None,
@@ -118,9 +115,10 @@ def _refine_npz(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, bod
                        **_motion_arrays(motion), "body": np.array(body), **options})
 
 
-def _animate_vertices(response: httpx.Response) -> np.ndarray:
-    _raise_for(response)
-    return decode_npz(response.content)["vertices"]
+def _frames_done(reader: FrameReader, status: int) -> np.ndarray:
+    if not reader.done or reader.vertices is None:
+        raise DrapeAPIError(status, "", "Truncated stream", "the frame stream ended early")
+    return reader.vertices
 
 
 class _Base:
@@ -178,16 +176,29 @@ class Client(_Base):
         return _rig_result(self._http.post("/v1/outfits/rig", headers={"Accept": NPZ}, **_rig_request(outfit, body)))
 
     def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
+        """The animate request's httpx arguments (an npz body)."""
         arrays, needs_rig = self._prepare(outfit, outfit_id)
         if needs_rig:
             outfit_id, body = self.rig(outfit, body=body or "neutral").outfit_id, None
-        return _animate_json(outfit_id, arrays, motion, body, refine)
+        return {"content": _animate_npz(outfit_id, arrays, motion, body, refine), "headers": {"Content-Type": NPZ}}
 
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
                 body: str | None = None, refine: bool = False) -> np.ndarray:
         """Posed outfit vertices (T, N, 3) float32 metres."""
         req = self._animate_body(outfit, outfit_id, motion, body, refine)
-        return _animate_vertices(self._http.post("/v1/outfits/animate", json=req, headers={"Accept": NPZ}))
+        return self._frames("/v1/outfits/animate", **req)
+
+    def _frames(self, path: str, **request: Any) -> np.ndarray:
+        """POST, reading the frame stream answer into one (T, N, 3) float32 array as it arrives."""
+        headers = {"Accept": FRAMES, **request.pop("headers", {})}
+        with self._http.stream("POST", path, headers=headers, **request) as r:
+            if r.status_code >= 400:
+                r.read()
+                _raise_for(r)
+            reader = FrameReader()
+            for data in r.iter_raw():
+                reader.feed(data)
+        return _frames_done(reader, r.status_code)
 
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
                eps: float | None = None, relief_iterations: int | None = None) -> np.ndarray:
@@ -197,14 +208,14 @@ class Client(_Base):
         None: the service's default (its RefineOptions schema).
         """
         req = _refine_npz(vertices, faces, motion, body, eps, relief_iterations)
-        return _animate_vertices(self._http.post("/v1/refine", content=req, headers={"Content-Type": NPZ,
-                                                                                     "Accept": NPZ}))
+        return self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
 
     def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                        motion: MotionLike, body: str | None = None, refine: bool = False) -> Iterator[np.ndarray]:
         """Posed frames (N, 3) float32, yielded as they arrive."""
         req = self._animate_body(outfit, outfit_id, motion, body, refine)
-        with self._http.stream("POST", "/v1/outfits/animate", json=req, headers={"Accept": FRAMES}) as r:
+        req["headers"]["Accept"] = FRAMES
+        with self._http.stream("POST", "/v1/outfits/animate", **req) as r:
             if r.status_code >= 400:
                 r.read()
                 _raise_for(r)
@@ -242,24 +253,35 @@ class AsyncClient(_Base):
         arrays, needs_rig = self._prepare(outfit, outfit_id)
         if needs_rig:
             outfit_id, body = (await self.rig(outfit, body=body or "neutral")).outfit_id, None
-        return _animate_json(outfit_id, arrays, motion, body, refine)
+        return {"content": _animate_npz(outfit_id, arrays, motion, body, refine), "headers": {"Content-Type": NPZ}}
 
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                       motion: MotionLike, body: str | None = None, refine: bool = False) -> np.ndarray:
         req = await self._animate_body(outfit, outfit_id, motion, body, refine)
-        return _animate_vertices(await self._http.post("/v1/outfits/animate", json=req, headers={"Accept": NPZ}))
+        return await self._frames("/v1/outfits/animate", **req)
+
+    async def _frames(self, path: str, **request: Any) -> np.ndarray:
+        headers = {"Accept": FRAMES, **request.pop("headers", {})}
+        async with self._http.stream("POST", path, headers=headers, **request) as r:
+            if r.status_code >= 400:
+                await r.aread()
+                _raise_for(r)
+            reader = FrameReader()
+            async for data in r.aiter_raw():
+                reader.feed(data)
+        return _frames_done(reader, r.status_code)
 
     async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
                      eps: float | None = None, relief_iterations: int | None = None) -> np.ndarray:
         req = _refine_npz(vertices, faces, motion, body, eps, relief_iterations)
-        return _animate_vertices(await self._http.post("/v1/refine", content=req, headers={"Content-Type": NPZ,
-                                                                                           "Accept": NPZ}))
+        return await self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
 
     async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                              motion: MotionLike, body: str | None = None,
                              refine: bool = False) -> AsyncIterator[np.ndarray]:
         req = await self._animate_body(outfit, outfit_id, motion, body, refine)
-        async with self._http.stream("POST", "/v1/outfits/animate", json=req, headers={"Accept": FRAMES}) as r:
+        req["headers"]["Accept"] = FRAMES
+        async with self._http.stream("POST", "/v1/outfits/animate", **req) as r:
             if r.status_code >= 400:
                 await r.aread()
                 _raise_for(r)

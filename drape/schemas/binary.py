@@ -227,6 +227,78 @@ class FrameDecoder:
         return out
 
 
+class FrameReader:
+    """A whole frame stream into one array allocated from its header: `vertices` (T, N, 3) float32, each
+    payload byte copied once, from the bytes as they arrive (feed them, then check `done`)."""
+
+    def __init__(self) -> None:
+        self._head = bytearray()  # the header, faces and a chunk's 4-byte count, as they accumulate
+        self.header: dict | None = None
+        self.faces: np.ndarray | None = None
+        self.vertices: np.ndarray | None = None
+        self._out: memoryview | None = None
+        self._written = 0
+        self._chunk_left = 0  # bytes of the current chunk still to come
+        self.done = False
+
+    def _parse_header(self) -> bool:
+        buf = self._head
+        if len(buf) < 12:
+            return False
+        if bytes(buf[:4]) != MAGIC:
+            raise ValueError("not a drape frame stream")
+        version, hlen = struct.unpack("<II", bytes(buf[4:12]))
+        if version != VERSION:
+            raise ValueError(f"unsupported frame stream version {version}")
+        if len(buf) < 12 + hlen:
+            return False
+        header = json.loads(bytes(buf[12 : 12 + hlen]))
+        need = 12 + hlen + 12 * int(header["num_faces"])
+        if len(buf) < need:
+            return False
+        self.faces = np.frombuffer(bytes(buf[12 + hlen : need]), dtype="<i4").reshape(-1, 3)
+        self.vertices = np.empty((int(header["num_frames"]), int(header["num_vertices"]), 3), dtype="<f4")
+        self._out = self.vertices.reshape(-1).view(np.uint8).data
+        del buf[:need]
+        self.header = header
+        return True
+
+    def feed(self, data: bytes) -> None:
+        view = memoryview(data)
+        while len(view) and not self.done:
+            if self.header is None or self._chunk_left == 0:
+                take = 4 - len(self._head) if self.header is not None else len(view)
+                self._head += view[:take]
+                view = view[take:]
+                if self.header is None:
+                    if self._parse_header():  # what came after the header goes round again
+                        view = memoryview(bytes(self._head))
+                        self._head.clear()
+                    continue
+                if len(self._head) < 4:
+                    continue
+                (count,) = struct.unpack("<I", bytes(self._head))
+                self._head.clear()
+                if count == 0:
+                    self.done = True
+                    if self._out is not None and self._written != len(self._out):
+                        raise ValueError(f"the stream ended after {self._written} of {len(self._out)} bytes")
+                    break
+                self._chunk_left = count * 12 * int(self.header["num_vertices"])
+                assert self._out is not None
+                if self._written + self._chunk_left > len(self._out):
+                    raise ValueError("the stream holds more frames than its header says")
+                continue
+            assert self._out is not None
+            k = min(len(view), self._chunk_left)
+            self._out[self._written : self._written + k] = view[:k]
+            self._written += k
+            self._chunk_left -= k
+            view = view[k:]
+        if len(view) and self.done:
+            raise ValueError("bytes after the end of the frame stream")
+
+
 def read_stream(chunks: Iterable[bytes]) -> tuple[dict, np.ndarray, Iterator[np.ndarray]]:
     """Parse a whole frame stream -> (header, faces (F, 3), iterator of frames (N, 3)) (for tests and tools)."""
     dec = FrameDecoder()

@@ -136,17 +136,56 @@ def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings)
     return req.vertices, req.faces, req.body
 
 
-def animate_request(data: bytes, settings: Settings, engine: Engine) -> dict:
-    """An animate request's JSON -> a dict shaped like AnimateRequest; an unknown outfit_id and counts over
-    the limits are refused before the numbers are validated."""
+def animate_request(kind: str, data: bytes, settings: Settings, engine: Engine) -> dict:
+    """An animate request's body (JSON, or an npz of the same arrays) -> a dict shaped like AnimateRequest;
+    an unknown outfit_id and counts over the limits are refused before the numbers are validated."""
+    if kind == "application/x-npz":
+        return _animate_npz(data, settings, engine)
     doc = _document(data)
     outfit_id = doc.get("outfit_id")
-    if isinstance(outfit_id, str) and doc.get("outfit") is None and engine.lookup(outfit_id) is None:
-        raise NotFound(f"unknown outfit_id {quoted(outfit_id)}: rig the outfit again (ids expire from the cache)",
-                       "outfit_id")
+    if isinstance(outfit_id, str) and doc.get("outfit") is None:
+        _known(outfit_id, engine)
     _precheck_mesh(doc.get("outfit"), settings, "outfit")
     _precheck_motion(doc.get("motion"), settings)
     return _model(AnimateRequest, doc).model_dump()
+
+
+def _known(outfit_id: str, engine: Engine) -> None:
+    if engine.lookup(outfit_id) is None:
+        raise NotFound(f"unknown outfit_id {quoted(outfit_id)}: rig the outfit again (ids expire from the cache)",
+                       "outfit_id")
+
+
+ANIMATE_NPZ = ("outfit_id", "vertices", "faces", "poses", "translation", "fps", "clip", "body", "refine",
+               *REFINE_OPTIONS)
+
+
+def _animate_npz(data: bytes, settings: Settings, engine: Engine) -> dict:
+    """npz members: outfit_id (text) or vertices (N, 3) + faces (F, 3); clip (text) or poses (T, 24, 3) /
+    (T, 72) with optional translation (T, 3) and fps; optional body (text); refine (a boolean scalar) and/or
+    the refine options as scalars (eps, max_iterations, relief_iterations; any of them turns refinement on)."""
+    first = npz_members(data, ("outfit_id",), settings)
+    outfit_id = npz_text(first, "outfit_id")
+    if outfit_id is not None:
+        _known(outfit_id, engine)
+    z = npz_members(data, ANIMATE_NPZ, settings)
+    if (outfit_id is None) == ("vertices" not in z or "faces" not in z):
+        raise InvalidInput("give exactly one of 'outfit_id' and the arrays 'vertices' and 'faces'", "body")
+    fps = npz_scalar(z, "fps")
+    motion = {"clip": npz_text(z, "clip"), "fps": 30.0 if fps is None else float(fps),
+              "poses": npz_numbers(z, "poses") if "poses" in z else None,
+              "translation": npz_numbers(z, "translation") if "translation" in z else None}
+    refine: bool | dict | None = npz_options(z)
+    if "refine" in z:
+        flag = z["refine"]
+        if flag.shape != () or flag.dtype.kind != "b":
+            raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}", "refine")
+        refine = refine if (bool(flag) and refine) else bool(flag)
+    request: dict[str, Any] = {"motion": motion, "body": npz_text(z, "body"), "refine": refine or False,
+                               "outfit_id": outfit_id, "outfit": None}
+    if outfit_id is None:
+        request["outfit"] = {"vertices": npz_numbers(z, "vertices"), "faces": npz_numbers(z, "faces", integer=True)}
+    return request
 
 
 def refine_arguments(kind: str, data: bytes, settings: Settings) -> tuple[Any, Any, dict, str | None, dict | None]:

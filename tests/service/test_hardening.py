@@ -60,6 +60,25 @@ def test_refine_npz_scalars_and_empty_stream(http):
     problem(post(faces=np.array(F, np.float32)), 422, "faces", "integer")
 
 
+def test_animate_npz_request(http):
+    """animate takes an npz of the same arrays; its members are checked like the JSON fields."""
+    poses = np.zeros((3, 72))
+    post = lambda **a: http.post("/v1/outfits/animate", content=npz(**a),  # noqa: E731
+                                 headers={"content-type": "application/x-npz", "accept": "application/x-npz"})
+    inline = {"vertices": np.array(V, np.float32), "faces": np.array(F)}
+    r = post(**inline, poses=poses, fps=np.array(24.0))
+    assert r.status_code == 200, r.text
+    out = np.load(io.BytesIO(r.content))
+    assert out["vertices"].shape == (3, 4, 3) and float(out["fps"]) == 24.0
+    problem(post(outfit_id=np.array("nope"), poses=poses), 404, "outfit_id")
+    problem(post(**inline, outfit_id=np.array("nope"), clip=np.array("kick")), 404, "outfit_id")
+    problem(post(**inline, poses=poses, refine=np.array("yes")), 422, "refine", "boolean")
+    problem(post(**inline, poses=poses, refine=np.array([True, True])), 422, "refine")
+    problem(post(**inline, poses=poses, eps=np.array(1.0)), 422, "eps")
+    problem(post(poses=poses), 422, "outfit_id")
+    problem(post(**inline, poses=poses.astype(np.complex64)), 422, "poses", "real")
+
+
 def test_strict_types_no_coercion(http):
     animate = {"outfit": {"vertices": V, "faces": F}, "motion": {"clip": "kick"}}
     problem(http.post("/v1/outfits/animate", json={**animate, "refine": "yes"}), 422, "refine")

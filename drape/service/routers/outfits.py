@@ -106,17 +106,22 @@ FRAME_ANSWERS = {200: {"description": "frames (T, N, 3)", "content": {
 
 
 @router.post("/animate", responses=FRAME_ANSWERS, openapi_extra={"requestBody": {"required": True, "content": {
-    JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}}}}})
+    JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}},
+    NPZ: {"schema": {"type": "string", "format": "binary", "description":
+                     "npz: outfit_id (text) or vertices (N, 3) + faces (F, 3); clip (text) or poses (T, 24, 3) / "
+                     "(T, 72) with optional translation (T, 3) and fps; optional body (text); refine (boolean "
+                     "scalar) and/or the refine options as scalars: eps, max_iterations, relief_iterations"}}}}})
 async def animate_outfit(request: Request) -> Response:
     """Outfit (or outfit_id) + motion (+ refine) -> posed vertices (T, N, 3): JSON, npz or a frame stream."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
-    if media_type(request) not in (JSON, ""):
-        raise UnsupportedMediaType(f"send {JSON}, not {media_type(request)!r}", "Content-Type")
+    kind = media_type(request)
+    if kind not in (JSON, NPZ, ""):
+        raise UnsupportedMediaType(f"send {JSON} or {NPZ}, not {kind!r}", "Content-Type")
     settings, engine = settings_of(request), engine_of(request)
     data = await read_body(request)
 
     def plan() -> FrameSource:
-        req = decode.animate_request(data, settings, engine)
+        req = decode.animate_request(kind, data, settings, engine)
         p = handlers.plan_animation(engine, settings, req, _max_posed(answer, settings))
 
         def chunks() -> Iterator[np.ndarray]:
