@@ -172,8 +172,8 @@ def test_slow_body_is_a_408_and_silent_connections_are_closed(settings):
 
 
 def test_admission_bounds_the_work_and_healthz_stays_fast(settings, monkeypatch):
-    """1 computing at most, 1 waiting: of 8 heavy requests at once, 6 get a 503 + Retry-After at once,
-    the other 2 finish; /healthz answers quickly all along, and the metrics show it."""
+    """1 computing at most, 1 waiting: of 48 heavy requests at once, 46 get a 503 + Retry-After at once,
+    the other 2 finish; /healthz answers quickly all along (p99 <= 50 ms), and the metrics show it."""
     from drape.runtime.engine import Engine
 
     gate = threading.Event()
@@ -193,29 +193,29 @@ def test_admission_bounds_the_work_and_healthz_stays_fast(settings, monkeypatch)
             results.append(httpx.post(f"{url}/v1/outfits/animate", json=body,
                                       headers={"accept": "application/x-npz"}, timeout=60))
 
-        threads = [threading.Thread(target=heavy) for _ in range(8)]
+        threads = [threading.Thread(target=heavy) for _ in range(48)]
         for t in threads:
             t.start()
         deadline = time.time() + 20
-        while len(results) < 6 and time.time() < deadline:
+        while len(results) < 46 and time.time() < deadline:
             time.sleep(0.05)
         lat = []
-        for _ in range(20):
+        for _ in range(100):
             t0 = time.perf_counter()
             assert httpx.get(f"{url}/healthz").status_code == 200
             lat.append(time.perf_counter() - t0)
         metrics = httpx.get(f"{url}/metrics").text
         assert "drape_inflight_requests 1.0" in metrics and "drape_queue_depth 1.0" in metrics, metrics[-2000:]
-        assert 'drape_rejections_total{reason="queue_full"} 6.0' in metrics
+        assert 'drape_rejections_total{reason="queue_full"} 46.0' in metrics
         gate.set()
         for t in threads:
             t.join()
         codes = sorted(r.status_code for r in results)
-        assert codes == [200] * 2 + [503] * 6, codes
+        assert codes == [200] * 2 + [503] * 46, codes
         refused = [r for r in results if r.status_code == 503]
         assert all(r.headers["retry-after"] == "7" for r in refused)
         problem(refused[0], 503, "retry")
-    assert max(lat) < 0.5, lat
+    assert np.percentile(lat, 99) <= 0.05, sorted(lat)[-5:]
 
 
 def test_a_large_json_answer_is_refused_with_a_way_to_binary(http, settings):
