@@ -5,8 +5,6 @@ import io
 import os
 import signal
 import socket
-import subprocess
-import sys
 import threading
 import time
 
@@ -15,6 +13,7 @@ import numpy as np
 import pytest
 from svc_env import live_server
 
+from bench.soak import served
 from drape.service import handlers
 from drape.service.settings import Settings
 
@@ -285,23 +284,9 @@ def _alive(pid: int) -> bool:
 
 
 def test_sigterm_mid_stream_ends_within_the_grace_and_leaves_no_process(settings):
-    port = socket.socket()
-    port.bind(("127.0.0.1", 0))
-    number = port.getsockname()[1]
-    port.close()
-    env = {**os.environ, "DRAPE_MODEL_DIR": str(settings.model_dir), "DRAPE_PORT": str(number),
-           "DRAPE_SHUTDOWN_GRACE_S": "2", "DRAPE_REFINE_WORKERS": "2", "DRAPE_STREAM_CHUNK_FRAMES": "2"}
-    server = subprocess.Popen([sys.executable, "-c", "from drape.cli import main; main()", "serve"], env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    url = f"http://127.0.0.1:{number}"
-    try:
-        deadline = time.time() + 90
-        while time.time() < deadline:
-            try:
-                if httpx.get(f"{url}/readyz").status_code == 200:
-                    break
-            except httpx.TransportError:
-                time.sleep(0.3)
+    env = {"DRAPE_MODEL_DIR": str(settings.model_dir), "DRAPE_SHUTDOWN_GRACE_S": "2", "DRAPE_REFINE_WORKERS": "2",
+           "DRAPE_STREAM_CHUNK_FRAMES": "2"}
+    with served(env) as (url, server):
         family = _descendants(server.pid)
         assert len(family) >= 3, family  # the fork server and two refinement workers
         # ~3,000 chunks of 2 refined frames: far longer than the grace period
@@ -327,7 +312,3 @@ def test_sigterm_mid_stream_ends_within_the_grace_and_leaves_no_process(settings
         assert 0 < received < 6000 * 4 * 12, received  # cut, not finished
         time.sleep(1.5)  # the workers notice within their watch period
         assert not [p for p in family if _alive(p)], "orphaned processes"
-    finally:
-        if server.poll() is None:
-            server.kill()
-            server.wait()
