@@ -2,6 +2,7 @@
 connection stays usable, and the service's limits (body time, header time, admission) hold."""
 
 import io
+import json
 import os
 import signal
 import socket
@@ -170,50 +171,44 @@ def test_slow_body_is_a_408_and_silent_connections_are_closed(settings):
         assert httpx.get(f"{url}/healthz").status_code == 200
 
 
-def test_admission_bounds_the_work_and_healthz_stays_fast(settings, monkeypatch):
-    """1 computing at most, 1 waiting: of 48 heavy requests at once, 46 get a 503 + Retry-After at once,
-    the other 2 finish; /healthz answers quickly all along (p99 <= 50 ms), and the metrics show it."""
-    from drape.runtime.engine import Engine
-
-    gate = threading.Event()
-    pose_chunks = Engine.pose_chunks
-
-    def gated(self, *args, **kwargs):
-        gate.wait(30)  # the computation holds its slot until the test lets it go
-        return pose_chunks(self, *args, **kwargs)
-
-    monkeypatch.setattr(Engine, "pose_chunks", gated)
-    small = settings.model_copy(update={"max_active": 1, "max_queue": 1, "retry_after_s": 7})
-    body = {"outfit": {"vertices": V, "faces": F}, "motion": {"clip": "kick"}}
-    with live_server(small) as url:
+def test_admission_bounds_the_work_and_healthz_stays_fast(settings):
+    """A `drape serve` process with 1 computing slot and 1 queue place: of 48 heavy requests at once, the
+    rest get a 503 + Retry-After at once and 2 finish; /healthz answers fast meanwhile (p99 <= 50 ms), and
+    the metrics count it."""
+    env = {"DRAPE_MODEL_DIR": str(settings.model_dir), "DRAPE_MAX_ACTIVE": "1", "DRAPE_MAX_QUEUE": "1",
+           "DRAPE_RETRY_AFTER_S": "7", "DRAPE_REFINE_WORKERS": "1"}
+    body = json.dumps({"outfit": {"vertices": V, "faces": F}, "motion": {"poses": np.zeros((4000, 72)).tolist()},
+                       "refine": True}).encode()  # seconds each; encoded once, so the 48 leave together
+    with served(env) as (url, _):
         results: list[httpx.Response] = []
 
         def heavy() -> None:
-            results.append(httpx.post(f"{url}/v1/outfits/animate", json=body,
-                                      headers={"accept": "application/x-npz"}, timeout=60))
+            results.append(httpx.post(f"{url}/v1/outfits/animate", content=body, timeout=120,
+                                      headers={"accept": "application/x-npz", "content-type": "application/json"}))
 
         threads = [threading.Thread(target=heavy) for _ in range(48)]
         for t in threads:
             t.start()
-        deadline = time.time() + 20
-        while len(results) < 46 and time.time() < deadline:
+        deadline = time.time() + 30
+        while len(results) < 45 and time.time() < deadline:
             time.sleep(0.05)
         lat = []
-        for _ in range(100):
-            t0 = time.perf_counter()
-            assert httpx.get(f"{url}/healthz").status_code == 200
-            lat.append(time.perf_counter() - t0)
-        metrics = httpx.get(f"{url}/metrics").text
-        assert "drape_inflight_requests 1.0" in metrics and "drape_queue_depth 1.0" in metrics, metrics[-2000:]
-        assert 'drape_rejections_total{reason="queue_full"} 46.0' in metrics
-        gate.set()
+        with httpx.Client(base_url=url) as c:
+            for _ in range(100):
+                t0 = time.perf_counter()
+                assert c.get("/healthz").status_code == 200
+                lat.append(time.perf_counter() - t0)
+            metrics = c.get("/metrics").text
         for t in threads:
             t.join()
         codes = sorted(r.status_code for r in results)
-        assert codes == [200] * 2 + [503] * 46, codes
+        # 1 computing + 1 queued; a third may get in if the first ends before the last request arrives
+        assert set(codes) == {200, 503} and 2 <= codes.count(200) <= 3, codes
         refused = [r for r in results if r.status_code == 503]
         assert all(r.headers["retry-after"] == "7" for r in refused)
         problem(refused[0], 503, "retry")
+        assert f'drape_rejections_total{{reason="queue_full"}} {len(refused)}.0' in metrics
+        assert "drape_inflight_requests 1.0" in metrics
     assert np.percentile(lat, 99) <= 0.05, sorted(lat)[-5:]
 
 
