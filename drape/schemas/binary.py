@@ -161,9 +161,11 @@ def stream_header(num_frames: int, faces: np.ndarray, num_vertices: int, fps: fl
     return MAGIC + struct.pack("<II", VERSION, len(header)) + header + np.ascontiguousarray(faces, dtype="<i4").tobytes()
 
 
-def stream_chunk(frames: np.ndarray) -> bytes:
-    """(n, N, 3) -> one chunk; n = 0 (an empty array) ends the stream."""
-    return struct.pack("<I", len(frames)) + np.ascontiguousarray(frames, dtype="<f4").tobytes()
+def stream_chunk(frames: np.ndarray) -> tuple[bytes, memoryview]:
+    """(n, N, 3) -> one chunk as its two parts, the count and the float32 bytes (a view of the array
+    when it is already little-endian float32 and contiguous: no copy); n = 0 ends the stream."""
+    data = np.ascontiguousarray(frames, dtype="<f4")
+    return struct.pack("<I", len(data)), data.data.cast("B") if data.size else memoryview(b"")
 
 
 class FrameDecoder:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import io
 import json
 import logging
-import struct
 import time
 import zipfile
 from collections.abc import AsyncIterator, Callable, Generator, Iterator
@@ -20,7 +19,7 @@ import numpy as np
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
-from drape.schemas.binary import FRAMES, NPZ, stream_header
+from drape.schemas.binary import FRAMES, NPZ, stream_chunk, stream_header
 from drape.service.admission import Slot
 from drape.service.metrics import Metrics
 
@@ -51,10 +50,8 @@ def encode_frame_stream(src: FrameSource) -> Pieces:
     float32 bytes, written from the computed array without a copy; a zero count ends it."""
     yield stream_header(src.num_frames, src.faces, src.num_vertices, src.fps, src.outfit_id)
     for chunk in src.chunks():
-        c = _frames32(chunk)
-        yield struct.pack("<I", len(c))
-        yield c.data.cast("B")
-    yield struct.pack("<I", 0)
+        yield from stream_chunk(chunk)
+    yield stream_chunk(np.zeros((0, src.num_vertices, 3), np.float32))[0]
 
 
 class _Pieces(io.RawIOBase):

@@ -19,7 +19,7 @@ from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
 from drape.service import decode, handlers
-from drape.service.answers import FrameSource, stream_frames
+from drape.service.answers import JSON, FrameSource, stream_frames
 from drape.service.errors import LimitExceeded, UnsupportedMediaType
 from drape.service.http import admission_of, engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
@@ -27,7 +27,6 @@ from drape.service.problems import problem_responses
 from drape.service.settings import Settings
 
 router = APIRouter(prefix="/v1/outfits", tags=["outfits"])
-JSON = "application/json"
 BINARY = {"schema": {"type": "string", "format": "binary"}}
 ERRORS = problem_responses(400, 401, 404, 406, 408, 413, 415, 422, 503)
 
