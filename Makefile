@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: serve test test-slow sim-dataset lint typecheck clean
+.PHONY: serve test test-slow sim-dataset intrinsic-data lint typecheck clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -39,6 +39,20 @@ sim-dataset: $(VENV)/.dev-installed
 	$(BIN)/drape outfits generate --type skirt --vertices 2000 --seed 3 --length 0.6 --out $(SIM_DIR)/skirt.obj
 	$(BIN)/drape sim dataset --garment $(SIM_DIR)/skirt.obj --params 8 --motions walk,dance_a,dance_b \
 		--frames 90 --out $(SIM_DIR)
+
+# the intrinsic-garment-space dataset (issue 21) of one template: 44 parameter sets (4 held out) x
+# 5 seeded procedural motions (train) + walk, dance_a (held out) x 120 frames; ~0.4 s per frame per
+# core, ~5 core-hours; resumable (rerun to continue), train items first. WORKERS=1 leaves a core free.
+INTRINSIC_DIR ?= data/intrinsic/skirt
+WORKERS ?= 1
+intrinsic-data: $(VENV)/.dev-installed
+	mkdir -p $(INTRINSIC_DIR)/motions
+	test -f $(INTRINSIC_DIR)/skirt.obj || $(BIN)/drape outfits generate --type skirt --vertices 2000 --seed 3 --length 0.6 --out $(INTRINSIC_DIR)/skirt.obj
+	for s in 1 2 3 4 5; do test -f $(INTRINSIC_DIR)/motions/proc$$s.npz || \
+		$(BIN)/drape motions generate --frames 150 --seed $$s --fps 30 --out $(INTRINSIC_DIR)/motions/proc$$s.npz; done
+	cd $(INTRINSIC_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \
+		--motions motions/proc1.npz,motions/proc2.npz,motions/proc3.npz,motions/proc4.npz,motions/proc5.npz,walk,dance_a \
+		--frames 120 --holdout-params 4 --holdout-motions 2 --workers $(WORKERS) --out .
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache
