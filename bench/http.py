@@ -2,7 +2,7 @@
 
 A ~10k-vertex outfit posed for 300 frames (36 MB of float32) is fetched from a real uvicorn server on
 127.0.0.1 (drape's own server configuration), the request an npz of the motion's arrays (as the client
-sends it; JSON for the JSON row): as npz (httpx + `decode_npz`), as the frame stream read
+sends it; JSON for the JSON row): as npz (httpx, read into one preallocated array by `NpzReader` as it arrives), as the frame stream read
 into one preallocated array (`Client.animate`), as the frame stream frame by frame
 (`Client.animate_stream`, then stacked) and, for scale, as JSON. Each time
 includes posing, encoding, transfer and decoding into one numpy array on the client. The baseline is a
@@ -28,7 +28,7 @@ import uvicorn
 import drape
 from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
-from drape.schemas.binary import NPZ, decode_npz, encode_npz
+from drape.schemas.binary import NPZ, NpzReader, encode_npz
 from drape.service.app import create_app
 from drape.service.server import server_config
 from drape.service.settings import Settings
@@ -104,13 +104,13 @@ def measure(args: argparse.Namespace, url: str) -> None:
     idx = np.arange(args.frames) % clip.num_frames
     motion = {"poses": clip.poses[idx], "translation": clip.trans[idx], "fps": clip.fps}
     nbytes = args.frames * len(outfit.vertices) * 3 * 4
-    with drape.Client(url, timeout=600) as client:
+    with drape.Client(url, timeout=600) as client, httpx.Client(base_url=url, timeout=600) as http:
         oid = client.rig((outfit.vertices, outfit.faces)).outfit_id
         body = {"outfit_id": oid, "motion": {"poses": clip.poses[idx].tolist(),
                                              "translation": clip.trans[idx].tolist(), "fps": clip.fps}}
 
         def via_json() -> np.ndarray:
-            r = httpx.post(f"{url}/v1/outfits/animate", json=body, timeout=600, headers={"accept": "application/json"})
+            r = http.post("/v1/outfits/animate", json=body, headers={"accept": "application/json"})
             r.raise_for_status()
             return np.asarray(r.json()["vertices"], dtype=np.float32)
 
@@ -118,10 +118,14 @@ def measure(args: argparse.Namespace, url: str) -> None:
                                   "fps": np.array(clip.fps)})
 
         def via_npz() -> np.ndarray:  # the request as npz too, as the client sends it
-            r = httpx.post(f"{url}/v1/outfits/animate", content=npz_request, timeout=600,
-                           headers={"accept": NPZ, "content-type": NPZ})
-            r.raise_for_status()
-            return decode_npz(r.content, ("vertices",))["vertices"]
+            reader = NpzReader(("vertices",))
+            with http.stream("POST", "/v1/outfits/animate", content=npz_request,
+                             headers={"accept": NPZ, "content-type": NPZ}) as r:
+                r.raise_for_status()
+                for data in r.iter_raw():
+                    reader.feed(data)
+            assert reader.done
+            return reader.arrays["vertices"]
 
         ways: dict[str, Callable[[], np.ndarray | None]] = {
             "raw socket": lambda: None,

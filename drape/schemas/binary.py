@@ -21,6 +21,7 @@ import json
 import math
 import struct
 import zipfile
+import zlib
 from collections.abc import Iterable, Iterator
 from typing import IO
 
@@ -299,6 +300,142 @@ class FrameReader:
             view = view[k:]
         if len(view) and self.done:
             raise ValueError("bytes after the end of the frame stream")
+
+
+class NpzReader:
+    """A stored (uncompressed) npz read as its bytes arrive, each array into one array allocated from its
+    .npy header: every payload byte copied once, no archive-sized buffer (feed bytes, then check `done`).
+
+    For npz answers of drape's server (numpy's uncompressed layout, sizes and CRCs in data
+    descriptors); deflated members are refused (use `decode_npz` on the whole archive). names: keep
+    only these members (the others are skipped as they pass); None keeps all. `arrays` maps member
+    names (without ".npy") to arrays; `done` turns True at the central directory. Each member's
+    CRC-32 is checked against its data descriptor or local header.
+    """
+
+    def __init__(self, names: Iterable[str] | None = None, *, max_bytes: int | None = None) -> None:
+        self._wanted = None if names is None else set(names)
+        self._max_bytes = max_bytes
+        self._total = 0
+        self._head = bytearray()  # a record header (zip or .npy) as it accumulates
+        self._state = "record"
+        self._member: dict = {}
+        self._out: memoryview | None = None  # where the current member's data goes (None: skipped)
+        self._left = 0  # data bytes of the current member still to come
+        self._crc = 0
+        self.arrays: dict[str, np.ndarray] = {}
+        self.done = False
+
+    def feed(self, data: bytes | memoryview) -> None:
+        view = memoryview(data).cast("B")
+        while len(view) and not self.done:
+            if self._state == "data":
+                k = min(len(view), self._left)
+                if self._out is not None:
+                    pos = len(self._out) - self._left
+                    self._out[pos:pos + k] = view[:k]
+                self._crc = zlib.crc32(view[:k], self._crc)
+                self._left -= k
+                view = view[k:]
+                if self._left == 0:
+                    self._state = "descriptor" if self._member["flags"] & 0x08 else "record"
+                    if self._state == "record":
+                        self._check_crc(self._member["crc"])
+                continue
+            take = self._need() - len(self._head)
+            self._head += view[:take]
+            view = view[take:]
+            while not self.done and self._state != "data" and len(self._head) == self._need():
+                self._advance()
+
+    def _need(self) -> int:
+        """Bytes the current header needs in all (it may grow once its length fields have arrived)."""
+        h = self._head
+        if self._state == "record":
+            if len(h) < 4:
+                return 4
+            if bytes(h[:4]) != b"PK\x03\x04":
+                return 4  # the central directory (or junk): _advance decides
+            if len(h) < 30:
+                return 30
+            name_len, extra_len = struct.unpack_from("<HH", h, 26)
+            return 30 + name_len + extra_len
+        if self._state == "npy":
+            if len(h) < 10:
+                return 10
+            major = h[6]
+            if major == 1:
+                return 10 + struct.unpack_from("<H", h, 8)[0]
+            if len(h) < 12:
+                return 12
+            return 12 + struct.unpack_from("<I", h, 8)[0]
+        # descriptor: optional signature, crc, then 4- or 8-byte sizes
+        if len(h) < 4:
+            return 4
+        sig = 4 if bytes(h[:4]) == b"PK\x07\x08" else 0
+        return sig + 4 + (16 if self._member["zip64"] else 8)
+
+    def _advance(self) -> None:
+        h = bytes(self._head)
+        self._head.clear()
+        if self._state == "record":
+            if h[:4] in (b"PK\x01\x02", b"PK\x05\x06", b"PK\x06\x06"):
+                self.done = True
+                return
+            if h[:4] != b"PK\x03\x04":
+                raise ValueError("not a zip archive: no local file header where one belongs")
+            flags, method = struct.unpack_from("<HH", h, 6)
+            crc, = struct.unpack_from("<I", h, 14)
+            name_len, = struct.unpack_from("<H", h, 26)
+            name = h[30:30 + name_len].decode("utf-8", "replace")
+            if method != zipfile.ZIP_STORED:
+                raise ValueError(f"member {name!r} is compressed (method {method}); NpzReader reads stored "
+                                 "members only: use decode_npz")
+            self._member = {"key": name.removesuffix(".npy"), "flags": flags, "crc": crc,
+                            "zip64": _has_zip64(h[30 + name_len:])}
+            self._crc = zlib.crc32(b"")
+            self._state = "npy"
+            return
+        if self._state == "npy":
+            key = self._member["key"]
+            self._crc = zlib.crc32(h, self._crc)
+            shape, fortran, dtype, _ = _npy_header(io.BytesIO(h), key)
+            nbytes = math.prod(shape) * dtype.itemsize
+            self._out = None
+            if self._wanted is None or key in self._wanted:
+                self._total += nbytes
+                if self._max_bytes is not None and self._total > self._max_bytes:
+                    raise NpzTooLarge(f"member {key!r} declares {shape} {dtype} ({nbytes} bytes): the arrays "
+                                      f"exceed the limit of {self._max_bytes} bytes")
+                flat = np.empty(math.prod(shape), dtype=dtype)
+                self.arrays[key] = flat.reshape(shape[::-1]).transpose() if fortran else flat.reshape(shape)
+                self._out = flat.view(np.uint8).data if nbytes else memoryview(b"")
+            self._left = nbytes
+            self._state = "data"
+            if nbytes == 0:  # no data bytes will come to move the state on
+                self._state = "descriptor" if self._member["flags"] & 0x08 else "record"
+                if self._state == "record":
+                    self._check_crc(self._member["crc"])
+            return
+        sig = 4 if h[:4] == b"PK\x07\x08" else 0
+        self._check_crc(struct.unpack_from("<I", h, sig)[0])
+        self._state = "record"
+
+    def _check_crc(self, expected: int) -> None:
+        if self._crc != expected:
+            raise ValueError(f"member {self._member['key']!r}: CRC-32 {self._crc:#010x} where the archive "
+                             f"says {expected:#010x}")
+
+
+def _has_zip64(extra: bytes) -> bool:
+    """Whether a zip extra field holds a zip64 record (header id 1): sizes in data descriptors are 8 bytes."""
+    pos = 0
+    while pos + 4 <= len(extra):
+        hid, size = struct.unpack_from("<HH", extra, pos)
+        if hid == 1:
+            return True
+        pos += 4 + size
+    return False
 
 
 def read_stream(chunks: Iterable[bytes]) -> tuple[dict, np.ndarray, Iterator[np.ndarray]]:
