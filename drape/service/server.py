@@ -6,20 +6,16 @@ from __future__ import annotations
 
 import asyncio
 
-import h11
 import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from drape.service.settings import Settings
 
-PASSTHROUGH_BYTES = 1 << 16  # streamed body pieces from this size are written without h11's copy
-
 
 class HeaderDeadlineH11(H11Protocol):
     """uvicorn's h11 protocol, plus: a connection that has not sent a whole request head within
-    `header_timeout_s` of opening (or of its previous answer's end) is closed (uvicorn alone keeps a
-    connection that sends nothing, or a byte at a time, open forever); and large pieces of a streamed
-    answer are written without a copy (see `send`: 406 vs 261 MB/s for npz in bench/http.py)."""
+    `header_timeout_s` of opening (or of its previous answer's end) is closed. uvicorn alone keeps a
+    connection that sends nothing, or a byte at a time, open forever."""
 
     header_timeout_s = 10.0
 
@@ -39,20 +35,6 @@ class HeaderDeadlineH11(H11Protocol):
         super().on_response_complete()
         self._head_deadline.cancel()
         self._arm(self.cycle)
-
-    async def send(self, message) -> None:  # type: ignore[no-untyped-def, override]
-        """uvicorn's send, except that a large piece of a streamed body goes to the transport as it is:
-        h11's `send` joins its chunk framing and the data into new bytes, a copy of every piece."""
-        body = message.get("body", b"") if message["type"] == "http.response.body" else b""
-        if (len(body) < PASSTHROUGH_BYTES or not message.get("more_body", False) or not self.response_started
-                or self.scope["method"] == "HEAD"):
-            return await super().send(message)
-        if self.flow.write_paused and not self.disconnected:
-            await self.flow.drain()
-        if self.disconnected:
-            return
-        for piece in self.conn.send_with_data_passthrough(h11.Data(data=body)) or ():
-            self.transport.write(piece)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._head_deadline.cancel()
