@@ -55,3 +55,16 @@ def smooth_weights(weights: np.ndarray, faces: np.ndarray, iterations: int = 20,
         w = w - step * (lap @ w)
     w = np.clip(w, 0.0, None)
     return (w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)).astype(np.float32)
+
+
+def rest_space_offsets(offsets: np.ndarray, weights: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """The rest-space offsets that linear blend skinning maps to given world-space offsets.
+
+    LBS is affine in the rest position: p = sum_k w_k (R_k x + t_k), so moving x by d moves p by
+    (sum_k w_k R_k) d. offsets: (n, 3) metres, world space, of n vertices at one frame; weights:
+    (n, K) their skin weights; rotations: (K, 3, 3) the joints' skinning rotations at that frame
+    (`forward_kinematics(...)[0][t, :, :3, :3]`). Returns d (n, 3) float32 metres.
+    """
+    blended = np.einsum("nk,kij->nij", np.asarray(weights, np.float64), np.asarray(rotations, np.float64))
+    d = np.linalg.solve(blended, np.asarray(offsets, np.float64)[..., None])[..., 0]
+    return d.astype(np.float32)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.assets.body import load_body
+from drape.geometry.lbs import rest_space_offsets
 from drape.geometry.refine import (
     EPS,
     MAX_ITERATIONS,
@@ -30,6 +31,7 @@ from drape.geometry.refine import (
     Refiner,
     RefineReport,
 )
+from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 
@@ -232,6 +234,32 @@ class Engine:
                                                    tr[s : s + chunk], refine)
                     self._observe("refine", time.perf_counter() - t)
                 yield part
+
+    def export_animation(self, outfit: RiggedOutfit, poses: np.ndarray, translation: np.ndarray,
+                         refine: RefineSettings | None = None, chunk: int = 32,
+                         ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]] | None]:
+        """What an engine needs to replay `pose_chunks`: the pose keys (T, P) float32 (the morph-target
+        weights) and, with `refine`, per frame what refinement moved, in the outfit's rest space (so a
+        morph target before skinning reproduces it): (vertex indices (k,) int64, offsets (k, 3) float32 m)."""
+        keys = np.concatenate([self.model.pose_keys(poses[s : s + POSE_BLOCK])
+                               for s in range(0, len(poses), POSE_BLOCK)]) if len(poses) else np.zeros((0, 0))
+        if refine is None:
+            return keys.astype(np.float32), None
+        joints = load_body(outfit.body).joints
+        corrections: list[tuple[np.ndarray, np.ndarray]] = []
+        for start in range(0, len(poses), POSE_BLOCK):
+            p, tr = poses[start : start + POSE_BLOCK], translation[start : start + POSE_BLOCK]
+            frames = pose_outfit(outfit.vertices, outfit.rig, keys[start : start + POSE_BLOCK], joints, p, tr)
+            rotations = forward_kinematics(p, joints, PARENTS, tr)[0][:, :, :3, :3]
+            for s in range(0, len(frames), chunk):
+                part = frames[s : s + chunk]
+                refined = self.refine_pool.refine(part, outfit.faces, outfit.body, p[s : s + chunk],
+                                                  tr[s : s + chunk], refine)
+                for i, delta in enumerate(refined - part):
+                    moved = np.flatnonzero(np.any(delta != 0, axis=1))
+                    corrections.append((moved, rest_space_offsets(delta[moved], outfit.rig.weights[moved],
+                                                                   rotations[s + i])))
+        return keys.astype(np.float32), corrections
 
     def refine_chunks(self, vertices: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray,
                       translation: np.ndarray, options: RefineSettings, chunk: int = 32) -> Iterator[np.ndarray]:

@@ -20,6 +20,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
 from drape.schemas.binary import FRAMES, NPZ, stream_chunk, stream_header
+from drape.schemas.pc2 import PC2, encode_pc2
 from drape.service.admission import Slot
 from drape.service.metrics import Metrics
 
@@ -111,8 +112,13 @@ def encode_json(src: FrameSource) -> Pieces:
     yield b"]}"
 
 
+def encode_pc2_stream(src: FrameSource) -> Pieces:
+    """The PC2 point cache (drape.schemas.pc2): its header, then each chunk's float32 bytes as computed."""
+    yield from encode_pc2(src.chunks(), src.num_vertices, src.num_frames)
+
+
 ENCODERS: dict[str, Callable[[FrameSource], Pieces]] = {
-    JSON: encode_json, NPZ: encode_npz_stream, FRAMES: encode_frame_stream}
+    JSON: encode_json, NPZ: encode_npz_stream, FRAMES: encode_frame_stream, PC2: encode_pc2_stream}
 
 
 async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: float,

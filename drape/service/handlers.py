@@ -7,9 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from drape.assets.body import list_bodies
+from drape.assets.body import list_bodies, load_body
 from drape.assets.motion import list_clips, load_clip
 from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
+from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb, vertex_animation_glb
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
 from drape.service.settings import Settings
 
@@ -196,3 +197,24 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
     opts = check_refine(options or True)
     assert opts is not None
     return RefinePlan(v.astype(np.float32), f, check_body(body), poses, trans, fps, opts)
+
+
+def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None = None) -> bytes:
+    """The rig as a GLB: the outfit skinned to the body's skeleton with its blend shapes as morph targets
+    (`psd_<p>`), the body skinned beside it; with a plan, its motion as an animation whose morph weights
+    are the pose keys (and, with refinement, one sparse correction target per frame)."""
+    body = load_body(outfit.body)
+    rig = outfit.rig
+    meshes = [SkinnedMesh("outfit", outfit.vertices, outfit.faces, rig.weights, rig.blend_shapes,
+                          tuple(f"psd_{p}" for p in range(len(rig.blend_shapes)))),
+              SkinnedMesh("body", body.vertices, body.faces, body.weights)]
+    animation = None
+    if plan is not None:
+        keys, corrections = engine.export_animation(outfit, plan.poses, plan.translation, plan.refine)
+        animation = Animation(plan.poses, plan.translation, plan.fps, keys, corrections)
+    return skinned_glb(Skeleton(body.joint_names, body.parents, body.joints), meshes, animation)
+
+
+def stream_glb(frames: np.ndarray, faces: np.ndarray, fps: float) -> bytes:
+    """A computed stream (T, N, 3) m as a GLB vertex animation (frame t as a morph target)."""
+    return vertex_animation_glb(frames, faces, fps)

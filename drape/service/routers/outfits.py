@@ -18,6 +18,8 @@ from fastapi.responses import JSONResponse
 from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
+from drape.schemas.gltf import GLB
+from drape.schemas.pc2 import PC2
 from drape.service import decode, handlers
 from drape.service.answers import JSON, FrameSource, stream_frames
 from drape.service.errors import LimitExceeded, UnsupportedMediaType
@@ -44,8 +46,9 @@ def _rig_payload(outfit: RiggedOutfit) -> dict[str, np.ndarray]:
 
 @router.post(
     "/rig",
-    responses={200: {"description": "the rig", "content": {JSON: {"schema": {"$ref": "#/components/schemas/RigResponse"}},
-                                                          NPZ: BINARY}}, **ERRORS},
+    responses={200: {"description": "the rig (GLB: the outfit skinned with its blend shapes as morph targets, "
+                                    "and the body)", "content": {
+        JSON: {"schema": {"$ref": "#/components/schemas/RigResponse"}}, NPZ: BINARY, GLB: BINARY}}, **ERRORS},
     openapi_extra={"requestBody": {"required": True, "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/RigRequest"}},
         "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
@@ -57,7 +60,7 @@ def _rig_payload(outfit: RiggedOutfit) -> dict[str, np.ndarray]:
 )
 async def rig_outfit(request: Request) -> Response:
     """Template outfit -> blend weights W (N, 24), blend shapes D (P, N, 3), skeleton, outfit_id."""
-    answer = choose(request.headers.get("accept"), [JSON, NPZ])
+    answer = choose(request.headers.get("accept"), [JSON, NPZ, GLB])
     kind = media_type(request)
     if kind not in ("multipart/form-data", NPZ, JSON, ""):
         raise UnsupportedMediaType(f"send {JSON}, multipart/form-data or {NPZ}, not {kind!r}", "Content-Type")
@@ -68,6 +71,8 @@ async def rig_outfit(request: Request) -> Response:
     def work() -> Response:
         vertices, faces, body_name = decode.rig_arguments(kind, content_type, data, settings)
         outfit = handlers.rig(engine, settings, vertices, faces, body_name)
+        if answer == GLB:
+            return Response(handlers.outfit_glb(engine, outfit), media_type=GLB)
         return _rig_answer(answer, outfit, settings)
 
     slot = await admission_of(request).enter()
@@ -97,11 +102,15 @@ def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Respon
 
 def _max_posed(answer: str, settings: Settings) -> int | None:
     """frames x vertices one answer may hold in this format (None: the frame stream, unbounded)."""
-    return {JSON: settings.max_json_values // 3, NPZ: settings.max_posed_values}.get(answer)
+    return {JSON: settings.max_json_values // 3, NPZ: settings.max_posed_values,
+            GLB: settings.max_posed_values}.get(answer)
 
 
-FRAME_ANSWERS = {200: {"description": "frames (T, N, 3)", "content": {
-    JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY}}, **ERRORS}
+FRAME_ANSWERS = {200: {"description": "frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB "
+                                      "(animate: the rig and its animation; refine: a vertex animation)", "content": {
+    JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY, PC2: BINARY,
+    GLB: BINARY}}, **ERRORS}
+STREAM_FORMATS = [JSON, NPZ, FRAMES, PC2, GLB]
 
 
 @router.post("/animate", responses=FRAME_ANSWERS, openapi_extra={"requestBody": {"required": True, "content": {
@@ -111,13 +120,22 @@ FRAME_ANSWERS = {200: {"description": "frames (T, N, 3)", "content": {
                      "(T, 72) with optional translation (T, 3) and fps; optional body (text); refine (boolean "
                      "scalar) and/or the refine options as scalars: eps, max_iterations, relief_iterations"}}}}})
 async def animate_outfit(request: Request) -> Response:
-    """Outfit (or outfit_id) + motion (+ refine) -> posed vertices (T, N, 3): JSON, npz or a frame stream."""
-    answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
+    """Outfit (or outfit_id) + motion (+ refine) -> posed vertices (T, N, 3): JSON, npz, a frame stream, PC2, or
+    GLB (the rigged outfit and the body with the motion as an animation, refinement as per-frame targets)."""
+    answer = choose(request.headers.get("accept"), STREAM_FORMATS)
     kind = media_type(request)
     if kind not in (JSON, NPZ, ""):
         raise UnsupportedMediaType(f"send {JSON} or {NPZ}, not {kind!r}", "Content-Type")
     settings, engine = settings_of(request), engine_of(request)
     data = await read_body(request)
+
+    if answer == GLB:
+        def glb() -> Response:
+            req = decode.animate_request(kind, data, settings, engine)
+            p = handlers.plan_animation(engine, settings, req, _max_posed(answer, settings))
+            return Response(handlers.outfit_glb(engine, p.outfit, p), media_type=GLB)
+
+        return await _whole(request, glb)
 
     def plan() -> FrameSource:
         req = decode.animate_request(kind, data, settings, engine)
@@ -130,6 +148,15 @@ async def animate_outfit(request: Request) -> Response:
         return FrameSource(chunks, p.outfit.faces, p.num_frames, len(p.outfit.vertices), p.fps, p.outfit.outfit_id)
 
     return await _stream(request, answer, plan)
+
+
+async def _whole(request: Request, work: Any) -> Response:
+    """Take a computing slot and make a whole answer off the event loop (GLB: not streamed)."""
+    slot = await admission_of(request).enter()
+    try:
+        return await run_in_threadpool(work)
+    finally:
+        slot.release()
 
 
 async def _stream(request: Request, answer: str, plan: Any) -> Response:
@@ -154,8 +181,9 @@ refine_router = APIRouter(prefix="/v1", tags=["refine"])
                      "(T, 3) and fps, or clip (a name); optional body, and the options as scalars: eps, "
                      "max_iterations, relief_iterations"}}}}})
 async def refine_stream(request: Request) -> Response:
-    """Garment stream + faces + body motion -> the stream with body penetration removed (same formats as animate)."""
-    answer = choose(request.headers.get("accept"), [JSON, NPZ, FRAMES])
+    """Garment stream + faces + body motion -> the stream with body penetration removed (same formats as animate;
+    GLB: the refined stream as a vertex animation)."""
+    answer = choose(request.headers.get("accept"), STREAM_FORMATS)
     kind = media_type(request)
     if kind not in (NPZ, JSON, ""):
         raise UnsupportedMediaType(f"send {JSON} or {NPZ}, not {kind!r}", "Content-Type")
@@ -172,4 +200,11 @@ async def refine_stream(request: Request) -> Response:
 
         return FrameSource(chunks, p.faces, len(p.vertices), p.vertices.shape[1], p.fps, "")
 
+    if answer == GLB:
+        def glb() -> Response:
+            src = plan()
+            frames = np.concatenate(list(src.chunks()))
+            return Response(handlers.stream_glb(frames, src.faces, src.fps), media_type=GLB)
+
+        return await _whole(request, glb)
     return await _stream(request, answer, plan)

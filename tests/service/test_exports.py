@@ -1,0 +1,105 @@
+"""GLB (`model/gltf-binary`) and PC2 (`application/x-pc2`) answers of rig, animate and refine: each GLB
+passes the Khronos validator with 0 errors and plays back (an independent reading of the spec) as the
+npz answer of the same request; each PC2 equals it; the OpenAPI schema offers both."""
+
+import io
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "schemas"))
+from glb_player import GlbPlayer  # noqa: E402
+from gltf_validator import validate  # noqa: E402
+
+from drape.assets.motion import load_clip  # noqa: E402
+from drape.assets.outfits import generate_outfit  # noqa: E402
+from drape.schemas.binary import NPZ, decode_npz, encode_npz  # noqa: E402
+from drape.schemas.gltf import GLB  # noqa: E402
+from drape.schemas.pc2 import PC2, read_pc2  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def outfit():
+    o = generate_outfit("tshirt", vertices=1200, seed=5)
+    return o.vertices, o.faces
+
+
+def post(http, path, body, accept):
+    r = http.post(path, content=encode_npz(body), headers={"content-type": NPZ, "accept": accept})
+    assert r.status_code == 200, r.text[:500]
+    assert r.headers["content-type"].startswith(accept)
+    return r.content
+
+
+def animate_body(outfit, refine):
+    return {"vertices": outfit[0], "faces": outfit[1], "clip": np.array("dance_a"), "refine": np.array(refine)}
+
+
+def test_the_rig_as_glb(http, outfit):
+    glb = post(http, "/v1/outfits/rig", {"vertices": outfit[0], "faces": outfit[1]}, GLB)
+    report = validate(glb)
+    assert report["errors"] == 0, report["messages"]
+    rig = decode_npz(post(http, "/v1/outfits/rig", {"vertices": outfit[0], "faces": outfit[1]}, NPZ))
+    player = GlbPlayer(glb)
+    assert np.abs(player.positions("outfit") - outfit[0]).max() < 1e-6
+    names = player.doc.meshes[0].extras["targetNames"]
+    assert len(names) == len(rig["blend_shapes"]) and names[0] == "psd_0"
+    assert [n.name for n in player.doc.nodes[:24]] == [str(n) for n in rig["joint_names"]]
+
+
+@pytest.mark.parametrize("refine", [False, True])
+def test_animate_as_glb_plays_as_the_npz_answer(http, outfit, refine):
+    body = animate_body(outfit, refine)
+    glb = post(http, "/v1/outfits/animate", body, GLB)
+    report = validate(glb)
+    assert report["errors"] == 0, report["messages"]
+    want = decode_npz(post(http, "/v1/outfits/animate", body, NPZ))["vertices"]
+    player = GlbPlayer(glb)
+    moved = np.abs(want - decode_npz(post(http, "/v1/outfits/animate", animate_body(outfit, False), NPZ))[
+        "vertices"]).max()
+    assert (moved > 1e-4) == refine  # refinement moved something (the test model penetrates the body)
+    for t in (0, len(want) // 2, len(want) - 1):
+        err = np.linalg.norm(player.positions("outfit", t) - want[t], axis=1)
+        assert err.max() < 1e-4, (t, err.max())  # 0.1 mm: skin weights under 1e-5 are dropped
+
+
+def test_refine_as_glb_and_pc2(http, outfit):
+    posed = decode_npz(post(http, "/v1/outfits/animate", animate_body(outfit, False), NPZ))["vertices"]
+    clip = load_clip("dance_a")
+    body = {"vertices": posed[:30], "faces": outfit[1], "poses": clip.poses[:30], "translation": clip.trans[:30],
+            "fps": np.array(clip.fps)}
+    want = decode_npz(post(http, "/v1/refine", body, NPZ))["vertices"]
+    glb = post(http, "/v1/refine", body, GLB)
+    report = validate(glb)
+    assert report["errors"] == 0, report["messages"]
+    player = GlbPlayer(glb)
+    for t in (0, 11, 29):
+        assert np.abs(player.positions("garment", t) - want[t]).max() < 1e-6
+    frames, start, rate = read_pc2(post(http, "/v1/refine", body, PC2))
+    assert (start, rate) == (0.0, 1.0) and np.array_equal(frames, want)
+
+
+def test_animate_as_pc2_equals_npz(http, outfit):
+    body = animate_body(outfit, False)
+    data = post(http, "/v1/outfits/animate", body, PC2)
+    assert data[:12] == b"POINTCACHE2\0"
+    frames, _, _ = read_pc2(data)
+    assert np.array_equal(frames, decode_npz(post(http, "/v1/outfits/animate", body, NPZ))["vertices"])
+
+
+def test_the_schema_offers_glb_and_pc2(http):
+    paths = http.get("/openapi.json").json()["paths"]
+    for path in ("/v1/outfits/animate", "/v1/refine"):
+        content = paths[path]["post"]["responses"]["200"]["content"]
+        assert GLB in content and PC2 in content
+    assert GLB in paths["/v1/outfits/rig"]["post"]["responses"]["200"]["content"]
+
+
+def test_read_pc2_refuses_what_is_not_one():
+    with pytest.raises(ValueError, match="PC2"):
+        read_pc2(b"POINTCACHE3\0" + bytes(20))
+    with pytest.raises(ValueError, match="declares"):
+        read_pc2(io.BytesIO(b"POINTCACHE2\0" + np.array([1, 5], "<i4").tobytes() +
+                            np.array([0, 1], "<f4").tobytes() + np.array([2], "<i4").tobytes()).getvalue())
