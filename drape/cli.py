@@ -193,6 +193,38 @@ def _export_deepsd(args: argparse.Namespace) -> None:
         print(path)
 
 
+def _read_stream(path: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """An npz stream on disk (an animate/refine npz answer, a simulated sequence) -> (vertices (T, N, 3) m,
+    faces (F, 3), fps)."""
+    from drape.schemas.binary import decode_npz
+
+    z = decode_npz(Path(path).read_bytes(), ("vertices", "faces", "fps"))
+    if "vertices" not in z or "faces" not in z:
+        raise SystemExit(f"{path}: an npz stream needs 'vertices' (T, N, 3) and 'faces' (F, 3)")
+    v = np.asarray(z["vertices"], np.float32)
+    if v.ndim != 3 or v.shape[2] != 3:
+        raise SystemExit(f"{path}: 'vertices' must be (T, N, 3), got {v.shape}")
+    return v, np.asarray(z["faces"]), float(z["fps"]) if "fps" in z else 30.0
+
+
+def _export_pc2(args: argparse.Namespace) -> None:
+    from drape.schemas.pc2 import encode_pc2
+
+    v, _, _ = _read_stream(args.stream)
+    with open(args.out, "wb") as f:
+        for piece in encode_pc2([v], v.shape[1], len(v), start_frame=args.start_frame):
+            f.write(piece)
+    print(f"{args.out}: {len(v)} frames x {v.shape[1]} points")
+
+
+def _export_glb(args: argparse.Namespace) -> None:
+    from drape.schemas.gltf import vertex_animation_glb
+
+    v, faces, fps = _read_stream(args.stream)
+    Path(args.out).write_bytes(vertex_animation_glb(v, faces, fps))
+    print(f"{args.out}: {len(v)} frames x {v.shape[1]} vertices at {fps:g} fps")
+
+
 def _eval_deepsd(args: argparse.Namespace) -> None:
     from drape.training.deepsd_eval import evaluate, format_table, write_results
 
@@ -328,7 +360,17 @@ def build_parser() -> argparse.ArgumentParser:
     td.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     td.add_argument("--checkpoints", default="checkpoints/deepsd")
     td.set_defaults(func=_train_deepsd)
-    e = sub.add_parser("export", help="export a network to ONNX").add_subparsers(dest="what", required=True)
+    e = sub.add_parser("export", help="export a network to ONNX, or a stream to an engine format").add_subparsers(
+        dest="what", required=True)
+    ep = e.add_parser("pc2", help="an npz stream (vertices (T, N, 3), faces) -> a PC2 point cache")
+    ep.add_argument("stream")
+    ep.add_argument("--out", required=True)
+    ep.add_argument("--start-frame", type=float, default=0.0)
+    ep.set_defaults(func=_export_pc2)
+    eg = e.add_parser("glb", help="an npz stream (vertices (T, N, 3), faces, fps) -> a GLB vertex animation")
+    eg.add_argument("stream")
+    eg.add_argument("--out", required=True)
+    eg.set_defaults(func=_export_glb)
     ed = e.add_parser("deepsd", help="export the latest DeePSD checkpoint to ONNX + manifest")
     ed.add_argument("--checkpoints", default="checkpoints/deepsd")
     ed.add_argument("--init", action="store_true", help="export a freshly initialised (untrained) model")

@@ -42,3 +42,24 @@ def test_errors_are_reported_not_raised(tmp_path):
     r = subprocess.run([sys.executable, "-m", "drape.cli", "render", "--clip", "nope", "--out",
                         str(tmp_path / "x.png")], capture_output=True, text=True)
     assert r.returncode == 2 and "unknown clip" in r.stderr
+
+
+def test_export_pc2_and_glb_from_an_npz_stream(tmp_path):
+    from drape.schemas.binary import encode_npz
+    from drape.schemas.pc2 import read_pc2
+
+    rng = np.random.default_rng(0)
+    frames = rng.normal(size=(7, 30, 3)).astype(np.float32)
+    faces = np.stack([np.arange(28), np.arange(1, 29), np.arange(2, 30)], 1).astype(np.int32)
+    stream = tmp_path / "s.npz"
+    stream.write_bytes(encode_npz({"vertices": frames, "faces": faces, "fps": np.float32(24)}))
+    drape("export", "pc2", str(stream), "--out", str(tmp_path / "s.pc2"), "--start-frame", "1")
+    got, start, rate = read_pc2((tmp_path / "s.pc2").read_bytes())
+    assert np.array_equal(got, frames) and (start, rate) == (1.0, 1.0)
+    drape("export", "glb", str(stream), "--out", str(tmp_path / "s.glb"))
+    import pygltflib
+
+    doc = pygltflib.GLTF2.load_from_bytes((tmp_path / "s.glb").read_bytes())
+    assert len(doc.meshes[0].primitives[0].targets) == 6
+    times = doc.accessors[doc.animations[0].samplers[0].input]
+    assert abs(times.max[0] - 6 / 24) < 1e-6

@@ -6,7 +6,7 @@ import os
 from collections.abc import AsyncIterator, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import httpx
 import numpy as np
@@ -16,6 +16,8 @@ from drape.schemas.catalog import BodyList, Health, MotionList
 from drape.schemas.models import ModelList
 
 OutfitLike = Any  # path | (vertices, faces) | object with .vertices/.faces
+Format = Literal["array", "glb", "pc2"]  # frames as one (T, N, 3) array, or the file bytes of an engine format
+_FILE_TYPES = {"glb": "model/gltf-binary", "pc2": "application/x-pc2"}
 MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps
 
 
@@ -115,6 +117,12 @@ def _refine_npz(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, bod
                        **_motion_arrays(motion), "body": np.array(body), **options})
 
 
+def _file_type(format: str) -> str:
+    if format not in _FILE_TYPES:
+        raise ValueError(f"format must be 'array', 'glb' or 'pc2', not {format!r}")
+    return _FILE_TYPES[format]
+
+
 def _frames_done(reader: FrameReader, status: int) -> np.ndarray:
     if not reader.done or reader.vertices is None:
         raise DrapeAPIError(status, "", "Truncated stream", "the frame stream ended early")
@@ -182,11 +190,29 @@ class Client(_Base):
             outfit_id, body = self.rig(outfit, body=body or "neutral").outfit_id, None
         return {"content": _animate_npz(outfit_id, arrays, motion, body, refine), "headers": {"Content-Type": NPZ}}
 
+    @overload
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
-                body: str | None = None, refine: bool = False) -> np.ndarray:
-        """Posed outfit vertices (T, N, 3) float32 metres."""
+                body: str | None = None, refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
+
+    @overload
+    def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
+                body: str | None = None, refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+
+    def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
+                body: str | None = None, refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+        """Posed outfit vertices (T, N, 3) float32 metres; or, with format="glb" / "pc2", the bytes of a
+        GLB (the rigged outfit and the body, the motion as its animation) / a PC2 point cache."""
         req = self._animate_body(outfit, outfit_id, motion, body, refine)
+        if format != "array":
+            return self._file("/v1/outfits/animate", _file_type(format), **req)
         return self._frames("/v1/outfits/animate", **req)
+
+    def _file(self, path: str, accept: str, **request: Any) -> bytes:
+        """POST, the answer's bytes in the format `accept` names."""
+        headers = {**request.pop("headers", {}), "Accept": accept}
+        r = self._http.post(path, headers=headers, **request)
+        _raise_for(r)
+        return r.content
 
     def _frames(self, path: str, **request: Any) -> np.ndarray:
         """POST, reading the frame stream answer into one (T, N, 3) float32 array as it arrives."""
@@ -200,14 +226,28 @@ class Client(_Base):
                 reader.feed(data)
         return _frames_done(reader, r.status_code)
 
+    @overload
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-               eps: float | None = None, relief_iterations: int | None = None) -> np.ndarray:
-        """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion`.
+               eps: float | None = None, relief_iterations: int | None = None,
+               format: Literal["array"] = "array") -> np.ndarray: ...
+
+    @overload
+    def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
+               eps: float | None = None, relief_iterations: int | None = None,
+               format: Literal["glb", "pc2"]) -> bytes: ...
+
+    def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
+               eps: float | None = None, relief_iterations: int | None = None,
+               format: Format = "array") -> np.ndarray | bytes:
+        """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion`
+        (format="glb" / "pc2": the refined stream as a GLB vertex animation / a PC2 point cache, as bytes).
 
         eps: metres kept from the body; relief_iterations: rounds of the stretch relief pass (0: none).
         None: the service's default (its RefineOptions schema).
         """
         req = _refine_npz(vertices, faces, motion, body, eps, relief_iterations)
+        if format != "array":
+            return self._file("/v1/refine", _file_type(format), content=req, headers={"Content-Type": NPZ})
         return self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
 
     def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
@@ -255,10 +295,29 @@ class AsyncClient(_Base):
             outfit_id, body = (await self.rig(outfit, body=body or "neutral")).outfit_id, None
         return {"content": _animate_npz(outfit_id, arrays, motion, body, refine), "headers": {"Content-Type": NPZ}}
 
+    @overload
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
-                      motion: MotionLike, body: str | None = None, refine: bool = False) -> np.ndarray:
+                      motion: MotionLike, body: str | None = None, refine: bool = False,
+                      format: Literal["array"] = "array") -> np.ndarray: ...
+
+    @overload
+    async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
+                      motion: MotionLike, body: str | None = None, refine: bool = False,
+                      format: Literal["glb", "pc2"]) -> bytes: ...
+
+    async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
+                      motion: MotionLike, body: str | None = None, refine: bool = False,
+                      format: Format = "array") -> np.ndarray | bytes:
         req = await self._animate_body(outfit, outfit_id, motion, body, refine)
+        if format != "array":
+            return await self._file("/v1/outfits/animate", _file_type(format), **req)
         return await self._frames("/v1/outfits/animate", **req)
+
+    async def _file(self, path: str, accept: str, **request: Any) -> bytes:
+        headers = {**request.pop("headers", {}), "Accept": accept}
+        r = await self._http.post(path, headers=headers, **request)
+        _raise_for(r)
+        return r.content
 
     async def _frames(self, path: str, **request: Any) -> np.ndarray:
         headers = {"Accept": FRAMES, **request.pop("headers", {})}
@@ -271,9 +330,22 @@ class AsyncClient(_Base):
                 reader.feed(data)
         return _frames_done(reader, r.status_code)
 
+    @overload
     async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-                     eps: float | None = None, relief_iterations: int | None = None) -> np.ndarray:
+                     eps: float | None = None, relief_iterations: int | None = None,
+                     format: Literal["array"] = "array") -> np.ndarray: ...
+
+    @overload
+    async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
+                     eps: float | None = None, relief_iterations: int | None = None,
+                     format: Literal["glb", "pc2"]) -> bytes: ...
+
+    async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
+                     eps: float | None = None, relief_iterations: int | None = None,
+                     format: Format = "array") -> np.ndarray | bytes:
         req = _refine_npz(vertices, faces, motion, body, eps, relief_iterations)
+        if format != "array":
+            return await self._file("/v1/refine", _file_type(format), content=req, headers={"Content-Type": NPZ})
         return await self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
 
     async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,

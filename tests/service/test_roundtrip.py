@@ -143,3 +143,25 @@ def test_refine_with_a_clip_name(server_url, outfit):
                                                                "fps": clip.fps})
     assert by_name.shape == frames.shape and np.array_equal(by_name, by_poses)
     assert np.abs(by_name - frames).max() > 1e-3, "the rest-pose shirt should need refining somewhere in the clip"
+
+
+def test_engine_formats_through_the_client(server_url, outfit):
+    from drape.schemas.pc2 import read_pc2
+
+    with drape.Client(server_url) as client:
+        frames = client.animate(outfit=(outfit.vertices, outfit.faces), motion="kick")
+        pc2 = client.animate(outfit=(outfit.vertices, outfit.faces), motion="kick", format="pc2")
+        glb = client.animate(outfit=(outfit.vertices, outfit.faces), motion="kick", format="glb")
+        refined_pc2 = client.refine(frames[:8], outfit.faces, motion={"poses": load_clip("kick").poses[:8]},
+                                    format="pc2")
+        refined = client.refine(frames[:8], outfit.faces, motion={"poses": load_clip("kick").poses[:8]})
+        with pytest.raises(ValueError, match="format"):
+            client.animate(outfit=(outfit.vertices, outfit.faces), motion="kick", format="obj")  # type: ignore
+    assert np.array_equal(read_pc2(pc2)[0], frames) and np.array_equal(read_pc2(refined_pc2)[0], refined)
+    assert glb[:4] == b"glTF"
+
+    async def go():
+        async with drape.AsyncClient(server_url) as client:
+            return await client.animate(outfit=(outfit.vertices, outfit.faces), motion="kick", format="pc2")
+
+    assert asyncio.run(go()) == pc2
