@@ -76,12 +76,14 @@ def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
     return out
 
 
-def _rig_request(outfit: OutfitLike, body: str) -> dict:
+def _rig_request(outfit: OutfitLike, body: str, influences: int) -> dict:
     arrays = _mesh_arrays(outfit)
     if arrays is None:
         path = Path(outfit)
-        return {"files": {"mesh": (path.name, path.read_bytes())}, "data": {"body": body}}
-    return {"json": {"vertices": arrays[0].tolist(), "faces": arrays[1].tolist(), "body": body}}
+        return {"files": {"mesh": (path.name, path.read_bytes())},
+                "data": {"body": body, "influences": str(influences)}}
+    return {"json": {"vertices": arrays[0].tolist(), "faces": arrays[1].tolist(), "body": body,
+                     "influences": influences}}
 
 
 def _rig_result(response: httpx.Response) -> RigResult:
@@ -179,9 +181,11 @@ class Client(_Base):
     def models(self) -> ModelList:
         return ModelList.model_validate(self._get("/v1/models"))
 
-    def rig(self, outfit: OutfitLike, *, body: str = "neutral") -> RigResult:
-        """Rig an outfit: blend weights, blend shapes, skeleton and its outfit_id."""
-        return _rig_result(self._http.post("/v1/outfits/rig", headers={"Accept": NPZ}, **_rig_request(outfit, body)))
+    def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4) -> RigResult:
+        """Rig an outfit: blend weights (at most `influences`, 4 or 8, non-zero per vertex), blend shapes,
+        skeleton and its outfit_id (animate it by outfit_id; an outfit given to animate is rigged with 4)."""
+        return _rig_result(self._http.post("/v1/outfits/rig", headers={"Accept": NPZ},
+                                           **_rig_request(outfit, body, influences)))
 
     def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
         """The animate request's httpx arguments (an npz body)."""
@@ -285,8 +289,9 @@ class AsyncClient(_Base):
     async def aclose(self) -> None:
         await self._http.aclose()
 
-    async def rig(self, outfit: OutfitLike, *, body: str = "neutral") -> RigResult:
-        r = await self._http.post("/v1/outfits/rig", headers={"Accept": NPZ}, **_rig_request(outfit, body))
+    async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4) -> RigResult:
+        r = await self._http.post("/v1/outfits/rig", headers={"Accept": NPZ},
+                                  **_rig_request(outfit, body, influences))
         return _rig_result(r)
 
     async def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001

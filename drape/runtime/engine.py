@@ -34,6 +34,7 @@ from drape.geometry.refine import (
 from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
+from drape.runtime.sparse_rig import INFLUENCES, fit_poses, sparse_rig
 
 POSE_BLOCK = 128  # frames posed per call (then handed out a chunk at a time)
 
@@ -47,6 +48,7 @@ class RiggedOutfit:
     vertices: np.ndarray
     faces: np.ndarray
     rig: Rig
+    influences: int = 24  # skin weights per vertex at most (the served rigs: 4 or 8)
 
     @property
     def nbytes(self) -> int:
@@ -183,26 +185,42 @@ class Engine:
         self._observe = observe or (lambda stage, seconds: None)
         files = self.model.manifest["files"]
         self.model_tag = f"deepsd-{self.model.manifest['version']}-{files['outfit']['sha256'][:16]}"
+        self._fit: tuple[np.ndarray, np.ndarray] | None = None  # the sparse rig's fit poses and their keys
 
-    def outfit_id(self, vertices: np.ndarray, faces: np.ndarray, body: str) -> str:
-        """Content hash of the canonical mesh (float32 vertices, int32 faces), the body and the model."""
+    def fit_frames(self) -> tuple[np.ndarray, np.ndarray]:
+        """The sparse rig's fit poses (T, 24, 3) and their pose keys (T, P), made once."""
+        if self._fit is None:
+            poses = fit_poses()
+            self._fit = poses, self.model.pose_keys(poses)
+        return self._fit
+
+    def outfit_id(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> str:
+        """Content hash of the canonical mesh (float32 vertices, int32 faces), the body, the rig's influences
+        per vertex and the model."""
         h = hashlib.sha256()
         h.update(np.ascontiguousarray(vertices, dtype="<f4").tobytes())
         h.update(np.ascontiguousarray(faces, dtype="<i4").tobytes())
-        h.update(f"|{body}|{self.model_tag}".encode())
+        h.update(f"|{body}|{self.model_tag}|i{influences}".encode())
         return h.hexdigest()[:32]
 
-    def rig(self, vertices: np.ndarray, faces: np.ndarray, body: str) -> RiggedOutfit:
+    def rig(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> RiggedOutfit:
+        """The served rig of an outfit: at most `influences` (4 or 8) skin weights per vertex, blend shapes
+        refit for them (drape.runtime.sparse_rig); cached by content."""
+        if influences not in INFLUENCES:
+            raise ValueError(f"influences must be one of {INFLUENCES}, got {influences}")
         v = np.ascontiguousarray(vertices, dtype=np.float32)
         f = np.ascontiguousarray(faces, dtype=np.int32)
-        oid = self.outfit_id(v, f, body)
+        oid = self.outfit_id(v, f, body, influences)
         cached = self.cache.get(oid)
         if cached is not None:
             return cached
         t = time.perf_counter()
-        rig = self.model.rig(v, f)
+        dense = self.model.rig(v, f)
         self._observe("outfit", time.perf_counter() - t)
-        out = RiggedOutfit(oid, body, v, f, rig)
+        t = time.perf_counter()
+        rig = sparse_rig(v, dense, load_body(body).joints, influences, *self.fit_frames())
+        self._observe("sparse_rig", time.perf_counter() - t)
+        out = RiggedOutfit(oid, body, v, f, rig, influences)
         self.cache.put(oid, out)
         return out
 
@@ -282,5 +300,6 @@ class Engine:
         outfit = RiggedOutfit("warm-up", "neutral", v, f, rig)
         for _ in self.pose_chunks(outfit, np.zeros((2, 24, 3)), np.zeros((2, 3))):
             pass
+        self.fit_frames()
         if self.refine_pool.workers >= 2:
             self.refine_pool.start()

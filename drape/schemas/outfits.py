@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -22,12 +22,17 @@ EXAMPLE_MESH: dict[str, Any] = {"vertices": [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [
                 "faces": [[0, 1, 2], [1, 3, 2]]}
 
 
+INFLUENCES_HELP = ("skin influences per vertex of the served rig: 4 (what three.js and most engines play) or 8; "
+                   "the blend shapes are refit for them")
+
+
 class RigRequest(Mesh):
     """A template outfit (strict types: no string-to-number coercion)."""
 
     model_config = ConfigDict(json_schema_extra={"examples": [{**EXAMPLE_MESH, "body": "neutral"}]})
 
     body: str = Field("neutral", description="body preset the outfit is dressed on (GET /v1/bodies)")
+    influences: Literal[4, 8] = Field(4, description=INFLUENCES_HELP)
 
 
 class Skeleton(BaseModel):
@@ -76,6 +81,8 @@ class AnimateRequest(BaseModel):
     outfit_id: str | None = Field(None, max_length=128)
     motion: MotionInput
     body: str | None = Field(None, description="body preset; defaults to the rigged outfit's, else neutral")
+    influences: Literal[4, 8] | None = Field(None, description=INFLUENCES_HELP + " (default 4; with outfit_id: "
+                                             "the rigged outfit's)")
     refine: bool | RefineOptions = Field(False, description="collision refinement post step: true or options")
 
 

@@ -114,26 +114,29 @@ def npz_options(z: dict[str, np.ndarray]) -> dict | None:
 
 # ---- the routes' bodies -------------------------------------------------------------------------
 
-def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings) -> tuple[Any, Any, str | None]:
-    """A rig request's body -> (vertices, faces, body preset or None), not yet checked as a mesh."""
+def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
+                  ) -> tuple[Any, Any, str | None, Any]:
+    """A rig request's body -> (vertices, faces, body preset or None, influences or None), not yet checked."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
         mesh = parts.get("mesh")
         if mesh is None or mesh.filename is None:
             raise InvalidInput("a mesh file is required", "mesh")
-        body = parts.get("body")
+        body, influences = parts.get("body"), parts.get("influences")
         v, f = uploads.mesh_from_file(mesh.data, mesh.filename, max_vertices=settings.max_vertices,
                                       max_faces=settings.max_faces)
-        return v, f, body.data.decode("utf-8", "replace") if body is not None else None
+        return (v, f, body.data.decode("utf-8", "replace") if body is not None else None,
+                influences.data.decode("utf-8", "replace") if influences is not None else None)
     if kind == "application/x-npz":
-        z = npz_members(data, ("vertices", "faces", "body"), settings)
+        z = npz_members(data, ("vertices", "faces", "body", "influences"), settings)
         if "vertices" not in z or "faces" not in z:
             raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
-        return npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), npz_text(z, "body")
+        return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), npz_text(z, "body"),
+                npz_scalar(z, "influences"))
     doc = _document(data)
     _precheck_mesh(doc, settings)
     req = _model(RigRequest, doc)
-    return req.vertices, req.faces, req.body
+    return req.vertices, req.faces, req.body, req.influences
 
 
 def animate_request(kind: str, data: bytes, settings: Settings, engine: Engine) -> dict:
@@ -156,7 +159,7 @@ def _known(outfit_id: str, engine: Engine) -> None:
                        "outfit_id")
 
 
-ANIMATE_NPZ = ("outfit_id", "vertices", "faces", "poses", "translation", "fps", "clip", "body", "refine",
+ANIMATE_NPZ = ("outfit_id", "vertices", "faces", "poses", "translation", "fps", "clip", "body", "influences", "refine",
                *REFINE_OPTIONS)
 
 
@@ -182,7 +185,7 @@ def _animate_npz(data: bytes, settings: Settings, engine: Engine) -> dict:
             raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}", "refine")
         refine = refine if (bool(flag) and refine) else bool(flag)
     request: dict[str, Any] = {"motion": motion, "body": npz_text(z, "body"), "refine": refine or False,
-                               "outfit_id": outfit_id, "outfit": None}
+                               "outfit_id": outfit_id, "outfit": None, "influences": npz_scalar(z, "influences")}
     if outfit_id is None:
         request["outfit"] = {"vertices": npz_numbers(z, "vertices"), "faces": npz_numbers(z, "faces", integer=True)}
     return request

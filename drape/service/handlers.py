@@ -10,6 +10,7 @@ import numpy as np
 from drape.assets.body import list_bodies, load_body
 from drape.assets.motion import list_clips, load_clip
 from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
+from drape.runtime.sparse_rig import INFLUENCES
 from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb, vertex_animation_glb
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
 from drape.service.settings import Settings
@@ -117,9 +118,21 @@ def check_motion(motion: dict, settings: Settings) -> tuple[np.ndarray, np.ndarr
     return p, tr, fps
 
 
-def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str | None) -> RiggedOutfit:
+def check_influences(value: Any, field: str = "influences") -> int:
+    """None -> 4; 4 or 8 (a number, or its text from a form field) -> itself; else a domain error."""
+    if value is None:
+        return 4
+    if isinstance(value, str) and value.strip() in ("4", "8"):
+        return int(value)
+    if isinstance(value, int | float) and not isinstance(value, bool) and value in INFLUENCES:
+        return int(value)
+    raise InvalidInput(f"must be 4 or 8 (skin weights per vertex), got {quoted(str(value))}", field)
+
+
+def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str | None,
+        influences: Any = None) -> RiggedOutfit:
     v, f = check_mesh(vertices, faces, settings)
-    return engine.rig(v, f, check_body(body))
+    return engine.rig(v, f, check_body(body), check_influences(influences))
 
 
 def check_refine(value: Any) -> RefineSettings | None:
@@ -154,15 +167,19 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
                            "outfit_id")
         if request.get("body") not in (None, outfit.body):
             raise InvalidInput(f"outfit {outfit_id} was rigged on body {outfit.body!r}", "body")
+        if request.get("influences") is not None and check_influences(request["influences"]) != outfit.influences:
+            raise InvalidInput(f"outfit {outfit_id} was rigged with {outfit.influences} influences per vertex",
+                               "influences")
         poses, trans, fps = check_motion(request["motion"], settings)
         check_answer_size(len(poses), len(outfit.vertices), max_posed, "motion")
     else:  # every cheap check before the rig
         assert outfit_in is not None
         v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
         body = check_body(request.get("body"))
+        influences = check_influences(request.get("influences"))
         poses, trans, fps = check_motion(request["motion"], settings)
         check_answer_size(len(poses), len(v), max_posed, "motion")
-        outfit = engine.rig(v, f, body)
+        outfit = engine.rig(v, f, body, influences)
     return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")))
 
 

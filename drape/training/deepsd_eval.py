@@ -3,7 +3,9 @@
 Methods, per outfit:
   baseline: LBS with blend weights copied from the nearest body vertex, no PSD;
   no_chi:   drape's weights + D_data only (the model without its physics branch);
-  model:    drape's weights + D = D_data + D_phys (what the service deploys).
+  model:    drape's dense weights (24 a vertex) + D = D_data + D_phys (the network's own rig);
+  served:   the model's rig as the service serves it by default: 4 influences a vertex, blend shapes
+            refit for them (drape.runtime.sparse_rig); served8: the same with 8 influences.
 Metrics over the evaluated frames: collision share (garment vertices inside the
 body, signed distance < 0; nearest-vertex and closest-triangle variants), mean
 edge-length error vs the template (mm), bending (1 - cos of neighbouring face normals).
@@ -31,17 +33,22 @@ from drape.geometry.queries import (
     signed_distance_nearest_vertex,
 )
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
+from drape.runtime.sparse_rig import fit_poses, sparse_rig
 from drape.training import DEFAULT_GROUND_TRUTH
 from drape.training.deepsd_data import eval_specs, load_outfit
 
-METHODS = ("baseline", "no_chi", "model")
+METHODS = ("baseline", "no_chi", "model", "served", "served8")
 LOOSE = ("skirt", "dress")
 
 
 def method_poser(model: DeePSDModel, verts: np.ndarray, faces: np.ndarray, body):  # noqa: ANN001, ANN201
     """One outfit rigged by every method; returns pose(poses (T, 24, 3), trans (T, 3)) -> {method: (T, N, 3)}."""
     rig = model.rig(verts, faces)
-    rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces))}
+    poses_fit = fit_poses()
+    keys_fit = model.pose_keys(poses_fit)
+    rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces)),
+            "served": sparse_rig(verts, rig, body.joints, 4, poses_fit, keys_fit),
+            "served8": sparse_rig(verts, rig, body.joints, 8, poses_fit, keys_fit)}
     base_w = nearest_vertex_weights(verts, body.vertices, body.weights)
 
     def pose(poses: np.ndarray, trans: np.ndarray) -> dict[str, np.ndarray]:

@@ -53,9 +53,10 @@ def _rig_payload(outfit: RiggedOutfit) -> dict[str, np.ndarray]:
         JSON: {"schema": {"$ref": "#/components/schemas/RigRequest"}},
         "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
             "mesh": {"type": "string", "format": "binary", "description": "OBJ, PLY, GLB or glTF file"},
-            "body": {"type": "string"}}}},
+            "body": {"type": "string"}, "influences": {"type": "string", "enum": ["4", "8"]}}}},
         NPZ: {"schema": {"type": "string", "format": "binary",
-                         "description": "npz with vertices (N, 3), faces (F, 3), optional body (unicode scalar)"}},
+                         "description": "npz with vertices (N, 3), faces (F, 3), optional body (unicode scalar), "
+                                        "optional influences (integer scalar, 4 or 8)"}},
     }}},
 )
 async def rig_outfit(request: Request) -> Response:
@@ -69,8 +70,8 @@ async def rig_outfit(request: Request) -> Response:
     content_type = request.headers.get("content-type", "")
 
     def work() -> Response:
-        vertices, faces, body_name = decode.rig_arguments(kind, content_type, data, settings)
-        outfit = handlers.rig(engine, settings, vertices, faces, body_name)
+        vertices, faces, body_name, influences = decode.rig_arguments(kind, content_type, data, settings)
+        outfit = handlers.rig(engine, settings, vertices, faces, body_name, influences)
         if answer == GLB:
             return Response(handlers.outfit_glb(engine, outfit), media_type=GLB)
         return _rig_answer(answer, outfit, settings)
@@ -117,7 +118,7 @@ STREAM_FORMATS = [JSON, NPZ, FRAMES, PC2, GLB]
     JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
                      "npz: outfit_id (text) or vertices (N, 3) + faces (F, 3); clip (text) or poses (T, 24, 3) / "
-                     "(T, 72) with optional translation (T, 3) and fps; optional body (text); refine (boolean "
+                     "(T, 72) with optional translation (T, 3) and fps; optional body (text); influences (4 or 8); refine (boolean "
                      "scalar) and/or the refine options as scalars: eps, max_iterations, relief_iterations"}}}}})
 async def animate_outfit(request: Request) -> Response:
     """Outfit (or outfit_id) + motion (+ refine) -> posed vertices (T, N, 3): JSON, npz, a frame stream, PC2, or
