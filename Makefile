@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: serve test test-slow sim-dataset intrinsic-data lint typecheck clean
+.PHONY: serve test test-slow sim-dataset intrinsic-data check-blender lint typecheck clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -53,6 +53,19 @@ intrinsic-data: $(VENV)/.dev-installed
 	cd $(INTRINSIC_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \
 		--motions motions/proc1.npz,motions/proc2.npz,motions/proc3.npz,motions/proc4.npz,motions/proc5.npz,walk,dance_a \
 		--frames 120 --holdout-params 4 --holdout-motions 2 --workers $(WORKERS) --out .
+
+# Blender (bpy, ~400 MB wheel, needs numpy < 2) lives in its own venv, installed once (stamp file);
+# check-blender imports drape's GLB and PC2 answers into Blender and compares the evaluated meshes
+# with drape's own vertices (writes docs/blender_check.md; bench/blender_check.py says how).
+BLENDER_VENV := .venv-blender
+BLENDER_PY ?= python3.11
+$(BLENDER_VENV)/.bpy-installed:
+	test -x $(BLENDER_VENV)/bin/python || $(BLENDER_PY) -m venv $(BLENDER_VENV)
+	$(BLENDER_VENV)/bin/pip install -q bpy==5.0.1 "numpy<2"
+	touch $@
+
+check-blender: $(VENV)/.dev-installed $(BLENDER_VENV)/.bpy-installed
+	$(BIN)/python -m bench.blender_check
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache
