@@ -72,21 +72,27 @@ def _motions_generate(args: argparse.Namespace) -> None:
 
 
 def _motions_import(args: argparse.Namespace) -> None:
+    import time
+
     from drape.assets.body import load_body
-    from drape.assets.motion import load_motion_npz
+    from drape.assets.motion import MotionFileError, import_motion
 
     src = Path(args.file)
-    if src.suffix.lower() == ".bvh":
-        _require("pymotion", "tools", "motions import FILE.bvh")
-        from drape.assets.bvh import import_bvh
-
-        motion = import_bvh(src, load_body(args.body))
-    elif src.suffix.lower() == ".npz":
-        motion = load_motion_npz(src)
-    else:
-        raise SystemExit(f"{src}: expected a .bvh or an AMASS-style .npz file")
+    if src.suffix.lower() not in (".bvh", ".npz"):
+        raise SystemExit(f"drape: error: {src}: expected a .bvh (CMU joint names) or an AMASS-style .npz file")
+    start = time.perf_counter()
+    try:
+        data = src.read_bytes()
+        imported = import_motion(data, load_body(args.body), fps=args.fps, up=args.up, floor=not args.no_floor,
+                                 name=src.stem)
+    except OSError as exc:
+        raise SystemExit(f"drape: error: {src}: {exc.strerror or exc}") from exc
+    except MotionFileError as exc:
+        raise SystemExit(f"drape: error: {src}: {exc}") from exc
+    motion = imported.motion
     motion.save(args.out)
-    print(f"{args.out}: {motion.num_frames} frames at {motion.fps:g} fps")
+    print(imported.summary())
+    print(f"{args.out}: {motion.num_frames} frames at {motion.fps:g} fps ({time.perf_counter() - start:.2f} s)")
 
 
 def _outfits_generate(args: argparse.Namespace) -> None:
@@ -184,6 +190,15 @@ def _train_deepsd(args: argparse.Namespace) -> None:
     out = Path(args.checkpoints) / "summary.json"
     out.write_text(json.dumps({"config_file": str(args.config), **summary}, indent=2) + "\n")
     print(json.dumps(summary, indent=2))
+
+
+def _train_intrinsic(args: argparse.Namespace) -> None:
+    import json
+
+    from drape.training.intrinsic import load_config, train
+
+    _, summary = train(load_config(args.template, args.config), args.checkpoints)
+    print(json.dumps({k: v for k, v in summary.items() if k != "config"}, indent=2))
 
 
 def _export_deepsd(args: argparse.Namespace) -> None:
@@ -334,9 +349,15 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--body", default="neutral")
     g.add_argument("--out", required=True)
     g.set_defaults(func=_motions_generate)
-    i = motions.add_parser("import", help="convert a CMU-named BVH or an AMASS-style npz to a drape clip")
-    i.add_argument("file")
-    i.add_argument("--body", default="neutral")
+    i = motions.add_parser("import", help="convert a CMU-named BVH or an AMASS-style npz to a drape clip "
+                           "(retarget, Y-up, feet on the floor; docs/motion_import.md)")
+    i.add_argument("file", help="a .bvh with CMU joint names, or an npz: drape's clip, AMASS (SMPL-H (T, 156) or "
+                   "(T, 52, 3)), SMPL (T, 72) or (T, 24, 3), SMPL-X (T, 165)")
+    i.add_argument("--fps", type=float, default=None, help="resample to this frame rate (slerp; default: the file's)")
+    i.add_argument("--body", default="neutral", help="body preset to retarget onto and to put on the floor")
+    i.add_argument("--up", choices=["y", "z"], default=None,
+                   help="the file's up axis (default: detected; AMASS is Z-up, CMU BVH Y-up)")
+    i.add_argument("--no-floor", action="store_true", help="keep the file's heights (no floor step)")
     i.add_argument("--out", required=True)
     i.set_defaults(func=_motions_import)
 
@@ -356,6 +377,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     models_dir = ASSETS / "models" / "deepsd"
     t = sub.add_parser("train", help="train a network").add_subparsers(dest="what", required=True)
+    ti = t.add_parser("intrinsic", help="the intrinsic garment space of one template (resumes from checkpoints)")
+    ti.add_argument("--template", required=True, help="e.g. skirt: drape/training/configs/intrinsic_<template>.json")
+    ti.add_argument("--config", help="another config file")
+    ti.add_argument("--checkpoints", help="default checkpoints/intrinsic/<template>")
+    ti.set_defaults(func=_train_intrinsic)
     td = t.add_parser("deepsd", help="train DeePSD by physics on generated outfits (resumes from checkpoints)")
     td.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     td.add_argument("--checkpoints", default="checkpoints/deepsd")

@@ -16,7 +16,8 @@ is held out, and no parameter set or motion is shared between `train` and
 motions) and `test_params` (unseen parameters, seen motions).
 
 Resumable: an item is finished when its npz (or its rejection note) exists; a
-rerun skips finished items and only rewrites the manifest. Files are written to
+rerun skips finished items. The manifest is rewritten after every item, so a dataset still being
+simulated can already be read. Files are written to
 a temporary name and renamed, so a killed run never leaves a half-written item.
 Items run in a local process pool, or as Ray tasks on an existing cluster
 (`ray_address`); either way the driver writes the files, so both paths produce
@@ -225,6 +226,8 @@ def build_dataset(
         else:
             write_item(out / "items" / f"{it.key}.npz", it, res)
         _write_json(out / "timings.json", timings)
+        # the manifest after every item: a dataset still being simulated can be trained on
+        _write_json(out / "manifest.json", _manifest(out, items, params, s, gate, frames, body, garments, timings))
         if bar is not None:
             bar.update(1)
     if bar is not None:

@@ -1,0 +1,187 @@
+"""`drape train intrinsic --template NAME`: the intrinsic garment space of one template (Wang et al. 2019).
+
+One config (drape/training/configs/intrinsic_<template>.json), two phases, one command:
+
+1. shape: the shape autoencoder N_E/N_D on every training frame, L2 + Laplacian losses;
+2. invariant: N_E frozen; M_E, F_E, F_D on batches of `sets_per_batch` parameter sets x
+   `frames_per_set` frames (frames of one set come from all its motions). Loss per batch:
+   mean within-set variance of z over the variance of the set means (motion invariance, scale-free)
+   + lambda * ||S - F_D(F_E(S, c), c)||^2 (descriptor reconstruction).
+
+Validation: the last `val_params` training parameter sets are held out of training (the dataset's own
+held-out parameter sets and motions are never read here: they are the test table's). After each
+phase's checkpoints the validation error is measured: phase 1, mean vertex error (mm) of the shape
+autoencoder; phase 2, mean vertex error (mm) of decoding each validation set's mean latent along
+its frames' motion windows (what one keyframe gives); the best checkpoint of each phase is kept.
+
+Checkpoints (git-ignored) go to `checkpoints/intrinsic/<template>/`; a rerun resumes. Seeded.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from drape.models.intrinsic import IntrinsicConfig, IntrinsicSpace, uniform_laplacian_loss
+from drape.training.intrinsic_data import Frames, load_frames
+
+CONFIG_DIR = Path(__file__).resolve().parent / "configs"
+
+
+def load_config(template: str | None = None, path: str | Path | None = None) -> dict:
+    p = Path(path) if path else CONFIG_DIR / f"intrinsic_{template}.json"
+    return json.loads(p.read_text())
+
+
+def split_validation(frames: Frames, val_params: int) -> tuple[Frames, Frames]:
+    """The last `val_params` parameter sets present become the validation split."""
+    sets = np.unique(frames.params)
+    if not 0 < val_params < len(sets):
+        raise ValueError(f"val_params must be in [1, {len(sets) - 1}] for {len(sets)} parameter sets")
+    val = np.isin(frames.params, sets[-val_params:])
+    return frames.subset(~val), frames.subset(val)
+
+
+def edges_of(faces: np.ndarray) -> torch.Tensor:
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    return torch.as_tensor(e, dtype=torch.int64)
+
+
+def build_model(config: dict, frames: Frames) -> IntrinsicSpace:
+    cfg = IntrinsicConfig(num_vertices=frames.vertices.shape[1], **config["model"])
+    return IntrinsicSpace(cfg, torch.as_tensor(frames.vertices.mean(axis=0)))
+
+
+@torch.no_grad()
+def shape_error_mm(model: IntrinsicSpace, frames: Frames, batch: int = 512) -> float:
+    err = []
+    for s in range(0, len(frames), batch):
+        v = torch.as_tensor(frames.vertices[s:s + batch])
+        err.append((model.shape.decode(model.shape.encode(v)) - v).norm(dim=-1).mean(dim=1))
+    return float(torch.cat(err).mean() * 1e3)
+
+
+@torch.no_grad()
+def set_latent_error_mm(model: IntrinsicSpace, frames: Frames) -> float:
+    """Decode each parameter set's mean latent along its frames' windows: mean vertex error, mm."""
+    errs = []
+    for p in np.unique(frames.params):
+        f = frames.subset(frames.params == p)
+        v, w = torch.as_tensor(f.vertices), torch.as_tensor(f.windows)
+        z = model.encode(v, w).mean(dim=0, keepdim=True).expand(len(v), -1)
+        errs.append((model.decode(z, w) - v).norm(dim=-1).mean())
+    return float(torch.stack(errs).mean() * 1e3)
+
+
+def invariant_loss(model: IntrinsicSpace, v: torch.Tensor, w: torch.Tensor, sets: int, lam: float,
+                   ) -> tuple[torch.Tensor, dict]:
+    """v (sets * n, N, 3), w (sets * n, W + 1, 24, 3), grouped by set -> loss and its parts."""
+    with torch.no_grad():
+        s = model.shape.encode(v)
+    c = model.motion(w)
+    z = model.f_encoder(s, c)
+    zs = z.reshape(sets, -1, z.shape[1])
+    within = zs.var(dim=1).mean()
+    between = zs.mean(dim=1).var(dim=0).mean()
+    recon = ((model.f_decoder(z, c) - s) ** 2).mean()
+    ratio = within / (between + 1e-6)
+    return ratio + lam * recon, {"ratio": float(ratio), "recon": float(recon)}
+
+
+def _latest(ckpt_dir: Path, phase: str) -> Path | None:
+    found = sorted(ckpt_dir.glob(f"{phase}_*.pt"), key=lambda p: int(p.stem.split("_")[-1]))
+    return found[-1] if found else None
+
+
+def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[IntrinsicSpace, dict]:
+    """Run (or resume) both phases; returns the model with each phase's best (validation) weights and a
+    summary (validation figures, steps, seconds, the config)."""
+    from tqdm import tqdm
+
+    ckpt = Path(ckpt_dir or f"checkpoints/intrinsic/{config['template']}")
+    ckpt.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(config["seed"])
+    rng = np.random.default_rng(config["seed"])
+    window = config["model"]["window"]
+    frames, faces, manifest = load_frames(config["dataset"], window, ("train",))
+    train_f, val_f = split_validation(frames, config["val_params"])
+    log(f"{len(train_f)} training frames ({len(np.unique(train_f.params))} parameter sets), "
+        f"{len(val_f)} validation frames ({len(np.unique(val_f.params))} sets)")
+    model = build_model(config, train_f)
+    edges = edges_of(faces)
+    summary: dict = {"config": config, "train_frames": len(train_f), "val_frames": len(val_f),
+                     "dataset_format": manifest.get("format"), "phases": {}}
+    t0 = time.perf_counter()
+
+    # phase 1: the shape autoencoder
+    sc = config["shape"]
+    opt = torch.optim.Adam(model.shape.parameters(), lr=sc["lr"])
+    start, best = 0, (float("inf"), None)  # type: tuple[int, tuple[float, dict | None]]
+    last = _latest(ckpt, "shape")
+    if last is not None:
+        state = torch.load(last, weights_only=False)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        start, best = state["step"], state["best"]
+    verts = torch.as_tensor(train_f.vertices)
+    for step in tqdm(range(start, sc["steps"]), desc="shape", initial=start, total=sc["steps"]):
+        idx = torch.as_tensor(rng.integers(0, len(verts), sc["batch"]))
+        v = verts[idx]
+        pred = model.shape.decode(model.shape.encode(v))
+        loss = ((pred - v) ** 2).sum(-1).mean() + sc["laplacian"] * uniform_laplacian_loss(pred, v, edges)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        if (step + 1) % config["checkpoint_every"] == 0 or step + 1 == sc["steps"]:
+            err = shape_error_mm(model, val_f)
+            if err < best[0]:
+                best = (err, {k: t.clone() for k, t in model.shape.state_dict().items()})
+            torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
+                        "best": best}, ckpt / f"shape_{step + 1}.pt")
+            log(f"shape step {step + 1}: validation vertex error {err:.2f} mm (best {best[0]:.2f})")
+    if best[1] is not None:
+        model.shape.load_state_dict(best[1])
+    summary["phases"]["shape"] = {"steps": sc["steps"], "val_vertex_error_mm": best[0]}
+
+    # phase 2: the motion-invariant autoencoder (N_E/N_D frozen)
+    ic = config["invariant"]
+    params = [p for name, p in model.named_parameters() if not name.startswith("shape.")]
+    opt = torch.optim.Adam(params, lr=ic["lr"])
+    start, best = 0, (float("inf"), None)
+    parts: dict = {}
+    last = _latest(ckpt, "invariant")
+    if last is not None:
+        state = torch.load(last, weights_only=False)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        start, best, parts = state["step"], state["best"], state.get("parts", {})
+    by_set = {p: np.flatnonzero(train_f.params == p) for p in np.unique(train_f.params)}
+    set_ids = np.array(sorted(by_set))
+    wins = torch.as_tensor(train_f.windows)
+    for step in tqdm(range(start, ic["steps"]), desc="invariant", initial=start, total=ic["steps"]):
+        chosen = rng.choice(set_ids, ic["sets_per_batch"], replace=False)
+        pick = np.concatenate([rng.choice(by_set[p], ic["frames_per_set"]) for p in chosen])
+        loss, parts = invariant_loss(model, verts[pick], wins[pick], len(chosen), ic["lambda"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        if (step + 1) % config["checkpoint_every"] == 0 or step + 1 == ic["steps"]:
+            err = set_latent_error_mm(model, val_f)
+            if err < best[0]:
+                best = (err, {k: t.clone() for k, t in model.state_dict().items()})
+            torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
+                        "best": best, "parts": parts}, ckpt / f"invariant_{step + 1}.pt")
+            log(f"invariant step {step + 1}: {parts}, validation set-latent vertex error {err:.2f} mm "
+                f"(best {best[0]:.2f})")
+    if best[1] is not None:
+        model.load_state_dict(best[1])
+    summary["phases"]["invariant"] = {"steps": ic["steps"], "val_set_latent_error_mm": best[0], "last": parts}
+    summary["seconds"] = round(time.perf_counter() - t0, 1)
+    torch.save({"model": model.state_dict(), "config": config, "model_config": model.cfg.to_dict(),
+                "summary": summary, "faces": faces}, ckpt / "best.pt")
+    return model, summary

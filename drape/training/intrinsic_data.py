@@ -1,0 +1,93 @@
+"""Training frames of the intrinsic garment space from a simulated dataset (`drape sim dataset`).
+
+Per accepted item (one parameter set x one motion): the garment's vertices and the body's joint
+positions, both moved into the character space of each frame (`character_space_numpy`), and each
+frame's motion window: the joint positions of that frame and the W before it (the first frame
+repeated before the sequence starts), all in that frame's character space.
+
+Arrays of a `Frames` set: vertices (F, N, 3) float32 m, windows (F, W + 1, 24, 3) float32 m,
+params (F,) int (the parameter-set index), motions (F,) int (index into `motion_names`),
+frame (F,) int (the frame within its sequence).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from drape.assets.body import load_body
+from drape.geometry.skeleton import forward_kinematics
+
+
+def root_frames(poses: np.ndarray, trans: np.ndarray, rest_joints: np.ndarray, parents: np.ndarray,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """poses (T, 24, 3) rad, trans (T, 3) m -> (joint positions (T, 24, 3), root position (T, 3),
+    root rotation (T, 3, 3)), metres, world space."""
+    tf, joints = forward_kinematics(poses, rest_joints, parents, trans)
+    return joints, joints[:, 0], tf[:, 0, :3, :3]
+
+
+def character_space_numpy(points: np.ndarray, root_position: np.ndarray, root_rotation: np.ndarray) -> np.ndarray:
+    """points (T, ..., 3) world -> R_t^T (p - root_t) per frame t; root_position (T, 3), root_rotation (T, 3, 3)."""
+    shape = points.shape
+    p = points.reshape(shape[0], -1, 3) - root_position[:, None, :]
+    return np.einsum("tnj,tjk->tnk", p, root_rotation).reshape(shape)
+
+
+def motion_windows(joints: np.ndarray, root_position: np.ndarray, root_rotation: np.ndarray,
+                   window: int) -> np.ndarray:
+    """joints (T, 24, 3) world -> (T, window + 1, 24, 3): frames t - window .. t (clamped at 0), each
+    in the character space of frame t."""
+    T = len(joints)
+    idx = np.clip(np.arange(T)[:, None] + np.arange(-window, 1)[None, :], 0, None)  # (T, W + 1)
+    w = joints[idx] - root_position[:, None, None, :]  # (T, W + 1, 24, 3)
+    return np.einsum("twnj,tjk->twnk", w, root_rotation).astype(np.float32)
+
+
+@dataclass
+class Frames:
+    vertices: np.ndarray
+    windows: np.ndarray
+    params: np.ndarray
+    motions: np.ndarray
+    frame: np.ndarray
+    motion_names: list[str]
+
+    def __len__(self) -> int:
+        return len(self.vertices)
+
+    def subset(self, mask: np.ndarray) -> Frames:
+        return Frames(self.vertices[mask], self.windows[mask], self.params[mask], self.motions[mask],
+                      self.frame[mask], self.motion_names)
+
+
+def load_frames(dataset: str | Path, window: int, splits: tuple[str, ...] = ("train",),
+                garment: str | None = None) -> tuple[Frames, np.ndarray, dict]:
+    """Every accepted item of the given splits -> (Frames, faces (F, 3) int32, the manifest)."""
+    root = Path(dataset)
+    manifest = json.loads((root / "manifest.json").read_text())
+    body = load_body(manifest["body"])
+    items = [it for it in manifest["items"] if it["split"] in splits
+             and (garment is None or it["garment"] == garment)]
+    if not items:
+        raise ValueError(f"{root}: no accepted items in splits {splits}")
+    names = sorted({it["motion"] for it in items})
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("vertices", "windows", "params", "motions", "frame")}
+    faces = None
+    for it in items:
+        with np.load(root / it["file"], allow_pickle=False) as z:
+            verts, poses, trans = z["vertices"], z["poses"].astype(np.float64), z["trans"].astype(np.float64)
+            faces = z["faces"] if faces is None else faces
+        joints, rp, rr = root_frames(poses, trans, body.joints, body.parents)
+        parts["vertices"].append(character_space_numpy(verts.astype(np.float64), rp, rr).astype(np.float32))
+        parts["windows"].append(motion_windows(joints, rp, rr, window))
+        parts["params"].append(np.full(len(verts), it["params"]))
+        parts["motions"].append(np.full(len(verts), names.index(it["motion"])))
+        parts["frame"].append(np.arange(len(verts)))
+    cat = {k: np.concatenate(v) for k, v in parts.items()}
+    frames = Frames(cat["vertices"], cat["windows"], cat["params"], cat["motions"], cat["frame"], names)
+    assert faces is not None
+    return frames, np.asarray(faces, np.int32), manifest
