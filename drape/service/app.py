@@ -25,7 +25,7 @@ from drape.service.admission import Admission
 from drape.service.http import require_api_key
 from drape.service.metrics import CountRequests, Metrics
 from drape.service.routers import catalog as catalog_router
-from drape.service.routers import health, models, outfits
+from drape.service.routers import health, models, outfits, viewer
 from drape.service.settings import Settings
 
 
@@ -67,6 +67,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(CountRequests, metrics=metrics)  # outside problems.CatchAll: counts its 500s too
 
     app.include_router(health.router)
+    app.include_router(viewer.router)  # the page and its files; the page calls /v1 with the key typed into it
     auth = [Depends(require_api_key)]
     for router in (catalog_router.router, models.router, outfits.router, outfits.refine_router):
         app.include_router(router, dependencies=auth)

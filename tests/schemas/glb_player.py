@@ -65,8 +65,11 @@ class GlbPlayer:
             mats.append(m)
         return mats
 
-    def positions(self, mesh_name: str, frame: int | None = None) -> np.ndarray:
-        """World positions (N, 3) of the named mesh's node at animation key `frame` (None: rest)."""
+    def positions(self, mesh_name: str, frame: int | None = None, max_sets: int | None = None) -> np.ndarray:
+        """World positions (N, 3) of the named mesh's node at animation key `frame` (None: rest). With
+        `max_sets`, skinning reads only the first max_sets JOINTS_n/WEIGHTS_n sets, their weights scaled
+        to sum to 1 per vertex: what an engine that reads fewer sets does (three.js's GLTFLoader reads
+        JOINTS_0/WEIGHTS_0 and normalises them)."""
         local = self._local(frame)
         parent = {c: i for i, n in enumerate(self.doc.nodes) for c in n.children}
 
@@ -90,12 +93,14 @@ class GlbPlayer:
         ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
         joint_mats = np.stack([world(j) @ ibm[k] for k, j in enumerate(skin.joints)])
         out = np.zeros_like(pos)
+        total = np.zeros((len(pos), 1))
         homo = np.concatenate([pos, np.ones((len(pos), 1))], axis=1)
         s = 0
-        while getattr(prim.attributes, f"JOINTS_{s}", None) is not None:
+        while getattr(prim.attributes, f"JOINTS_{s}", None) is not None and (max_sets is None or s < max_sets):
             joints = self.accessor(getattr(prim.attributes, f"JOINTS_{s}")).astype(int)
             w = self.accessor(getattr(prim.attributes, f"WEIGHTS_{s}")).astype(np.float64)
             for c in range(4):
                 out += w[:, c:c + 1] * np.einsum("nij,nj->ni", joint_mats[joints[:, c]], homo)[:, :3]
+            total += w.sum(axis=1, keepdims=True)
             s += 1
-        return out
+        return out if max_sets is None else out / total

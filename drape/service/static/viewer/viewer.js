@@ -1,0 +1,277 @@
+// drape viewer: rig an outfit (POST /v1/outfits/rig, multipart), animate it (POST /v1/outfits/animate,
+// Accept: model/gltf-binary) and play the GLB with three.js: body and garment, orbit controls, play/pause and
+// a frame slider. Every address is relative to /viewer/, so the page works under any prefix.
+import * as THREE from 'three';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const API = new URL('../v1/', window.location.href);
+const $ = (id) => document.getElementById(id);
+// what the page is doing, for people and for tests
+const state = window.drapeViewer = {ready: false, loaded: false, playing: false, frame: 0, frames: 0,
+  framesRendered: 0, error: null, webgl: null};
+const motions = new Map();
+
+// ---- the service ---------------------------------------------------------------------------------------
+
+function withKey(headers = {}) {
+  const key = $('key').value.trim();
+  return key ? {...headers, authorization: `Bearer ${key}`} : headers;
+}
+
+async function api(path, init = {}) {
+  const r = await fetch(new URL(path, API), {...init, headers: withKey(init.headers)});
+  if (!r.ok) {
+    let detail = r.statusText;
+    try { const p = await r.json(); detail = `${p.title || ''}: ${p.detail || ''}`; } catch { /* not a problem document */ }
+    throw new Error(`${r.status} ${detail}${r.status === 401 ? '\nType the API key above.' : ''}`);
+  }
+  return r;
+}
+
+function say(text, error = false) {
+  $('status').textContent = text;
+  $('status').className = error ? 'error' : '';
+  state.error = error ? text : null;
+}
+
+function option(select, value, text) {
+  const o = document.createElement('option');
+  o.value = value;
+  o.textContent = text;
+  select.append(o);
+}
+
+async function loadCatalogue() {
+  try {
+    const [bodies, clips] = await Promise.all([api('bodies').then((r) => r.json()), api('motions').then((r) => r.json())]);
+    $('body').replaceChildren();
+    for (const b of bodies.bodies) option($('body'), b.name, `${b.name} (${(b.height).toFixed(2)} m)`);
+    $('body').value = bodies.bodies.some((b) => b.name === 'neutral') ? 'neutral' : bodies.bodies[0].name;
+    $('clip').replaceChildren();
+    motions.clear();
+    for (const m of clips.motions) {
+      motions.set(m.name, m);
+      option($('clip'), m.name, `${m.name} (${m.frames} frames)`);
+    }
+    if (motions.has('walk')) $('clip').value = 'walk';
+    state.ready = true;
+    $('play').disabled = false;
+    say('Pick a body, an outfit and a motion, then Play.');
+  } catch (e) {
+    say(`Could not read the catalogue: ${e.message}`, true);
+  }
+}
+
+// The outfit_id of a rig answer in npz: numpy's uncompressed zip, member outfit_id.npy (a unicode scalar).
+function npzMember(buffer, name) {
+  const dv = new DataView(buffer);
+  const bytes = new Uint8Array(buffer);
+  let end = -1;
+  for (let i = buffer.byteLength - 22; i >= Math.max(0, buffer.byteLength - 65557); i--) {
+    if (dv.getUint32(i, true) === 0x06054b50) { end = i; break; }
+  }
+  if (end < 0) throw new Error('the rig answer is not an npz archive');
+  const count = dv.getUint16(end + 10, true);
+  let p = dv.getUint32(end + 16, true);
+  for (let k = 0; k < count && dv.getUint32(p, true) === 0x02014b50; k++) {
+    const nameLength = dv.getUint16(p + 28, true);
+    const entry = new TextDecoder().decode(bytes.subarray(p + 46, p + 46 + nameLength));
+    if (entry === `${name}.npy`) {
+      if (dv.getUint16(p + 10, true) !== 0) throw new Error(`${name}: a compressed member`);
+      const local = dv.getUint32(p + 42, true);
+      const start = local + 30 + dv.getUint16(local + 26, true) + dv.getUint16(local + 28, true);
+      return bytes.subarray(start, start + dv.getUint32(p + 20, true));
+    }
+    p += 46 + nameLength + dv.getUint16(p + 30, true) + dv.getUint16(p + 32, true);
+  }
+  throw new Error(`no ${name} in the rig answer`);
+}
+
+function npyText(npy) {
+  const dv = new DataView(npy.buffer, npy.byteOffset, npy.byteLength);
+  const headerStart = npy[6] === 1 ? 10 : 12;
+  const headerLength = npy[6] === 1 ? dv.getUint16(8, true) : dv.getUint32(8, true);
+  const header = new TextDecoder().decode(npy.subarray(headerStart, headerStart + headerLength));
+  const m = /'descr':\s*'([<>|=]?)U(\d+)'/.exec(header);
+  if (!m) throw new Error('outfit_id is not text');
+  let text = '';
+  for (let i = 0; i < Number(m[2]); i++) {
+    const c = dv.getUint32(headerStart + headerLength + 4 * i, m[1] !== '>');
+    if (c === 0) break;
+    text += String.fromCodePoint(c);
+  }
+  return text;
+}
+
+async function outfitMesh() {
+  const choice = $('outfit').value;
+  if (choice === 'file') {
+    const file = $('mesh').files[0];
+    if (!file) throw new Error('Choose a mesh file (OBJ, PLY, GLB or glTF).');
+    return [file, file.name];
+  }
+  const r = await fetch(`outfits/${choice}.obj`);
+  if (!r.ok) throw new Error(`${r.status}: no generated ${choice}`);
+  return [await r.blob(), `${choice}.obj`];
+}
+
+async function play() {
+  $('play').disabled = true;
+  try {
+    say('Rigging the outfit…');
+    const [mesh, fileName] = await outfitMesh();
+    const form = new FormData();
+    form.append('mesh', mesh, fileName);
+    form.append('body', $('body').value);
+    const rig = await api('outfits/rig', {method: 'POST', body: form, headers: {accept: 'application/x-npz'}});
+    const outfitId = npyText(npzMember(await rig.arrayBuffer(), 'outfit_id'));
+    const clip = $('clip').value;
+    say(`Animating ${clip}${$('refine').checked ? ' with refinement' : ''}…`);
+    const t0 = performance.now();
+    const answer = await api('outfits/animate', {method: 'POST',
+      headers: {'content-type': 'application/json', accept: 'model/gltf-binary'},
+      body: JSON.stringify({outfit_id: outfitId, motion: {clip}, refine: $('refine').checked})});
+    const glb = await answer.arrayBuffer();
+    await show(glb, motions.get(clip));
+    say(`${clip}: ${state.frames} frames, ${(glb.byteLength / 2 ** 20).toFixed(1)} MB GLB in ` +
+        `${((performance.now() - t0) / 1000).toFixed(1)} s.\nDrag to orbit, scroll to zoom.`);
+  } catch (e) {
+    say(e.message, true);
+  } finally {
+    $('play').disabled = false;
+  }
+}
+
+// ---- the scene ----------------------------------------------------------------------------------------
+
+const canvas = $('view');
+let renderer;
+try {
+  renderer = new THREE.WebGLRenderer({canvas, antialias: true});
+  const gl = renderer.getContext();
+  state.webgl = gl.getParameter(gl.VERSION);
+} catch (e) {
+  say(`This browser cannot draw WebGL: ${e.message}`, true);
+  throw e;
+}
+renderer.setPixelRatio(window.devicePixelRatio);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0xeef0f4);
+scene.add(new THREE.HemisphereLight(0xffffff, 0x8a8f99, 2.2));
+const sun = new THREE.DirectionalLight(0xffffff, 2.0);
+sun.position.set(2, 4, 3);
+scene.add(sun);
+const grid = new THREE.GridHelper(20, 40, 0x9aa1ad, 0xc9cdd5);
+scene.add(grid);
+const camera = new THREE.PerspectiveCamera(35, 1, 0.05, 100);
+camera.position.set(0, 1.2, 4.2);
+const controls = new OrbitControls(camera, canvas);
+controls.target.set(0, 0.95, 0);
+controls.enableDamping = true;
+
+const materials = {
+  body: new THREE.MeshStandardMaterial({color: 0xc8b5a6, roughness: 0.75}),
+  outfit: new THREE.MeshStandardMaterial({color: 0x3a6fc0, roughness: 0.65, side: THREE.DoubleSide}),
+};
+const loader = new GLTFLoader();
+let model = null;
+let mixer = null;
+let action = null;
+let root = null;
+let fps = 30;
+const followed = new THREE.Vector3();
+
+async function show(buffer, clip) {
+  const gltf = await loader.parseAsync(buffer, '');
+  if (model) {
+    scene.remove(model);
+    model.traverse((o) => { if (o.isMesh) o.geometry.dispose(); });
+  }
+  model = gltf.scene;
+  root = null;
+  model.traverse((o) => {
+    if (!o.isMesh) return;
+    o.frustumCulled = false;  // the bounds of the rest pose do not follow the motion
+    o.geometry.computeVertexNormals();
+    o.material = materials[o.name] || materials.outfit;
+    if (o.isSkinnedMesh && !root) root = o.skeleton.bones[0];
+  });
+  scene.add(model);
+  mixer = new THREE.AnimationMixer(model);
+  action = mixer.clipAction(gltf.animations[0]);
+  action.play();
+  fps = clip ? clip.fps : 30;
+  state.frames = clip ? clip.frames : Math.round(gltf.animations[0].duration * fps) + 1;
+  const slider = $('frame');
+  slider.max = String(state.frames - 1);
+  slider.disabled = false;
+  $('pause').disabled = false;
+  mixer.update(0);
+  model.updateMatrixWorld(true);
+  if (root) {  // look at the body from the front (+Z), and follow its root from here on
+    root.getWorldPosition(followed);
+    controls.target.set(followed.x, 0.95, followed.z);
+    camera.position.set(followed.x + 0.6, 1.35, followed.z + 4.2);
+  }
+  setPlaying(true);
+  state.loaded = true;
+}
+
+function setPlaying(playing) {
+  state.playing = playing;
+  $('pause').textContent = playing ? 'Pause' : 'Play';
+}
+
+function showFrame() {
+  const frame = Math.min(state.frames - 1, Math.max(0, Math.round(action.time * fps)));
+  state.frame = frame;
+  $('frame').value = String(frame);
+  $('frameLabel').textContent = `${frame} / ${state.frames - 1}`;
+}
+
+$('pause').addEventListener('click', () => setPlaying(!state.playing));
+$('frame').addEventListener('input', () => {
+  if (!action) return;
+  setPlaying(false);
+  action.time = Number($('frame').value) / fps;
+  mixer.update(0);
+  showFrame();
+});
+$('play').addEventListener('click', play);
+$('outfit').addEventListener('change', () => { $('mesh').hidden = $('outfit').value !== 'file'; });
+$('key').addEventListener('change', loadCatalogue);
+
+function resize() {
+  const w = canvas.clientWidth;
+  const h = canvas.clientHeight;
+  if (canvas.width !== Math.floor(w * renderer.getPixelRatio()) || canvas.height !== Math.floor(h * renderer.getPixelRatio())) {
+    renderer.setSize(w, h, false);
+    camera.aspect = w / Math.max(h, 1);
+    camera.updateProjectionMatrix();
+  }
+}
+
+const here = new THREE.Vector3();
+let last = performance.now();
+renderer.setAnimationLoop((now) => {
+  const dt = Math.min(0.1, (now - last) / 1000);
+  last = now;
+  resize();
+  if (action && state.playing) {
+    mixer.update(dt);
+    showFrame();
+  }
+  if (root) {  // the camera moves with the body's root (walks leave the start)
+    root.getWorldPosition(here);
+    const step = here.clone().sub(followed).setY(0);
+    camera.position.add(step);
+    controls.target.add(step);
+    followed.copy(here);
+  }
+  controls.update();
+  renderer.render(scene, camera);
+  if (state.loaded) state.framesRendered += 1;
+});
+
+loadCatalogue();
