@@ -1,4 +1,5 @@
-"""Motions: a pose sequence on the 24-joint skeleton, its loaders and time operations.
+"""Motions: a pose sequence on the 24-joint skeleton, its loaders, time operations, floor contact and
+the file importer behind `drape motions import` and the service's `motion_file` (docs/motion_import.md).
 
 poses: (T, 24, 3) float32 axis-angle radians (local, relative to the T-pose rest);
 trans: (T, 3) float32 metres (root translation added to every joint); fps: frames/s.
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drape.assets.body import Body
 from drape.geometry.rotations import (
     axis_angle_to_quaternion,
     quaternion_multiply,
@@ -100,15 +102,23 @@ def _slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
+def resampled_count(num_frames: int, src_fps: float, fps: float) -> int:
+    """Frames `resample` makes from num_frames at src_fps: one every 1/fps s from the first frame, within
+    the clip (the last may fall short of the clip's end by less than one new frame)."""
+    if num_frames <= 1:
+        return num_frames
+    return int(np.floor((num_frames - 1) * fps / src_fps + 1e-6)) + 1
+
+
 def resample(motion: Motion, fps: float) -> Motion:
-    """Resample to a new frame rate: slerp for rotations, linear for translation."""
+    """Resample to a new frame rate: new frame k is the source at time k / fps, rotations interpolated
+    with slerp (per joint, shortest arc), translation linearly; no frame is dropped or repeated."""
     T = motion.num_frames
-    duration = (T - 1) / motion.fps
-    n = int(round(duration * fps)) + 1
-    src = np.linspace(0, T - 1, n) if T > 1 else np.zeros(1)
-    i0 = np.floor(src).astype(int).clip(0, T - 1)
+    n = resampled_count(T, motion.fps, fps)
+    src = np.minimum(np.arange(n) * (motion.fps / fps), T - 1)
+    i0 = np.floor(src + 1e-9).astype(int).clip(0, T - 1)
     i1 = (i0 + 1).clip(0, T - 1)
-    t = src - i0
+    t = np.clip(src - i0, 0.0, 1.0)
     q = axis_angle_to_quaternion(motion.poses)
     qi = _slerp(q[i0], q[i1], np.repeat(t[:, None], NUM_JOINTS, axis=1))
     trans = motion.trans[i0] * (1 - t[:, None]) + motion.trans[i1] * t[:, None]
@@ -159,3 +169,188 @@ def tile_cycle(motion: Motion, min_frames: int) -> Motion:
         origin = origin + r @ step
         rot_k += d_yaw
     return Motion(np.concatenate(out_p), np.concatenate(out_t), motion.fps, motion.name)
+
+
+# ---- floor contact ------------------------------------------------------------------------------
+
+FOOT_JOINTS = ("left_ankle", "right_ankle", "left_foot", "right_foot")
+FLOOR_SAMPLES = 120  # frames posed (evenly spread) to estimate a clip's floor
+
+
+def foot_heights(motion: Motion, body: Body, chunk: int = 512) -> np.ndarray:
+    """Lowest foot point per frame (T,) metres: bench/foot_floor.py's measure (deepmimic.foot_heights:
+    the vertices whose strongest skin weight is an ankle or foot joint), posing only those, in chunks."""
+    from drape.geometry.lbs import pose_mesh
+    from drape.geometry.skeleton import JOINT_INDEX
+
+    mask = np.isin(body.weights.argmax(axis=1), [JOINT_INDEX[n] for n in FOOT_JOINTS])
+    v, w = body.vertices[mask], body.weights[mask]
+    return np.concatenate([
+        pose_mesh(v, w, body.joints, motion.poses[s:s + chunk], motion.trans[s:s + chunk], body.parents)[..., 1].min(1)
+        for s in range(0, motion.num_frames, chunk)])
+
+
+def floor_offset(motion: Motion, body: Body, samples: int = FLOOR_SAMPLES) -> float:
+    """A clip's floor height (m): the median over frames (at most `samples`, evenly spread) of the body's
+    lowest point per frame, posed with the whole body mesh."""
+    idx = np.unique(np.linspace(0, motion.num_frames - 1, min(samples, motion.num_frames)).round().astype(int))
+    lowest = np.concatenate([body.pose(motion.poses[idx[s:s + 32]], motion.trans[idx[s:s + 32]])[..., 1].min(1)
+                             for s in range(0, len(idx), 32)])
+    return float(np.median(lowest))
+
+
+@dataclass(frozen=True)
+class FloorFix:
+    """A clip put on the floor: the height subtracted from trans (m) and bench/foot_floor.py's foot-floor
+    error (median over frames of |lowest foot point|, m) before and after."""
+
+    motion: Motion
+    shift: float
+    before: float
+    after: float
+
+
+def put_on_floor(motion: Motion, body: Body) -> FloorFix:
+    """Shift the clip vertically so the body's lowest point sits on y = 0 (median over frames)."""
+    feet = foot_heights(motion, body)
+    shift = floor_offset(motion, body)
+    trans = motion.trans.astype(np.float64)
+    trans[:, 1] -= shift
+    return FloorFix(Motion(motion.poses, trans, motion.fps, motion.name), shift,
+                    float(np.median(np.abs(feet))), float(np.median(np.abs(feet - shift))))
+
+
+# ---- importing files (`drape motions import`, the service's motion_file) -----------------------
+
+class MotionFileError(ValueError):
+    """A motion file drape cannot import; the message says what was expected."""
+
+
+class MotionTooLong(MotionFileError):
+    """A motion file with more frames than a limit allows."""
+
+
+@dataclass(frozen=True)
+class ImportedMotion:
+    """An imported clip and what the importer did to it."""
+
+    motion: Motion
+    kind: str  # "bvh" or "npz"
+    layout: str
+    source_frames: int
+    source_fps: float
+    up: str
+    up_reason: str
+    dropped_tpose: bool
+    floor: FloorFix | None
+
+    def summary(self) -> str:
+        m = self.motion
+        lines = [f"{self.kind}: {self.layout}, {self.source_frames} frames at {self.source_fps:g} fps, "
+                 f"{self.up.upper()}-up ({self.up_reason})"]
+        if self.dropped_tpose:
+            lines.append("dropped frame 0: the T-pose frame the CMU BVH conversion adds")
+        if m.fps != self.source_fps:
+            lines.append(f"resampled to {m.fps:g} fps (slerp): {m.num_frames} frames")
+        if self.floor is not None:
+            f = self.floor
+            lines.append(f"floor: lowest body point moved down {f.shift * 1e3:.1f} mm; foot-floor error (median "
+                         f"|lowest foot point|) {f.before * 1e3:.1f} mm before, {f.after * 1e3:.1f} mm after")
+        return "\n".join(lines)
+
+
+def sniff_motion_file(data: bytes) -> str:
+    """"bvh" or "npz" from a file's first bytes; MotionFileError for anything else."""
+    if data[:4] == b"PK\x03\x04":
+        return "npz"
+    if data.lstrip()[:9].upper() == b"HIERARCHY":
+        return "bvh"
+    raise MotionFileError("expected a BVH file (text starting with HIERARCHY) or an npz (a zip of .npy arrays)")
+
+
+def import_motion(data: bytes, body: Body, *, fps: float | None = None, up: str | None = None,
+                  floor: bool = True, name: str = "", max_frames: int | None = None,
+                  max_source_frames: int | None = None, max_decoded_bytes: int | None = None) -> ImportedMotion:
+    """A motion file's bytes (CMU-named BVH, or an npz: drape's clip, AMASS, SMPL-family poses) -> a clip
+    on `body`: retargeted (BVH) or converted (npz), turned Y-up (`up`: "y", "z", None = detect), the
+    added T-pose frame of raw CMU BVH dropped, resampled to `fps` (None: the file's), put on the floor.
+
+    Limits (None: none): max_source_frames bounds the file's frames before its numbers are worked on,
+    max_frames the frames after resampling (MotionTooLong), max_decoded_bytes an npz's arrays.
+    MotionFileError (a ValueError) names what was expected for anything else.
+    """
+    if up not in (None, "y", "z"):
+        raise MotionFileError(f"up must be 'y' or 'z', got {up!r}")
+    if fps is not None and not 0 < fps <= 1000:
+        raise MotionFileError(f"fps must be in (0, 1000], got {fps}")
+    kind = sniff_motion_file(data)
+    if kind == "bvh":
+        return _import_bvh(data, body, fps, up, floor, name, max_frames, max_source_frames)
+    return _import_npz(data, body, fps, up, floor, name, max_frames, max_source_frames, max_decoded_bytes)
+
+
+def _check_frames(n: int, limit: int | None, what: str) -> None:
+    if limit is not None and n > limit:
+        raise MotionTooLong(f"{n} frames {what} exceed the limit of {limit}")
+
+
+def _finish(motion: Motion, body: Body, fps: float | None, floor: bool) -> tuple[Motion, FloorFix | None]:
+    if fps is not None and fps != motion.fps:
+        motion = resample(motion, fps)
+    fix = put_on_floor(motion, body) if floor else None
+    return (fix.motion if fix is not None else motion), fix
+
+
+def _import_bvh(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, name: str,
+                max_frames: int | None, max_source_frames: int | None) -> ImportedMotion:
+    from dataclasses import replace
+
+    from drape.assets import bvh
+
+    text = data.decode("latin-1")
+    try:
+        header = bvh.read_header(text)
+        _check_frames(header.num_frames, max_source_frames, "in the file")
+        clip = bvh.parse_bvh(text)
+        dropped = bvh.has_added_tpose(clip)
+        if dropped:
+            clip = replace(clip, values=clip.values[1:])
+        _check_frames(clip.num_frames if fps is None else resampled_count(clip.num_frames, clip.fps, fps),
+                      max_frames, f"at {fps or clip.fps:g} fps")
+        chosen, why = (up, "as asked") if up is not None else bvh.detect_up(clip)
+        motion = bvh.retarget(clip, body, name, "", up=chosen)
+    except bvh.BvhError as exc:
+        raise MotionFileError(str(exc)) from exc
+    out, fix = _finish(motion, body, fps, floor)
+    return ImportedMotion(out, "bvh", f"CMU-named BVH, {len(clip.names)} joints", header.num_frames, clip.fps,
+                          chosen, why, dropped, fix)
+
+
+def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, name: str,
+                max_frames: int | None, max_source_frames: int | None,
+                max_decoded_bytes: int | None) -> ImportedMotion:
+    from drape.assets import amass
+    from drape.schemas.binary import NpzTooLarge, decode_npz
+
+    try:
+        z = decode_npz(data, amass.NPZ_MEMBERS, max_bytes=max_decoded_bytes)
+    except NpzTooLarge as exc:
+        raise MotionTooLong(str(exc)) from exc
+    except ValueError as exc:
+        raise MotionFileError(f"not a readable npz ({exc})") from exc
+    try:
+        clip = amass.read_pose_arrays(z)
+    except amass.PoseArrayError as exc:
+        raise MotionFileError(str(exc)) from exc
+    T = len(clip.poses)
+    src_fps = clip.fps if clip.fps is not None else (fps or 30.0)
+    _check_frames(T, max_source_frames, "in the file")
+    _check_frames(T if fps is None else resampled_count(T, src_fps, fps), max_frames, f"at {fps or src_fps:g} fps")
+    chosen, why = (up, "as asked") if up is not None else amass.detect_up(clip)
+    poses, trans = clip.poses, clip.trans
+    if chosen == "z":
+        poses, trans = amass.z_up_to_y_up(poses, trans, body.joints[0])
+    motion = Motion(poses, trans, src_fps, name)
+    out, fix = _finish(motion, body, fps, floor)
+    layout = clip.layout + ("" if clip.fps is not None else f", no frame rate in the file: {src_fps:g} fps assumed")
+    return ImportedMotion(out, "npz", layout, T, src_fps, chosen, why, False, fix)

@@ -103,7 +103,11 @@ def npz_scalar(z: dict[str, np.ndarray], name: str) -> float | int | None:
 def npz_options(z: dict[str, np.ndarray]) -> dict | None:
     """The refine options among an npz's members (scalars eps, max_iterations, relief_iterations), validated
     like the JSON request's `options`; None when it has none."""
-    given = {k: npz_scalar(z, k) for k in REFINE_OPTIONS if k in z}
+    return _refine_options({k: npz_scalar(z, k) for k in REFINE_OPTIONS if k in z})
+
+
+def _refine_options(given: dict) -> dict | None:
+    """Refine options given as loose values, validated like the JSON request's `options`; None for none."""
     if not given:
         return None
     try:
@@ -139,11 +143,14 @@ def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
     return req.vertices, req.faces, req.body, req.influences
 
 
-def animate_request(kind: str, data: bytes, settings: Settings, engine: Engine) -> dict:
-    """An animate request's body (JSON, or an npz of the same arrays) -> a dict shaped like AnimateRequest;
-    an unknown outfit_id and counts over the limits are refused before the numbers are validated."""
+def animate_request(kind: str, data: bytes, settings: Settings, engine: Engine, content_type: str = "") -> dict:
+    """An animate request's body (JSON, an npz of the same arrays, or a multipart form with a motion_file)
+    -> a dict shaped like AnimateRequest; an unknown outfit_id and counts over the limits are refused
+    before the numbers are validated."""
     if kind == "application/x-npz":
         return _animate_npz(data, settings, engine)
+    if kind == "multipart/form-data":
+        return _animate_form(data, content_type, settings, engine)
     doc = _document(data)
     outfit_id = doc.get("outfit_id")
     if isinstance(outfit_id, str) and doc.get("outfit") is None:
@@ -191,8 +198,12 @@ def _animate_npz(data: bytes, settings: Settings, engine: Engine) -> dict:
     return request
 
 
-def refine_arguments(kind: str, data: bytes, settings: Settings) -> tuple[Any, Any, dict, str | None, dict | None]:
-    """A refine request's body (JSON or npz) -> (vertices, faces, motion dict, body preset, options)."""
+def refine_arguments(kind: str, data: bytes, settings: Settings, content_type: str = "",
+                     ) -> tuple[Any, Any, dict, str | None, dict | None]:
+    """A refine request's body (JSON, npz, or a multipart form with a garment npz and a motion_file)
+    -> (vertices, faces, motion dict, body preset, options)."""
+    if kind == "multipart/form-data":
+        return _refine_form(data, content_type, settings)
     if kind == "application/x-npz":
         names = ("vertices", "faces", "poses", "translation", "fps", "clip", "body", *REFINE_OPTIONS)
         z = npz_members(data, names, settings)
@@ -214,3 +225,110 @@ def refine_arguments(kind: str, data: bytes, settings: Settings) -> tuple[Any, A
     _precheck_motion(doc.get("motion"), settings)
     d = _model(RefineRequest, doc).model_dump()
     return d["vertices"], d["faces"], d["motion"], d["body"], d["options"]
+
+
+# ---- multipart forms carrying a motion file ------------------------------------------------------
+
+ANIMATE_FORM = ("motion_file", "outfit_id", "fps", "body", "up", "influences", "refine", *REFINE_OPTIONS)
+REFINE_FORM = ("garment", "motion_file", "fps", "body", "up", *REFINE_OPTIONS)
+_OPTION_TYPES = {"eps": float, "max_iterations": int, "relief_iterations": int}
+
+
+def _form(data: bytes, content_type: str, allowed: tuple[str, ...]) -> dict[str, Any]:
+    parts = parse_form(data, content_type)
+    unknown = sorted(set(parts) - set(allowed))
+    if unknown:
+        raise InvalidInput(f"unknown form field; expected some of {', '.join(allowed)}", quoted(unknown[0], 40))
+    if "motion_file" not in parts:
+        raise InvalidInput("a motion file is required: a CMU-named BVH or an AMASS-style npz", "motion_file")
+    return parts
+
+
+def _text(parts: dict[str, Any], name: str) -> str | None:
+    part = parts.get(name)
+    return None if part is None else part.data.decode("utf-8", "replace").strip()
+
+
+def _form_fps(parts: dict[str, Any]) -> float:
+    text = _text(parts, "fps")
+    if text is None:
+        return 30.0
+    try:
+        fps = float(text)
+    except ValueError:
+        raise InvalidInput(f"expected a number, got {quoted(text, 40)}", "fps") from None
+    if not 0 < fps <= 1000:
+        raise InvalidInput(f"must be in (0, 1000], got {fps}", "fps")
+    return fps
+
+
+def _form_up(parts: dict[str, Any]) -> str | None:
+    up = _text(parts, "up")
+    if up not in (None, "y", "z"):
+        raise InvalidInput(f"expected 'y' or 'z', got {quoted(up, 40)}", "up")
+    return up
+
+
+def _form_options(parts: dict[str, Any]) -> dict | None:
+    given: dict[str, Any] = {}
+    for key in REFINE_OPTIONS:
+        text = _text(parts, key)
+        if text is not None:
+            try:
+                given[key] = _OPTION_TYPES.get(key, float)(text)
+            except ValueError:
+                raise InvalidInput(f"expected a number, got {quoted(text, 40)}", key) from None
+    return _refine_options(given)
+
+
+def _form_motion(parts: dict[str, Any], body: str, settings: Settings) -> dict:
+    poses, trans, fps = uploads.motion_from_file(
+        parts["motion_file"].data, body, fps=_form_fps(parts), up=_form_up(parts), max_frames=settings.max_frames,
+        max_decoded_bytes=settings.max_decoded_bytes)
+    return {"clip": None, "poses": poses, "translation": trans, "fps": fps}
+
+
+def _animate_form(data: bytes, content_type: str, settings: Settings, engine: Engine) -> dict:
+    """Form fields: motion_file (a BVH or npz file), outfit_id, and optionally fps (default 30: the motion is
+    resampled to it), body, up (y or z; default: detected), influences, refine (true/false) and the refine
+    options (eps, max_iterations, relief_iterations; any of them turns refinement on)."""
+    parts = _form(data, content_type, ANIMATE_FORM)
+    outfit_id = _text(parts, "outfit_id")
+    if not outfit_id:
+        raise InvalidInput("an outfit_id is required with a motion_file (rig the outfit first)", "outfit_id")
+    _known(outfit_id, engine)
+    outfit = engine.lookup(outfit_id)
+    assert outfit is not None
+    body = _text(parts, "body")
+    if body not in (None, outfit.body):
+        raise InvalidInput(f"outfit {outfit_id} was rigged on body {outfit.body!r}", "body")
+    flag = _text(parts, "refine")
+    if flag not in (None, "true", "false", "1", "0"):
+        raise InvalidInput(f"expected true or false, got {quoted(flag, 40)}", "refine")
+    options = _form_options(parts)
+    refine: bool | dict = (options or True) if flag in ("true", "1") or (flag is None and options) else False
+    return {"motion": _form_motion(parts, outfit.body, settings), "body": body, "refine": refine,
+            "outfit_id": outfit_id, "outfit": None, "influences": _text(parts, "influences")}
+
+
+def _refine_form(data: bytes, content_type: str, settings: Settings) -> tuple[Any, Any, dict, str | None, dict | None]:
+    """Form fields: garment (an npz with vertices (T, N, 3) and faces (F, 3)), motion_file (a BVH or npz file,
+    resampled to fps, default 30: it must give T frames), and optionally body, up and the refine options."""
+    from drape.service.handlers import check_body
+
+    parts = _form(data, content_type, REFINE_FORM)
+    garment = parts.get("garment")
+    if garment is None:
+        raise InvalidInput("a garment npz with vertices (T, N, 3) and faces (F, 3) is required", "garment")
+    try:
+        z = decode_npz(garment.data, ("vertices", "faces"), max_bytes=settings.max_decoded_bytes)
+    except NpzTooLarge as exc:
+        raise LimitExceeded(str(exc), "garment") from exc
+    except ValueError as exc:
+        raise MalformedInput(str(exc), "garment") from exc
+    missing = [k for k in ("vertices", "faces") if k not in z]
+    if missing:
+        raise InvalidInput(f"the archive lacks {missing}", "garment")
+    body = check_body(_text(parts, "body"))
+    motion = _form_motion(parts, body, settings)
+    return npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), motion, body, _form_options(parts)

@@ -807,3 +807,34 @@ def _check_ply_ascii(body: bytes, elements: list[_PlyElement], max_faces: int) -
         if triangles > max_faces:
             _over("triangles (a face with k corners makes k - 2)", triangles, max_faces,
                   at_least=True)
+
+
+# ---- motion files ----------------------------------------------------------------------------------
+
+MOTION_FIELD = "motion_file"
+MOTION_SOURCE_FACTOR = 8  # a motion file may hold this many times max_frames before resampling (240 -> 30 fps)
+
+
+def motion_from_file(data: bytes, body_name: str, *, fps: float, up: str | None, max_frames: int,
+                     max_decoded_bytes: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """An uploaded motion file (a CMU-named BVH or an AMASS-style npz; told apart by its first bytes) ->
+    (poses (T, 24, 3), translation (T, 3), fps), imported as `drape motions import` does: retargeted onto
+    the body preset, Y-up, the added CMU T-pose frame dropped, resampled to `fps`, feet on the floor.
+
+    Bounded: the file is already within the body limit; its frames within MOTION_SOURCE_FACTOR x
+    max_frames before any number is worked on, and within max_frames after resampling (413s); an npz's
+    arrays within max_decoded_bytes. Anything else wrong is a 422; all name the field "motion_file".
+    """
+    from drape.assets.body import load_body
+    from drape.assets.motion import MotionFileError, MotionTooLong, import_motion
+
+    try:
+        imported = import_motion(data, load_body(body_name), fps=fps, up=up, max_frames=max_frames,
+                                 max_source_frames=MOTION_SOURCE_FACTOR * max_frames,
+                                 max_decoded_bytes=max_decoded_bytes)
+    except MotionTooLong as exc:
+        raise LimitExceeded(str(exc), MOTION_FIELD) from exc
+    except MotionFileError as exc:
+        raise InvalidInput(str(exc), MOTION_FIELD) from exc
+    m = imported.motion
+    return m.poses.astype(np.float64), m.trans.astype(np.float64), m.fps

@@ -114,32 +114,55 @@ FRAME_ANSWERS = {200: {"description": "frames (T, N, 3): JSON, npz, the frame st
 STREAM_FORMATS = [JSON, NPZ, FRAMES, PC2, GLB]
 
 
+MOTION_FILE = {"type": "string", "format": "binary", "description":
+               "a BVH with CMU joint names (retargeted onto the body, the added T-pose frame of raw CMU clips "
+               "dropped) or an AMASS-style npz (poses (T, 156) / (T, 52, 3) SMPL-H, (T, 72) / (T, 24, 3) SMPL, "
+               "(T, 165) SMPL-X; trans; mocap_framerate), Z-up turned Y-up; resampled to fps (slerp) and put "
+               "on the floor, as `drape motions import` does (docs/motion_import.md)"}
+FORM_FPS = {"type": "number", "exclusiveMinimum": 0, "maximum": 1000, "default": 30,
+            "description": "frame rate the motion file is resampled to"}
+FORM_UP = {"type": "string", "enum": ["y", "z"], "description": "the motion file's up axis (default: detected)"}
+FORM_OPTIONS = {"eps": {"type": "number"}, "max_iterations": {"type": "integer"},
+                "relief_iterations": {"type": "integer"}}
+ANIMATE_FORM = {"schema": {"type": "object", "required": ["motion_file", "outfit_id"], "properties": {
+    "motion_file": MOTION_FILE, "outfit_id": {"type": "string", "description": "from POST /v1/outfits/rig"},
+    "fps": FORM_FPS, "up": FORM_UP, "body": {"type": "string"}, "influences": {"type": "string", "enum": ["4", "8"]},
+    "refine": {"type": "string", "enum": ["true", "false"]}, **FORM_OPTIONS}}}
+REFINE_FORM = {"schema": {"type": "object", "required": ["garment", "motion_file"], "properties": {
+    "garment": {"type": "string", "format": "binary", "description": "npz with vertices (T, N, 3) and faces (F, 3)"},
+    "motion_file": {**MOTION_FILE, "description": MOTION_FILE["description"] + "; it must give T frames at fps"},
+    "fps": FORM_FPS, "up": FORM_UP, "body": {"type": "string"}, **FORM_OPTIONS}}}
+
+
 @router.post("/animate", responses=FRAME_ANSWERS, openapi_extra={"requestBody": {"required": True, "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
                      "npz: outfit_id (text) or vertices (N, 3) + faces (F, 3); clip (text) or poses (T, 24, 3) / "
                      "(T, 72) with optional translation (T, 3) and fps; optional body (text); influences (4 or 8); refine (boolean "
-                     "scalar) and/or the refine options as scalars: eps, max_iterations, relief_iterations"}}}}})
+                     "scalar) and/or the refine options as scalars: eps, max_iterations, relief_iterations"}},
+    "multipart/form-data": ANIMATE_FORM}}})
 async def animate_outfit(request: Request) -> Response:
     """Outfit (or outfit_id) + motion (+ refine) -> posed vertices (T, N, 3): JSON, npz, a frame stream, PC2, or
-    GLB (the rigged outfit and the body with the motion as an animation, refinement as per-frame targets)."""
+    GLB (the rigged outfit and the body with the motion as an animation, refinement as per-frame targets).
+    A multipart form carries the motion as a file (motion_file: BVH or AMASS npz) with outfit_id."""
     answer = choose(request.headers.get("accept"), STREAM_FORMATS)
     kind = media_type(request)
-    if kind not in (JSON, NPZ, ""):
-        raise UnsupportedMediaType(f"send {JSON} or {NPZ}, not {kind!r}", "Content-Type")
+    if kind not in (JSON, NPZ, "multipart/form-data", ""):
+        raise UnsupportedMediaType(f"send {JSON}, {NPZ} or multipart/form-data, not {kind!r}", "Content-Type")
     settings, engine = settings_of(request), engine_of(request)
     data = await read_body(request)
+    content_type = request.headers.get("content-type", "")
 
     if answer == GLB:
         def glb() -> Response:
-            req = decode.animate_request(kind, data, settings, engine)
+            req = decode.animate_request(kind, data, settings, engine, content_type)
             p = handlers.plan_animation(engine, settings, req, _max_posed(answer, settings))
             return Response(handlers.outfit_glb(engine, p.outfit, p), media_type=GLB)
 
         return await _whole(request, glb)
 
     def plan() -> FrameSource:
-        req = decode.animate_request(kind, data, settings, engine)
+        req = decode.animate_request(kind, data, settings, engine, content_type)
         p = handlers.plan_animation(engine, settings, req, _max_posed(answer, settings))
 
         def chunks() -> Iterator[np.ndarray]:
@@ -180,19 +203,22 @@ refine_router = APIRouter(prefix="/v1", tags=["refine"])
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
                      "npz: vertices (T, N, 3), faces (F, 3), poses (T, 24, 3) or (T, 72) with optional translation "
                      "(T, 3) and fps, or clip (a name); optional body, and the options as scalars: eps, "
-                     "max_iterations, relief_iterations"}}}}})
+                     "max_iterations, relief_iterations"}},
+    "multipart/form-data": REFINE_FORM}}})
 async def refine_stream(request: Request) -> Response:
     """Garment stream + faces + body motion -> the stream with body penetration removed (same formats as animate;
-    GLB: the refined stream as a vertex animation)."""
+    GLB: the refined stream as a vertex animation). A multipart form carries the stream as an npz (garment) and
+    the motion as a file (motion_file: BVH or AMASS npz)."""
     answer = choose(request.headers.get("accept"), STREAM_FORMATS)
     kind = media_type(request)
-    if kind not in (NPZ, JSON, ""):
-        raise UnsupportedMediaType(f"send {JSON} or {NPZ}, not {kind!r}", "Content-Type")
+    if kind not in (NPZ, JSON, "multipart/form-data", ""):
+        raise UnsupportedMediaType(f"send {JSON}, {NPZ} or multipart/form-data, not {kind!r}", "Content-Type")
     settings, engine = settings_of(request), engine_of(request)
     data = await read_body(request)
+    content_type = request.headers.get("content-type", "")
 
     def plan() -> FrameSource:
-        args = decode.refine_arguments(kind, data, settings)
+        args = decode.refine_arguments(kind, data, settings, content_type)
         p = handlers.plan_refine(settings, *args, _max_posed(answer, settings))
 
         def chunks() -> Iterator[np.ndarray]:

@@ -1,0 +1,160 @@
+"""A motion file (BVH with CMU names, or an AMASS-style npz) uploaded as the multipart field `motion_file` to
+POST /v1/outfits/animate and /v1/refine: imported as `drape motions import` does, resampled to the form's fps
+(default 30), bounded by the service's limits; bad files are a 4xx naming `motion_file` (issue 20, item 1).
+
+The service tests run with max_frames=200 and a 4 MiB body limit (svc_env.py).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drape.assets.motion import resampled_count
+from drape.assets.outfits import generate_outfit
+from drape.schemas.binary import NPZ, decode_npz, encode_npz
+from tests.cmu_bvh import cmu_bvh as make_cmu_bvh
+
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "mocap"
+PROBLEM = "application/problem+json"
+
+
+
+def cmu_bvh(frames: int, fps: float = 120.0, first: str = "Hips") -> bytes:
+    """A CMU-named BVH (tests/cmu_bvh.py); `first` renames the root."""
+    return make_cmu_bvh(frames, fps, rename={"Hips": first})
+
+
+def problem(r, status: int, *words: str) -> dict:
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith(PROBLEM)
+    p = r.json()
+    for w in words:
+        assert w in p["detail"], p["detail"]
+    return p
+
+
+@pytest.fixture(scope="module")
+def outfit_id(app):
+    from fastapi.testclient import TestClient
+
+    o = generate_outfit("tshirt", vertices=600, seed=5)
+    r = TestClient(app).post("/v1/outfits/rig", json={"vertices": o.vertices.tolist(), "faces": o.faces.tolist()},
+                             headers={"accept": NPZ})
+    assert r.status_code == 200, r.text
+    return str(decode_npz(r.content)["outfit_id"])
+
+
+def animate(http, motion: bytes, name: str = "take.bvh", accept: str = NPZ, **fields):
+    return http.post("/v1/outfits/animate", files={"motion_file": (name, motion)}, data=fields,
+                     headers={"accept": accept})
+
+
+def test_a_bvh_upload_animates_at_the_forms_fps(http, outfit_id):
+    r = animate(http, cmu_bvh(481), outfit_id=outfit_id)  # 4 s at 120 fps -> 121 frames at 30 (the default)
+    assert r.status_code == 200, r.text
+    z = decode_npz(r.content)
+    assert z["vertices"].shape[0] == resampled_count(481, 120, 30) == 121 and float(z["fps"]) == 30.0
+    assert np.isfinite(z["vertices"]).all()
+    r24 = animate(http, cmu_bvh(481), outfit_id=outfit_id, fps="24", refine="true")
+    assert r24.status_code == 200, r24.text
+    assert decode_npz(r24.content)["vertices"].shape[0] == 97
+
+
+@pytest.mark.skipif(not (DATA / "05_01_walk.bvh").exists(), reason=f"the real CMU clips are not at {DATA}")
+def test_a_real_cmu_clip_uploads(http, outfit_id):
+    """A raw CMU walk (599 frames at 120 fps, a T-pose frame 0): 598 frames -> 150 at 30 fps, feet near the
+    floor (the lowest vertex of the body's feet is not computed here: the outfit's lowest point is near 0)."""
+    r = animate(http, (DATA / "05_01_walk.bvh").read_bytes(), "05_01_walk.bvh", outfit_id=outfit_id)
+    assert r.status_code == 200, r.text
+    v = decode_npz(r.content)["vertices"]
+    assert v.shape[0] == resampled_count(598, 120, 30) == 150
+    assert 0.3 < float(np.median(v[..., 1].min(axis=1))) < 1.2  # a t-shirt on a body standing on the floor
+
+
+def test_an_amass_npz_uploads(http, outfit_id):
+    T = 90
+    poses = np.zeros((T, 156))
+    poses[:, 0] = np.pi / 2  # standing in AMASS's Z-up world
+    poses[:, 3 * 16 + 2] = np.linspace(0, -1.0, T)  # left shoulder down
+    buf = io.BytesIO()
+    np.savez(buf, poses=poses, trans=np.zeros((T, 3)), mocap_framerate=np.array(60.0), betas=np.zeros(16),
+             gender=np.array("male"))
+    r = animate(http, buf.getvalue(), "clip.npz", outfit_id=outfit_id)
+    assert r.status_code == 200, r.text
+    assert decode_npz(r.content)["vertices"].shape[0] == resampled_count(T, 60, 30) == 45
+
+
+def test_refine_takes_a_motion_file(http, outfit_id):
+    first = animate(http, cmu_bvh(121), outfit_id=outfit_id)  # 31 frames at 30 fps
+    frames = decode_npz(first.content)
+    garment = encode_npz({"vertices": frames["vertices"], "faces": frames["faces"]})
+    r = http.post("/v1/refine", files={"garment": ("g.npz", garment), "motion_file": ("m.bvh", cmu_bvh(121))},
+                  data={"relief_iterations": "0"}, headers={"accept": NPZ})
+    assert r.status_code == 200, r.text
+    assert decode_npz(r.content)["vertices"].shape == frames["vertices"].shape
+    short = http.post("/v1/refine", files={"garment": ("g.npz", garment), "motion_file": ("m.bvh", cmu_bvh(61))})
+    problem(short, 422, "motion", "16 frames")
+    problem(http.post("/v1/refine", files={"motion_file": ("m.bvh", cmu_bvh(61))}), 422, "garment")
+
+
+def _npz(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+BAD = [
+    (cmu_bvh(40, first="mixamorig:Hips"), 422, "expected a CMU-named skeleton"),
+    (cmu_bvh(40).replace(b"Frames: 40", b"Frames: 41"), 422, "need"),
+    (b"HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\n", 422, "'HIERARCHY' ... 'MOTION'"),
+    (b"this is not a motion", 422, "expected a BVH file"),
+    (_npz(poses=np.zeros((10, 24, 4))), 422, "quaternions"),
+    (_npz(poses=np.zeros((10, 50))), 422, "expected axis-angle poses"),
+    (b"PK\x03\x04broken zip", 422, "not a readable npz"),
+    (cmu_bvh(1601), 413, "1601 frames in the file exceed the limit of 1600"),  # 8 x max_frames
+    (cmu_bvh(1000), 413, "250 frames at 30 fps exceed the limit of 200"),
+    (_npz(poses=np.zeros((201, 72))), 413, "201 frames at 30 fps exceed the limit of 200"),
+]
+
+
+@pytest.mark.parametrize("data,status,words", BAD, ids=[w for _, _, w in BAD])
+def test_bad_motion_files_are_a_4xx_naming_motion_file(http, outfit_id, data, status, words):
+    p = problem(animate(http, data, outfit_id=outfit_id), status, "motion_file", words)
+    assert p["detail"].startswith("motion_file: ")
+
+
+def test_bad_form_fields(http, outfit_id):
+    ok = cmu_bvh(41)
+    problem(http.post("/v1/outfits/animate", data={"outfit_id": outfit_id}, files={"other": ("x", b"1")}), 422,
+            "unknown form field")
+    problem(http.post("/v1/outfits/animate", data={"outfit_id": outfit_id}, files={"mesh": ("a.obj", b"v 0 0 0")}),
+            422, "'mesh'")
+    problem(animate(http, ok), 422, "outfit_id", "required")
+    problem(animate(http, ok, outfit_id="nope"), 404, "outfit_id")
+    problem(animate(http, ok, outfit_id=outfit_id, fps="fast"), 422, "fps")
+    problem(animate(http, ok, outfit_id=outfit_id, fps="0"), 422, "fps")
+    problem(animate(http, ok, outfit_id=outfit_id, up="x"), 422, "up")
+    problem(animate(http, ok, outfit_id=outfit_id, body="female"), 422, "body")
+    problem(animate(http, ok, outfit_id=outfit_id, refine="maybe"), 422, "refine")
+    problem(animate(http, ok, outfit_id=outfit_id, eps="-1"), 422, "eps")
+    problem(http.post("/v1/outfits/animate", data={"outfit_id": outfit_id}, files={"x": ("a", b"")}), 422)
+    missing = http.post("/v1/outfits/animate", files={"outfit_id": (None, outfit_id)})
+    problem(missing, 422, "motion_file", "required")
+
+
+def test_the_body_limit_bounds_the_upload(http, settings, outfit_id):
+    big = cmu_bvh(40) + b" " * settings.max_body_bytes
+    problem(animate(http, big, outfit_id=outfit_id), 413, str(settings.max_body_bytes))
+
+
+def test_openapi_documents_the_form(http):
+    spec = http.get("/openapi.json").json()
+    for path, required in (("/v1/outfits/animate", ["motion_file", "outfit_id"]),
+                           ("/v1/refine", ["garment", "motion_file"])):
+        form = spec["paths"][path]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
+        assert form["required"] == required and form["properties"]["motion_file"]["format"] == "binary"
+        assert "fps" in form["properties"]
