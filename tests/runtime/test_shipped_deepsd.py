@@ -21,7 +21,10 @@ def test_manifest_is_trained_small_and_evaluated(model):
     m = json.loads((MODEL_DIR / "manifest.json").read_text())
     assert m["trained"] is True and m["training"]["config"]["steps"]
     assert sum(f["bytes"] for f in m["files"].values()) <= 10 * 2**20
-    assert m["evaluation"] and {r["method"] for r in m["evaluation"]["rows"]} == {"baseline", "no_chi", "model"}
+    from drape.training.deepsd_eval import METHODS
+
+    assert m["evaluation"] and {r["method"] for r in m["evaluation"]["rows"]} == set(METHODS)
+    assert {"model", "served", "served8"} <= set(METHODS)  # the network's rig and the rigs the service serves
 
 
 def test_two_resolutions_of_one_garment_get_consistent_weights(model):
