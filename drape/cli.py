@@ -243,7 +243,8 @@ def _export_glb(args: argparse.Namespace) -> None:
 def _eval_deepsd(args: argparse.Namespace) -> None:
     from drape.training.deepsd_eval import evaluate, format_table, write_results
 
-    results = evaluate(args.config, args.model, ground_truth=args.ground_truth or None)
+    results = evaluate(args.config, args.model, ground_truth=args.ground_truth or None,
+                       real_mocap=args.real_mocap or None)
     print(format_table(results))
     if args.write:
         for path in write_results(results, args.model):
@@ -407,6 +408,8 @@ def build_parser() -> argparse.ArgumentParser:
     evd.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     evd.add_argument("--model", default=str(models_dir))
     evd.add_argument("--write", action="store_true", help="store the table in the manifest and docs/")
+    evd.add_argument("--real-mocap", default="../shared/data/mocap",
+                     help="folder of real CMU BVH clips for the second table ('' to skip)")
     evd.add_argument("--ground-truth", default=str(DEFAULT_GROUND_TRUTH),
                      help="a `drape sim dataset` directory; mean vertex error against its sequences when it exists")
     evd.set_defaults(func=_eval_deepsd)

@@ -61,55 +61,93 @@ def method_poser(model: DeePSDModel, verts: np.ndarray, faces: np.ndarray, body)
     return pose
 
 
+REAL_CLIPS = ("02_01_walk", "05_02_dance", "06_02_sports")  # real CMU mocap, never trained on
+REAL_MOCAP = Path("..") / "shared" / "data" / "mocap"
+METRICS = ("collision_nearest_vertex_pct", "collision_triangle_pct", "edge_error_mm", "bending")
+
+
+def _real_motion(path: Path, body, cache: dict):  # noqa: ANN001, ANN202
+    """A real BVH imported onto `body` at 30 fps, feet on the floor (drape.assets.motion.import_motion)."""
+    from drape.assets.motion import import_motion
+
+    key = (path, body.name)
+    if key not in cache:
+        cache[key] = import_motion(path.read_bytes(), body, fps=30.0, name=path.stem).motion
+    return cache[key]
+
+
 def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=print,
-             ground_truth: str | Path | None = DEFAULT_GROUND_TRUTH) -> dict:
-    """Evaluate and return {"rows": [...], "settings": {...}}; each row: outfit, method, metrics."""
+             ground_truth: str | Path | None = DEFAULT_GROUND_TRUTH,
+             real_mocap: str | Path | None = REAL_MOCAP) -> dict:
+    """Evaluate and return {"rows": [...], "settings": {...}, "mean": ..., "mean_real": ...}; each row:
+    outfit, method, clips ("deepmimic": the held-out embedded clips; "cmu": real CMU mocap from
+    `real_mocap`, skipped when the folder is absent), metrics."""
     cfg = json.loads(Path(config_path).read_text())
     model = DeePSDModel(model_dir)
+    real_dir = Path(real_mocap) if real_mocap else None
+    real = [real_dir / f"{c}.bvh" for c in REAL_CLIPS] if real_dir and real_dir.is_dir() else []
+    imported: dict = {}
     rows = []
     for spec in eval_specs(cfg):
         verts, faces = load_outfit(spec)
         body = load_body(spec.body)
         pose = method_poser(model, verts, faces, body)
-        acc: dict[str, dict[str, list[float]]] = {m: {"inside_nv": [], "inside_tri": [], "edge": [], "bend": []}
-                                                  for m in METHODS}
-        for clip in cfg["heldout_clips"]:
-            motion = load_clip(clip)
-            frames = np.linspace(0, motion.num_frames - 1, cfg["eval_frames_per_clip"]).round().astype(int)
-            poses, trans = motion.poses[frames].astype(np.float64), motion.trans[frames].astype(np.float64)
-            posed = pose(poses, trans)
-            body_frames = body.pose(poses, trans)
-            for t in range(len(frames)):
-                bt = body_frames[t].astype(np.float64)
-                normals = vertex_normals(bt, body.faces)
-                dist = MeshDistance(bt, body.faces, normals)
-                for m in METHODS:
-                    g = posed[m][t].astype(np.float64)
-                    acc[m]["inside_tri"].append(float(np.mean(dist.signed_distance(g) < 0)))
-                    sd_nv, _ = signed_distance_nearest_vertex(g, bt, normals)
-                    acc[m]["inside_nv"].append(float(np.mean(sd_nv < 0)))
+        groups = {"deepmimic": [load_clip(c) for c in cfg["heldout_clips"]],
+                  "cmu": [_real_motion(p, body, imported) for p in real]}
+        for group, motions in groups.items():
+            if not motions:
+                continue
+            acc = _accumulate(pose, body, motions, cfg["eval_frames_per_clip"], verts, faces)
             for m in METHODS:
-                acc[m]["edge"].append(edge_length_error_mm(posed[m], verts, faces))
-                acc[m]["bend"].append(bending(posed[m], faces))
-        for m in METHODS:
-            rows.append({
-                "outfit": spec.types, "body": spec.body, "vertices": int(len(verts)), "method": m,
-                "collision_nearest_vertex_pct": 100 * float(np.mean(acc[m]["inside_nv"])),
-                "collision_triangle_pct": 100 * float(np.mean(acc[m]["inside_tri"])),
-                "edge_error_mm": float(np.mean(acc[m]["edge"])),
-                "bending": float(np.mean(acc[m]["bend"])),
-            })
+                rows.append({
+                    "outfit": spec.types, "body": spec.body, "vertices": int(len(verts)), "method": m,
+                    "clips": group,
+                    "collision_nearest_vertex_pct": 100 * float(np.mean(acc[m]["inside_nv"])),
+                    "collision_triangle_pct": 100 * float(np.mean(acc[m]["inside_tri"])),
+                    "edge_error_mm": float(np.mean(acc[m]["edge"])),
+                    "bending": float(np.mean(acc[m]["bend"])),
+                })
         log(f"{spec.types:18s} done")
     gt = ground_truth_error(ground_truth, cfg["heldout_clips"], model) if ground_truth else None
+
+    def means(group: str) -> dict:
+        return {m: {k: float(np.mean([r[k] for r in rows if r["method"] == m and r["clips"] == group]))
+                    for k in METRICS} for m in METHODS}
+
     return {
         **({"ground_truth": gt} if gt else {}),
         "settings": {"heldout_clips": cfg["heldout_clips"], "frames_per_clip": cfg["eval_frames_per_clip"],
-                     "outfits": [s.key for s in eval_specs(cfg)]},
+                     "outfits": [s.key for s in eval_specs(cfg)],
+                     "real_clips": [p.stem for p in real]},
         "rows": rows,
-        "mean": {m: {k: float(np.mean([r[k] for r in rows if r["method"] == m]))
-                     for k in ("collision_nearest_vertex_pct", "collision_triangle_pct", "edge_error_mm", "bending")}
-                 for m in METHODS},
+        "mean": means("deepmimic"),
+        **({"mean_real": means("cmu")} if real else {}),
     }
+
+
+def _accumulate(pose, body, motions: list, frames_per_clip: int, verts: np.ndarray,  # noqa: ANN001
+                faces: np.ndarray) -> dict[str, dict[str, list[float]]]:
+    """Every method's per-frame collision shares and per-clip edge error and bending over the motions."""
+    acc: dict[str, dict[str, list[float]]] = {m: {"inside_nv": [], "inside_tri": [], "edge": [], "bend": []}
+                                              for m in METHODS}
+    for motion in motions:
+        frames = np.linspace(0, motion.num_frames - 1, frames_per_clip).round().astype(int)
+        poses, trans = motion.poses[frames].astype(np.float64), motion.trans[frames].astype(np.float64)
+        posed = pose(poses, trans)
+        body_frames = body.pose(poses, trans)
+        for t in range(len(frames)):
+            bt = body_frames[t].astype(np.float64)
+            normals = vertex_normals(bt, body.faces)
+            dist = MeshDistance(bt, body.faces, normals)
+            for m in METHODS:
+                g = posed[m][t].astype(np.float64)
+                acc[m]["inside_tri"].append(float(np.mean(dist.signed_distance(g) < 0)))
+                sd_nv, _ = signed_distance_nearest_vertex(g, bt, normals)
+                acc[m]["inside_nv"].append(float(np.mean(sd_nv < 0)))
+        for m in METHODS:
+            acc[m]["edge"].append(edge_length_error_mm(posed[m], verts, faces))
+            acc[m]["bend"].append(bending(posed[m], faces))
+    return acc
 
 
 def ground_truth_error(sim_dir: str | Path, clips: list[str], model: DeePSDModel) -> dict | None:
@@ -155,12 +193,22 @@ def format_table(results: dict) -> str:
     head = ("| outfit | method | inside, nearest vertex (%) | inside, closest triangle (%) "
             "| edge error (mm) | bending |\n|---|---|---|---|---|---|")
     lines = [head]
-    for r in results["rows"]:
-        lines.append(f"| {r['outfit']} | {r['method']} | {r['collision_nearest_vertex_pct']:.2f} "
-                     f"| {r['collision_triangle_pct']:.2f} | {r['edge_error_mm']:.2f} | {r['bending']:.4f} |")
-    for m, v in results["mean"].items():
-        lines.append(f"| **mean** | {m} | {v['collision_nearest_vertex_pct']:.2f} | {v['collision_triangle_pct']:.2f} "
-                     f"| {v['edge_error_mm']:.2f} | {v['bending']:.4f} |")
+
+    def table(group: str, mean: dict) -> None:
+        for r in results["rows"]:
+            if r.get("clips", "deepmimic") == group:
+                lines.append(f"| {r['outfit']} | {r['method']} | {r['collision_nearest_vertex_pct']:.2f} "
+                             f"| {r['collision_triangle_pct']:.2f} | {r['edge_error_mm']:.2f} | {r['bending']:.4f} |")
+        for m, v in mean.items():
+            lines.append(f"| **mean** | {m} | {v['collision_nearest_vertex_pct']:.2f} "
+                         f"| {v['collision_triangle_pct']:.2f} | {v['edge_error_mm']:.2f} | {v['bending']:.4f} |")
+
+    table("deepmimic", results["mean"])
+    if results.get("mean_real"):
+        lines.append(f"\nThe same outfits on real CMU mocap ({', '.join(results['settings']['real_clips'])}; "
+                     "imported at 30 fps onto each outfit's body, feet on the floor; never trained on):\n")
+        lines.append(head)
+        table("cmu", results["mean_real"])
     gt = results.get("ground_truth")
     if gt:
         lines.append(f"\nMean vertex error (mm) against simulated sequences ({', '.join(gt['garments'])} on "

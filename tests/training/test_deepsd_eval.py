@@ -1,8 +1,10 @@
 """`drape eval deepsd` machinery on a tiny held-out set with a freshly initialised export."""
 
 import json
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from drape.assets.body import load_body
 from drape.assets.motion import load_clip
@@ -13,7 +15,7 @@ from drape.geometry.mesh_io import load_mesh, save_mesh
 from drape.geometry.queries import nearest_vertex_weights
 from drape.training import deepsd_data
 from drape.training.deepsd import load_config
-from drape.training.deepsd_eval import METHODS, evaluate, format_table, write_results
+from drape.training.deepsd_eval import METHODS, REAL_CLIPS, evaluate, format_table, write_results
 
 
 def test_eval_rows_and_written_table(tmp_path, monkeypatch):
@@ -25,8 +27,8 @@ def test_eval_rows_and_written_table(tmp_path, monkeypatch):
     config_path.write_text(json.dumps(cfg))
     model = tmp_path / "model"
     export_deepsd_from_checkpoints("unused", model, init=True)
-    results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None)
-    assert "ground_truth" not in results
+    results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=None)
+    assert "ground_truth" not in results and "mean_real" not in results
     assert len(results["rows"]) == 2 * len(METHODS)
     for r in results["rows"]:
         assert 0.0 <= r["collision_triangle_pct"] <= 100.0 and r["edge_error_mm"] >= 0.0
@@ -67,7 +69,8 @@ def test_ground_truth_error_against_simulated_sequences(tmp_path, monkeypatch):
     model = tmp_path / "model"
     export_deepsd_from_checkpoints("unused", model, init=True)
     fake_sim_dataset(tmp_path / "sim")
-    gt = evaluate(config_path, model, log=lambda *_: None, ground_truth=tmp_path / "sim")["ground_truth"]
+    gt = evaluate(config_path, model, log=lambda *_: None, ground_truth=tmp_path / "sim",
+                  real_mocap=None)["ground_truth"]
     assert [r["clip"] for r in gt["rows"]] == ["kick"] and gt["rows"][0]["sequences"] == 1
     row = gt["rows"][0]
     assert row["baseline"] < 1e-2  # the 'simulation' is the baseline itself
@@ -75,3 +78,23 @@ def test_ground_truth_error_against_simulated_sequences(tmp_path, monkeypatch):
     assert "| kick | 1 |" in format_table({"rows": [], "mean": {}, "ground_truth": gt,
                                            "settings": {"heldout_clips": ["kick"], "frames_per_clip": 1,
                                                         "outfits": []}})
+
+
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "mocap"
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/mocap (real CMU clips) is not beside the repository")
+def test_real_cmu_clips_make_a_second_table(tmp_path, monkeypatch):
+    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
+    cfg = load_config()
+    cfg.update(eval_outfits=["skirt"], eval_vertices=400, heldout_clips=["kick"], eval_frames_per_clip=2)
+    config_path = tmp_path / "cfg.json"
+    config_path.write_text(json.dumps(cfg))
+    model = tmp_path / "model"
+    export_deepsd_from_checkpoints("unused", model, init=True)
+    results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=REAL)
+    groups = [r["clips"] for r in results["rows"]]
+    assert groups.count("deepmimic") == groups.count("cmu") == len(METHODS)
+    assert results["settings"]["real_clips"] == list(REAL_CLIPS)
+    assert set(results["mean_real"]) == set(METHODS)
+    assert "real CMU mocap" in format_table(results)
