@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import AsyncIterator, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, overload
 
@@ -31,7 +32,8 @@ class DrapeAPIError(Exception):
 
 @dataclass(frozen=True)
 class RigResult:
-    """outfit_id; skinning_weights (N, 24); blend_shapes (P, N, 3) m; the skeleton (names, parents, rest joints (24, 3))."""
+    """outfit_id; skinning_weights (N, 24); blend_shapes (P, N, 3) m; the skeleton (names, parents, rest joints
+    (24, 3)); diagnostics: where the mesh sits on the body at rest (see its warnings)."""
 
     outfit_id: str
     skinning_weights: np.ndarray
@@ -39,6 +41,7 @@ class RigResult:
     joint_names: list[str]
     parents: np.ndarray
     rest_joints: np.ndarray
+    diagnostics: dict = field(default_factory=dict)  # inside_share, distance_mm, bbox, warnings (sentences)
 
 
 def _raise_for(response: httpx.Response) -> None:
@@ -90,7 +93,8 @@ def _rig_result(response: httpx.Response) -> RigResult:
     _raise_for(response)
     z = decode_npz(response.content)
     return RigResult(str(z["outfit_id"]), z["skinning_weights"], z["blend_shapes"],
-                     [str(n) for n in z["joint_names"]], z["parents"], z["rest_joints"])
+                     [str(n) for n in z["joint_names"]], z["parents"], z["rest_joints"],
+                     json.loads(str(z["diagnostics"])) if "diagnostics" in z else {})
 
 
 def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,

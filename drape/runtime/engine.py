@@ -49,6 +49,7 @@ class RiggedOutfit:
     faces: np.ndarray
     rig: Rig
     influences: int = 24  # skin weights per vertex at most (the served rigs: 4 or 8)
+    diagnostics: dict | None = None  # where the mesh sits on the body at rest (drape.geometry.placement)
 
     @property
     def nbytes(self) -> int:

@@ -200,10 +200,13 @@ def _sampler(w: _Writer, anim: gl.Animation, times: int, values: np.ndarray, kin
     return len(anim.samplers) - 1
 
 
-def skinned_glb(skeleton: Skeleton, meshes: list[SkinnedMesh], animation: Animation | None = None) -> bytes:
+def skinned_glb(skeleton: Skeleton, meshes: list[SkinnedMesh], animation: Animation | None = None,
+                extras: dict | None = None) -> bytes:
     """The meshes skinned to one skeleton (the first mesh receives the animation's morph weights and
-    corrections) -> GLB bytes. See the module docstring."""
+    corrections) -> GLB bytes; `extras` (JSON-able) go to the asset's extras. See the module docstring."""
     w = _Writer()
+    if extras:
+        w.doc.asset.extras = extras
     joint_nodes = _add_skeleton(w, skeleton)
     rest = np.asarray(skeleton.rest_joints, dtype=np.float64)
     ibm = np.tile(np.eye(4, dtype=np.float32), (len(joint_nodes), 1, 1))

@@ -41,14 +41,31 @@ class Skeleton(BaseModel):
     rest_joints: list[list[float]] = Field(description="(24, 3) metres")
 
 
+class DistanceMm(BaseModel):
+    min: float
+    median: float
+    max: float
+
+
+class RigDiagnostics(BaseModel):
+    """Where the mesh sits on the body at rest: read the warnings before animating."""
+
+    inside_share: float = Field(description="share of the vertices inside the body at rest")
+    distance_mm: DistanceMm = Field(description="distance of the vertices to the body surface, mm")
+    bbox: dict[str, list[list[float]]] = Field(description="garment and body bounding boxes [[min], [max]], m")
+    warnings: list[str] = Field(description="plain sentences: misplaced, Z-up, wrong units")
+
+
 class RigResponse(BaseModel):
-    """What an engine needs to pose the outfit: W (N, 24), D (P, N, 3) metres, the skeleton."""
+    """What an engine needs to pose the outfit: W (N, 24), D (P, N, 3) metres, the skeleton, and where the
+    mesh sits on the body (diagnostics)."""
 
     outfit_id: str = Field(description="content hash of the mesh + body + model version; reuse with animate")
     num_vertices: int
     skinning_weights: list[list[float]]
     blend_shapes: list[list[list[float]]]
     skeleton: Skeleton
+    diagnostics: RigDiagnostics
 
 
 class MotionInput(BaseModel):

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from drape.assets.body import list_bodies, load_body
 from drape.assets.motion import list_clips, load_clip
+from drape.geometry.placement import FAR_M, placement
 from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
 from drape.runtime.sparse_rig import INFLUENCES
 from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb, vertex_animation_glb
@@ -129,10 +130,28 @@ def check_influences(value: Any, field: str = "influences") -> int:
     raise InvalidInput(f"must be 4 or 8 (skin weights per vertex), got {quoted(str(value))}", field)
 
 
+def check_on_body(vertices: np.ndarray, body: str, field: str = "vertices") -> dict:
+    """The mesh's placement on the body at rest (drape.geometry.placement); a 422 if no vertex is within
+    FAR_M of the body surface (the garment is not on this body)."""
+    b = load_body(body)
+    report = placement(vertices, b.vertices, b.faces)
+    if report["distance_mm"]["min"] > FAR_M * 1e3:
+        lo, hi = report["bbox"]["garment"]
+        raise InvalidInput(f"no vertex is within {FAR_M * 100:.0f} cm of the {body} body at rest (the nearest is "
+                           f"{report['distance_mm']['min'] / 1e3:.2f} m away; the mesh spans "
+                           f"{np.round(lo, 2).tolist()} to {np.round(hi, 2).tolist()} m): place it on the body, "
+                           "in metres, Y-up", field)
+    return report
+
+
 def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str | None,
         influences: Any = None) -> RiggedOutfit:
+    """Rig an outfit; the answer carries its placement diagnostics."""
     v, f = check_mesh(vertices, faces, settings)
-    return engine.rig(v, f, check_body(body), check_influences(influences))
+    body_name = check_body(body)
+    diagnostics = check_on_body(v, body_name)
+    outfit = engine.rig(v, f, body_name, check_influences(influences))
+    return replace(outfit, diagnostics=diagnostics)
 
 
 def check_refine(value: Any) -> RefineSettings | None:
@@ -176,6 +195,7 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
         assert outfit_in is not None
         v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
         body = check_body(request.get("body"))
+        check_on_body(v, body, "outfit.vertices")
         influences = check_influences(request.get("influences"))
         poses, trans, fps = check_motion(request["motion"], settings)
         check_answer_size(len(poses), len(v), max_posed, "motion")
@@ -229,7 +249,9 @@ def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None 
     if plan is not None:
         keys, corrections = engine.export_animation(outfit, plan.poses, plan.translation, plan.refine)
         animation = Animation(plan.poses, plan.translation, plan.fps, keys, corrections)
-    return skinned_glb(Skeleton(body.joint_names, body.parents, body.joints), meshes, animation)
+    extras = {"drape": {"outfit_id": outfit.outfit_id, "influences": outfit.influences,
+                        **({"diagnostics": outfit.diagnostics} if outfit.diagnostics else {})}}
+    return skinned_glb(Skeleton(body.joint_names, body.parents, body.joints), meshes, animation, extras)
 
 
 def stream_glb(frames: np.ndarray, faces: np.ndarray, fps: float) -> bytes:

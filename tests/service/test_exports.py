@@ -3,6 +3,7 @@ passes the Khronos validator with 0 errors and plays back (an independent readin
 npz answer of the same request; each PC2 equals it; the OpenAPI schema offers both."""
 
 import io
+import json
 import sys
 from pathlib import Path
 
@@ -47,6 +48,10 @@ def test_the_rig_as_glb(http, outfit):
     names = player.doc.meshes[0].extras["targetNames"]
     assert len(names) == len(rig["blend_shapes"]) and names[0] == "psd_0"
     assert [n.name for n in player.doc.nodes[:24]] == [str(n) for n in rig["joint_names"]]
+    drape_extras = player.doc.asset.extras["drape"]
+    assert drape_extras["outfit_id"] == str(rig["outfit_id"]) and drape_extras["influences"] == 4
+    diagnostics = json.loads(str(rig["diagnostics"]))
+    assert drape_extras["diagnostics"] == {k: v for k, v in diagnostics.items() if v != []}  # pygltflib drops []
 
 
 @pytest.mark.parametrize("refine", [False, True])

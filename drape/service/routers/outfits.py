@@ -7,6 +7,7 @@ admission control's slot (a 503 + Retry-After when the service is full).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from typing import Any
 
@@ -86,7 +87,8 @@ async def rig_outfit(request: Request) -> Response:
 def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Response:
     payload = _rig_payload(outfit)
     if answer == NPZ:
-        return Response(encode_npz({"outfit_id": np.array(outfit.outfit_id), **payload}), media_type=NPZ)
+        return Response(encode_npz({"outfit_id": np.array(outfit.outfit_id), **payload,
+                                    "diagnostics": np.array(json.dumps(outfit.diagnostics))}), media_type=NPZ)
     numbers = payload["skinning_weights"].size + payload["blend_shapes"].size
     if numbers > settings.max_json_values:
         raise LimitExceeded(f"the rig has {numbers} numbers, over the limit of {settings.max_json_values} for a "
@@ -98,6 +100,7 @@ def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Respon
         "blend_shapes": payload["blend_shapes"].tolist(),
         "skeleton": {"joint_names": list(payload["joint_names"]), "parents": payload["parents"].tolist(),
                      "rest_joints": payload["rest_joints"].tolist()},
+        "diagnostics": outfit.diagnostics,
     })
 
 
