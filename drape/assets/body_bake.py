@@ -39,6 +39,8 @@ PRESETS: dict[str, dict[str, float]] = {
     "neutral": dict(gender=0.5, age=0.75, muscle=0.5, weight=0.5, height=0.35, proportions=0.5),
     "female": dict(gender=1.0, age=0.75, muscle=0.5, weight=0.5, height=0.4, proportions=0.5),
     "male": dict(gender=0.0, age=0.75, muscle=0.5, weight=0.5, height=0.4, proportions=0.5),
+    # never trained on: a heavier, taller body, to measure what a user's own body gets (drape eval deepsd)
+    "heavy": dict(gender=0.5, age=0.75, muscle=0.4, weight=0.95, height=0.6, proportions=0.5),
 }
 
 # T-pose targets: bone (joint -> child joint) direction in drape's frame

@@ -35,7 +35,7 @@ from drape.geometry.queries import (
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 from drape.runtime.sparse_rig import fit_poses, sparse_rig
 from drape.training import DEFAULT_GROUND_TRUTH
-from drape.training.deepsd_data import eval_specs, load_outfit
+from drape.training.deepsd_data import OutfitSpec, eval_specs, load_outfit
 
 METHODS = ("baseline", "no_chi", "model", "served", "served8")
 LOOSE = ("skirt", "dress")
@@ -62,6 +62,8 @@ def method_poser(model: DeePSDModel, verts: np.ndarray, faces: np.ndarray, body)
 
 
 REAL_CLIPS = ("02_01_walk", "05_02_dance", "06_02_sports")  # real CMU mocap, never trained on
+UNSEEN_BODY = "heavy"  # a body preset DeePSD never trained on (drape/assets/body_bake.py)
+UNSEEN_BODY_OUTFITS = ("tshirt", "trousers", "dress")
 REAL_MOCAP = Path("..") / "shared" / "data" / "mocap"
 METRICS = ("collision_nearest_vertex_pct", "collision_triangle_pct", "edge_error_mm", "bending")
 
@@ -79,21 +81,24 @@ def _real_motion(path: Path, body, cache: dict):  # noqa: ANN001, ANN202
 def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=print,
              ground_truth: str | Path | None = DEFAULT_GROUND_TRUTH,
              real_mocap: str | Path | None = REAL_MOCAP) -> dict:
-    """Evaluate and return {"rows": [...], "settings": {...}, "mean": ..., "mean_real": ...}; each row:
-    outfit, method, clips ("deepmimic": the held-out embedded clips; "cmu": real CMU mocap from
-    `real_mocap`, skipped when the folder is absent), metrics."""
+    """Evaluate and return {"rows": [...], "settings": {...}, "mean": ..., "mean_real": ..., "mean_unseen_body":
+    ...}; each row: outfit, body, method, set ("deepmimic": held-out outfits x the held-out embedded clips;
+    "cmu": the same outfits x real CMU mocap from `real_mocap`, skipped when the folder is absent;
+    "unseen_body": UNSEEN_BODY_OUTFITS made for the UNSEEN_BODY x the held-out embedded clips), metrics."""
     cfg = json.loads(Path(config_path).read_text())
     model = DeePSDModel(model_dir)
     real_dir = Path(real_mocap) if real_mocap else None
     real = [real_dir / f"{c}.bvh" for c in REAL_CLIPS] if real_dir and real_dir.is_dir() else []
     imported: dict = {}
     rows = []
-    for spec in eval_specs(cfg):
+    unseen = [OutfitSpec(t, cfg["eval_vertices"], 90100 + i, UNSEEN_BODY) for i, t in enumerate(UNSEEN_BODY_OUTFITS)]
+    for spec in [*eval_specs(cfg), *unseen]:
         verts, faces = load_outfit(spec)
         body = load_body(spec.body)
         pose = method_poser(model, verts, faces, body)
-        groups = {"deepmimic": [load_clip(c) for c in cfg["heldout_clips"]],
-                  "cmu": [_real_motion(p, body, imported) for p in real]}
+        clips = [load_clip(c) for c in cfg["heldout_clips"]]
+        groups = ({"unseen_body": clips} if spec.body == UNSEEN_BODY else
+                  {"deepmimic": clips, "cmu": [_real_motion(p, body, imported) for p in real]})
         for group, motions in groups.items():
             if not motions:
                 continue
@@ -101,7 +106,7 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
             for m in METHODS:
                 rows.append({
                     "outfit": spec.types, "body": spec.body, "vertices": int(len(verts)), "method": m,
-                    "clips": group,
+                    "set": group,
                     "collision_nearest_vertex_pct": 100 * float(np.mean(acc[m]["inside_nv"])),
                     "collision_triangle_pct": 100 * float(np.mean(acc[m]["inside_tri"])),
                     "edge_error_mm": float(np.mean(acc[m]["edge"])),
@@ -111,17 +116,19 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
     gt = ground_truth_error(ground_truth, cfg["heldout_clips"], model) if ground_truth else None
 
     def means(group: str) -> dict:
-        return {m: {k: float(np.mean([r[k] for r in rows if r["method"] == m and r["clips"] == group]))
+        return {m: {k: float(np.mean([r[k] for r in rows if r["method"] == m and r["set"] == group]))
                     for k in METRICS} for m in METHODS}
 
     return {
         **({"ground_truth": gt} if gt else {}),
         "settings": {"heldout_clips": cfg["heldout_clips"], "frames_per_clip": cfg["eval_frames_per_clip"],
                      "outfits": [s.key for s in eval_specs(cfg)],
-                     "real_clips": [p.stem for p in real]},
+                     "real_clips": [p.stem for p in real], "unseen_body": UNSEEN_BODY,
+                     "unseen_body_outfits": [s.key for s in unseen]},
         "rows": rows,
         "mean": means("deepmimic"),
         **({"mean_real": means("cmu")} if real else {}),
+        "mean_unseen_body": means("unseen_body"),
     }
 
 
@@ -196,7 +203,7 @@ def format_table(results: dict) -> str:
 
     def table(group: str, mean: dict) -> None:
         for r in results["rows"]:
-            if r.get("clips", "deepmimic") == group:
+            if r.get("set", "deepmimic") == group:
                 lines.append(f"| {r['outfit']} | {r['method']} | {r['collision_nearest_vertex_pct']:.2f} "
                              f"| {r['collision_triangle_pct']:.2f} | {r['edge_error_mm']:.2f} | {r['bending']:.4f} |")
         for m, v in mean.items():
@@ -209,6 +216,11 @@ def format_table(results: dict) -> str:
                      "imported at 30 fps onto each outfit's body, feet on the floor; never trained on):\n")
         lines.append(head)
         table("cmu", results["mean_real"])
+    if results.get("mean_unseen_body"):
+        lines.append(f"\nOutfits made for a body never trained on (`{results['settings']['unseen_body']}`: "
+                     "heavier and taller), on the held-out clips:\n")
+        lines.append(head)
+        table("unseen_body", results["mean_unseen_body"])
     gt = results.get("ground_truth")
     if gt:
         lines.append(f"\nMean vertex error (mm) against simulated sequences ({', '.join(gt['garments'])} on "

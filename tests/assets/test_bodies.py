@@ -12,7 +12,7 @@ def test_presets_listed():
     assert {"neutral", "female", "male"} <= set(list_bodies())
 
 
-@pytest.mark.parametrize("name", ["neutral", "female", "male"])
+@pytest.mark.parametrize("name", ["neutral", "female", "male", "heavy"])
 def test_contract_and_conventions(name):
     with np.load(BODIES_DIR / f"{name}.npz", allow_pickle=False) as z:
         assert z["vertices"].dtype == np.float32 and z["vertices"].shape[1] == 3
@@ -34,7 +34,7 @@ def test_contract_and_conventions(name):
     assert j[JOINT_INDEX["left_foot"], 2] > j[JOINT_INDEX["left_ankle"], 2] + 0.05
 
 
-@pytest.mark.parametrize("name", ["neutral", "female", "male"])
+@pytest.mark.parametrize("name", ["neutral", "female", "male", "heavy"])
 def test_collision_proxy(name):
     full, proxy = load_body(name), load_body(name, proxy=True)
     assert 1000 <= len(proxy.vertices) <= 2000

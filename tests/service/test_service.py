@@ -53,7 +53,7 @@ def test_openapi_names_the_routes(client):
 def test_real_server_through_the_client(server_url):
     with Client(server_url) as c:
         assert c.health().status == "ok"
-        assert [b.name for b in c.bodies().bodies] == ["female", "male", "neutral"]
+        assert [b.name for b in c.bodies().bodies] == ["female", "heavy", "male", "neutral"]
         assert any(m.name == "walk" for m in c.motions().motions)
         assert c.models().models[0].name == "deepsd"
     with pytest.raises(httpx.HTTPStatusError):

@@ -15,7 +15,14 @@ from drape.geometry.mesh_io import load_mesh, save_mesh
 from drape.geometry.queries import nearest_vertex_weights
 from drape.training import deepsd_data
 from drape.training.deepsd import load_config
-from drape.training.deepsd_eval import METHODS, REAL_CLIPS, evaluate, format_table, write_results
+from drape.training.deepsd_eval import (
+    METHODS,
+    REAL_CLIPS,
+    UNSEEN_BODY_OUTFITS,
+    evaluate,
+    format_table,
+    write_results,
+)
 
 
 def test_eval_rows_and_written_table(tmp_path, monkeypatch):
@@ -29,7 +36,8 @@ def test_eval_rows_and_written_table(tmp_path, monkeypatch):
     export_deepsd_from_checkpoints("unused", model, init=True)
     results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=None)
     assert "ground_truth" not in results and "mean_real" not in results
-    assert len(results["rows"]) == 2 * len(METHODS)
+    assert len(results["rows"]) == (2 + len(UNSEEN_BODY_OUTFITS)) * len(METHODS)
+    assert {r["body"] for r in results["rows"] if r["set"] == "unseen_body"} == {"heavy"}
     for r in results["rows"]:
         assert 0.0 <= r["collision_triangle_pct"] <= 100.0 and r["edge_error_mm"] >= 0.0
     base = [r for r in results["rows"] if r["method"] == "baseline"]
@@ -93,7 +101,7 @@ def test_real_cmu_clips_make_a_second_table(tmp_path, monkeypatch):
     model = tmp_path / "model"
     export_deepsd_from_checkpoints("unused", model, init=True)
     results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=REAL)
-    groups = [r["clips"] for r in results["rows"]]
+    groups = [r["set"] for r in results["rows"]]
     assert groups.count("deepmimic") == groups.count("cmu") == len(METHODS)
     assert results["settings"]["real_clips"] == list(REAL_CLIPS)
     assert set(results["mean_real"]) == set(METHODS)
