@@ -18,12 +18,20 @@ INSIDE_WARNING = 0.02  # share of vertices inside the body at rest past which th
 FAR_M = 0.30  # a garment with no vertex this close to the body is not on it
 
 
-def placement(vertices: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray) -> dict:
+def body_distance(body_vertices: np.ndarray, body_faces: np.ndarray) -> MeshDistance:
+    """The distance queries `placement` makes against a body at rest (build once per body, reuse)."""
+    return MeshDistance(np.asarray(body_vertices, dtype=np.float64), body_faces, exact_within=FAR_M)
+
+
+def placement(vertices: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray,
+              distance: MeshDistance | None = None) -> dict:
     """-> {"inside_share", "distance_mm": {"min", "median", "max"}, "bbox": {"garment", "body"} as
-    [[min x, y, z], [max x, y, z]] m, "warnings": [sentences]}."""
+    [[min x, y, z], [max x, y, z]] m, "warnings": [sentences]}. distance: `body_distance` of this body,
+    when the caller keeps one."""
     v = np.asarray(vertices, dtype=np.float64)
     body = np.asarray(body_vertices, dtype=np.float64)
-    sd = MeshDistance(body, body_faces, exact_within=FAR_M).signed_distance(v)
+    distance = distance or body_distance(body, body_faces)
+    sd = distance.signed_distance(v)
     dist_mm = np.abs(sd) * 1e3
     inside = float(np.mean(sd < 0))
     g_lo, g_hi, b_lo, b_hi = v.min(0), v.max(0), body.min(0), body.max(0)
@@ -32,7 +40,7 @@ def placement(vertices: np.ndarray, body_vertices: np.ndarray, body_faces: np.nd
         warnings.append(f"{100 * inside:.0f}% of the vertices are inside the body at rest: the garment is not "
                         "placed on this body (move or scale it onto the body, or it will animate inside it)")
     extent, body_extent = g_hi - g_lo, b_hi - b_lo
-    if _fits_better_y_up(v, body, body_faces, float(np.median(dist_mm))):
+    if _fits_better_y_up(v, distance, float(np.median(dist_mm))):
         warnings.append("the mesh looks Z-up (turned by -90 degrees about x about its centre it sits on the "
                         "body far closer); drape is Y-up")
     height = float(body_extent[1])
@@ -58,17 +66,10 @@ def placement(vertices: np.ndarray, body_vertices: np.ndarray, body_faces: np.nd
     }
 
 
-def _fits_better_y_up(v: np.ndarray, body: np.ndarray, body_faces: np.ndarray, median_mm: float) -> bool:
+def _fits_better_y_up(v: np.ndarray, distance: MeshDistance, median_mm: float) -> bool:
     """Whether the mesh turned from Z-up to Y-up (-90 degrees about x, about its centre) lies at under half
     its median distance from the body surface: then it was authored Z-up."""
     centre = v.mean(axis=0)
     turned = (v - centre) @ np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]) + centre  # (x, y, z) -> (x, z, -y)
-    d = np.abs(MeshDistance(body, body_faces, exact_within=FAR_M).signed_distance(turned)) * 1e3
+    d = np.abs(distance.signed_distance(turned)) * 1e3
     return bool(np.median(d) < 0.5 * median_mm)
-
-
-def nearest_distance(vertices: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray) -> float:
-    """The smallest distance (m) from any garment vertex to the body surface (an upper bound past FAR_M)."""
-    sd = MeshDistance(np.asarray(body_vertices, np.float64), body_faces, exact_within=FAR_M).signed_distance(
-        np.asarray(vertices, np.float64))
-    return float(np.abs(sd).min())

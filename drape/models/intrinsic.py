@@ -25,6 +25,8 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from drape.models.deepsd import mlp
+
 NUM_JOINTS = 24
 
 
@@ -42,15 +44,6 @@ class IntrinsicConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-def mlp(sizes: list[int]) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for i in range(len(sizes) - 1):
-        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
-        if i < len(sizes) - 2:
-            layers.append(nn.ELU())
-    return nn.Sequential(*layers)
 
 
 def character_space(points: torch.Tensor, root_position: torch.Tensor, root_rotation: torch.Tensor) -> torch.Tensor:

@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from drape.assets.body import list_bodies, load_body
 from drape.assets.motion import list_clips, load_clip
-from drape.geometry.placement import FAR_M, placement
+from drape.geometry.placement import FAR_M, body_distance, placement
+from drape.geometry.queries import MeshDistance
 from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
 from drape.runtime.sparse_rig import INFLUENCES
-from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb, vertex_animation_glb
+from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
 from drape.service.settings import Settings
 
@@ -130,11 +132,18 @@ def check_influences(value: Any, field: str = "influences") -> int:
     raise InvalidInput(f"must be 4 or 8 (skin weights per vertex), got {quoted(str(value))}", field)
 
 
+@lru_cache(maxsize=16)
+def _rest_distance(body: str) -> MeshDistance:
+    """The body's distance queries at rest, built once per body (its KD-trees), for every rig's placement."""
+    b = load_body(body)
+    return body_distance(b.vertices, b.faces)
+
+
 def check_on_body(vertices: np.ndarray, body: str, field: str = "vertices") -> dict:
     """The mesh's placement on the body at rest (drape.geometry.placement); a 422 if no vertex is within
     FAR_M of the body surface (the garment is not on this body)."""
     b = load_body(body)
-    report = placement(vertices, b.vertices, b.faces)
+    report = placement(vertices, b.vertices, b.faces, _rest_distance(body))
     if report["distance_mm"]["min"] > FAR_M * 1e3:
         lo, hi = report["bbox"]["garment"]
         raise InvalidInput(f"no vertex is within {FAR_M * 100:.0f} cm of the {body} body at rest (the nearest is "
@@ -253,7 +262,3 @@ def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None 
                         **({"diagnostics": outfit.diagnostics} if outfit.diagnostics else {})}}
     return skinned_glb(Skeleton(body.joint_names, body.parents, body.joints), meshes, animation, extras)
 
-
-def stream_glb(frames: np.ndarray, faces: np.ndarray, fps: float) -> bytes:
-    """A computed stream (T, N, 3) m as a GLB vertex animation (frame t as a morph target)."""
-    return vertex_animation_glb(frames, faces, fps)

@@ -25,15 +25,20 @@ from drape.training.deepsd_eval import (
 )
 
 
-def test_eval_rows_and_written_table(tmp_path, monkeypatch):
+def eval_setup(tmp_path, monkeypatch, outfits, vertices, frames):
+    """A small evaluation config (held-out clip kick) and a freshly initialised export -> (config path, model)."""
     monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
     cfg = load_config()
-    cfg.update(eval_outfits=["skirt", "tshirt,trousers"], eval_vertices=600, heldout_clips=["kick"],
-               eval_frames_per_clip=2)
+    cfg.update(eval_outfits=outfits, eval_vertices=vertices, heldout_clips=["kick"], eval_frames_per_clip=frames)
     config_path = tmp_path / "cfg.json"
     config_path.write_text(json.dumps(cfg))
     model = tmp_path / "model"
     export_deepsd_from_checkpoints("unused", model, init=True)
+    return config_path, model
+
+
+def test_eval_rows_and_written_table(tmp_path, monkeypatch):
+    config_path, model = eval_setup(tmp_path, monkeypatch, ["skirt", "tshirt,trousers"], 600, 2)
     results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=None)
     assert "ground_truth" not in results and "mean_real" not in results
     assert len(results["rows"]) == (2 + len(UNSEEN_BODY_OUTFITS)) * len(METHODS)
@@ -69,13 +74,7 @@ def fake_sim_dataset(root):
 
 
 def test_ground_truth_error_against_simulated_sequences(tmp_path, monkeypatch):
-    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
-    cfg = load_config()
-    cfg.update(eval_outfits=["skirt"], eval_vertices=400, heldout_clips=["kick"], eval_frames_per_clip=1)
-    config_path = tmp_path / "cfg.json"
-    config_path.write_text(json.dumps(cfg))
-    model = tmp_path / "model"
-    export_deepsd_from_checkpoints("unused", model, init=True)
+    config_path, model = eval_setup(tmp_path, monkeypatch, ["skirt"], 400, 1)
     fake_sim_dataset(tmp_path / "sim")
     gt = evaluate(config_path, model, log=lambda *_: None, ground_truth=tmp_path / "sim",
                   real_mocap=None)["ground_truth"]
@@ -93,13 +92,7 @@ REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "mocap"
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/mocap (real CMU clips) is not beside the repository")
 def test_real_cmu_clips_make_a_second_table(tmp_path, monkeypatch):
-    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
-    cfg = load_config()
-    cfg.update(eval_outfits=["skirt"], eval_vertices=400, heldout_clips=["kick"], eval_frames_per_clip=2)
-    config_path = tmp_path / "cfg.json"
-    config_path.write_text(json.dumps(cfg))
-    model = tmp_path / "model"
-    export_deepsd_from_checkpoints("unused", model, init=True)
+    config_path, model = eval_setup(tmp_path, monkeypatch, ["skirt"], 400, 2)
     results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=REAL)
     groups = [r["set"] for r in results["rows"]]
     assert groups.count("deepmimic") == groups.count("cmu") == len(METHODS)

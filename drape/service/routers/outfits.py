@@ -19,7 +19,7 @@ from fastapi.responses import JSONResponse
 from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
-from drape.schemas.gltf import GLB
+from drape.schemas.gltf import GLB, vertex_animation_glb
 from drape.schemas.pc2 import PC2
 from drape.service import decode, handlers
 from drape.service.answers import JSON, FrameSource, stream_frames
@@ -234,7 +234,7 @@ async def refine_stream(request: Request) -> Response:
         def glb() -> Response:
             src = plan()
             frames = np.concatenate(list(src.chunks()))
-            return Response(handlers.stream_glb(frames, src.faces, src.fps), media_type=GLB)
+            return Response(vertex_animation_glb(frames, src.faces, src.fps), media_type=GLB)
 
         return await _whole(request, glb)
     return await _stream(request, answer, plan)
