@@ -42,7 +42,7 @@ sim-dataset: $(VENV)/.dev-installed
 
 # the intrinsic-garment-space dataset (issue 21) of one template: 44 parameter sets (4 held out) x
 # 5 seeded procedural motions (train) + walk, dance_a (held out) x 120 frames; ~0.4 s per frame per
-# core, ~5 core-hours; resumable (rerun to continue), train items first. WORKERS=1 leaves a core free.
+# core, ~5 core-hours; resumable (rerun to continue), train items first, then held-out x held-out. WORKERS=1 leaves a core free.
 INTRINSIC_DIR ?= data/intrinsic/skirt
 WORKERS ?= 1
 intrinsic-data: $(VENV)/.dev-installed

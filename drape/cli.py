@@ -195,10 +195,12 @@ def _train_deepsd(args: argparse.Namespace) -> None:
 def _train_intrinsic(args: argparse.Namespace) -> None:
     import json
 
-    from drape.training.intrinsic import load_config, train
+    from drape.training.intrinsic import export_trained, load_config, train
 
-    _, summary = train(load_config(args.template, args.config), args.checkpoints)
-    print(json.dumps({k: v for k, v in summary.items() if k != "config"}, indent=2))
+    model, summary = train(load_config(args.template, args.config), args.checkpoints)
+    print(json.dumps({k: v for k, v in summary.items() if k not in ("config", "latent_mean", "latent_std")}, indent=2))
+    for path in export_trained(model, summary, args.out or ASSETS / "models" / "intrinsic" / args.template):
+        print(path)
 
 
 def _export_deepsd(args: argparse.Namespace) -> None:
@@ -249,6 +251,28 @@ def _eval_deepsd(args: argparse.Namespace) -> None:
     if args.write:
         for path in write_results(results, args.model):
             print(path)
+
+
+def _eval_intrinsic(args: argparse.Namespace) -> None:
+    from drape.training.intrinsic_eval import evaluate, format_table, write_results
+
+    model_dir = Path(args.model) if args.model else ASSETS / "models" / "intrinsic" / args.template
+    dataset = args.dataset or f"data/intrinsic/{args.template}"
+    results = evaluate(dataset, args.template, model_dir)
+    table = format_table(results)
+    print(table)
+    if args.write:
+        write_results(results, model_dir)
+        docs = Path(args.docs)
+        text = docs.read_text() if docs.exists() else ""
+        begin, end = f"<!-- eval intrinsic {args.template} -->", f"<!-- /eval intrinsic {args.template} -->"
+        block = f"{begin}\n{table}\n{end}"
+        if begin in text and end in text:
+            text = text[:text.index(begin)] + block + text[text.index(end) + len(end):]
+        else:
+            text = text.rstrip() + "\n\n" + block + "\n"
+        docs.write_text(text)
+        print(model_dir / "manifest.json", docs)
 
 
 def _motion_arg(name: str):  # noqa: ANN202 - Motion
@@ -382,6 +406,7 @@ def build_parser() -> argparse.ArgumentParser:
     ti.add_argument("--template", required=True, help="e.g. skirt: drape/training/configs/intrinsic_<template>.json")
     ti.add_argument("--config", help="another config file")
     ti.add_argument("--checkpoints", help="default checkpoints/intrinsic/<template>")
+    ti.add_argument("--out", help="where the ONNX model goes (default drape/assets/models/intrinsic/<template>)")
     ti.set_defaults(func=_train_intrinsic)
     td = t.add_parser("deepsd", help="train DeePSD by physics on generated outfits (resumes from checkpoints)")
     td.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
@@ -413,6 +438,14 @@ def build_parser() -> argparse.ArgumentParser:
     evd.add_argument("--ground-truth", default=str(DEFAULT_GROUND_TRUTH),
                      help="a `drape sim dataset` directory; mean vertex error against its sequences when it exists")
     evd.set_defaults(func=_eval_deepsd)
+
+    evi = ev.add_parser("intrinsic", help="a template's intrinsic garment space on held-out parameters x motions")
+    evi.add_argument("--template", required=True)
+    evi.add_argument("--dataset", help="the `drape sim dataset` folder (default data/intrinsic/<template>)")
+    evi.add_argument("--model", help="default drape/assets/models/intrinsic/<template>")
+    evi.add_argument("--write", action="store_true", help="store the tables in the manifest and docs/intrinsic.md")
+    evi.add_argument("--docs", default="docs/intrinsic.md")
+    evi.set_defaults(func=_eval_intrinsic)
 
     sim = sub.add_parser("sim", help="ground-truth cloth simulation (MuJoCo)").add_subparsers(dest="what", required=True)
     sr = sim.add_parser("run", help="simulate one garment on a body along a clip")

@@ -1,9 +1,13 @@
-"""The intrinsic garment space of one template -> two ONNX files (`encode`, `decode`) + manifest.
+"""The intrinsic garment space of one template -> a model folder the runtime serves.
 
-encode.onnx: vertices (T, N, 3) float32 m and windows (T, W + 1, 24, 3) float32 m, both in each
-frame's character space -> z (T, latent). decode.onnx: z (T, latent), windows -> vertices (T, N, 3).
-T is dynamic. The manifest records the config, the model config, the template's faces count, the
-training summary and each file's sha256.
+- encode.onnx: vertices (T, N, 3) float32 m and windows (T, W + 1, 24, 3) float32 m, both in each
+  frame's character space -> latent (T, Z).
+- decode.onnx: latent (T, Z), windows -> vertices (T, N, 3) in character space. T is dynamic.
+- template.npz: the template in rest pose on its body: vertices (N, 3) float32 m, faces (F, 3) int32.
+- manifest.json: name "intrinsic", version, template name, body, fps, the motion window, the model
+  config, the latent statistics (`latent_mean`, `latent_std`: (Z,) over the training parameter sets'
+  mean latents; `sample` draws from them), the training summary, the evaluation table when measured,
+  and each file's sha256.
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from drape.export.onnx_export import export_onnx, io_spec, sha256
@@ -19,9 +24,14 @@ from drape.models.intrinsic import DecodeGraph, EncodeGraph, IntrinsicSpace
 VERSION = "0.1.0"
 
 
-def export_intrinsic(model: IntrinsicSpace, out: str | Path, extra: dict | None = None) -> list[Path]:
-    """Write encode.onnx, decode.onnx and manifest.json under `out`; returns their paths."""
+def export_intrinsic(model: IntrinsicSpace, out: str | Path, *, template: str = "template",
+                     rest_vertices: np.ndarray | None = None, faces: np.ndarray | None = None,
+                     body: str = "neutral", fps: float = 30.0, latent_mean: np.ndarray | None = None,
+                     latent_std: np.ndarray | None = None, extra: dict | None = None) -> list[Path]:
+    """Write encode.onnx, decode.onnx, template.npz (when rest_vertices and faces are given) and
+    manifest.json under `out`; returns their paths. rest_vertices (N, 3) m, faces (F, 3)."""
     out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     cfg = model.cfg
     model.eval()
     frames = torch.export.Dim("frames", min=1, max=100_000)
@@ -32,8 +42,21 @@ def export_intrinsic(model: IntrinsicSpace, out: str | Path, extra: dict | None 
                       ({0: frames}, {0: frames}))
     dec = export_onnx(DecodeGraph(model), (z, w), out / "decode.onnx", ["latent", "windows"], ["vertices"],
                       ({0: frames}, {0: frames}))
-    manifest = {"name": "intrinsic", "version": VERSION, "model_config": cfg.to_dict(), **(extra or {}),
-                "files": {p.stem: {"file": p.name, "sha256": sha256(p), **io_spec(p)} for p in (enc, dec)}}
+    files = [enc, dec]
+    if rest_vertices is not None and faces is not None:
+        if rest_vertices.shape != (cfg.num_vertices, 3):
+            raise ValueError(f"rest_vertices {rest_vertices.shape} do not match the model's {cfg.num_vertices} vertices")
+        tpl = out / "template.npz"
+        np.savez(tpl, vertices=np.asarray(rest_vertices, np.float32), faces=np.asarray(faces, np.int32))
+        files.append(tpl)
+    mean = np.zeros(cfg.latent) if latent_mean is None else np.asarray(latent_mean, np.float64)
+    std = np.ones(cfg.latent) if latent_std is None else np.asarray(latent_std, np.float64)
+    manifest = {"name": "intrinsic", "version": VERSION, "template": template, "body": body, "fps": float(fps),
+                "window": cfg.window, "model_config": cfg.to_dict(),
+                "latent_mean": [round(float(x), 6) for x in mean], "latent_std": [round(float(x), 6) for x in std],
+                **(extra or {}),
+                "files": {p.stem: {"file": p.name, "sha256": sha256(p), **(io_spec(p) if p.suffix == ".onnx" else {})}
+                          for p in files}}
     path = out / "manifest.json"
     path.write_text(json.dumps(manifest, indent=2) + "\n")
-    return [enc, dec, path]
+    return [*files, path]

@@ -204,8 +204,9 @@ def build_dataset(
     def finished(it: Item) -> bool:
         return (out / "items" / f"{it.key}.npz").exists() or (out / "rejected" / f"{it.key}.json").exists()
 
-    # train items first, so that a dataset stopped part-way (it resumes) can already be trained on
-    order = {"train": 0, "test_params": 1, "test_motions": 2, "test": 3}
+    # train items first, so that a dataset stopped part-way (it resumes) can already be trained on, then
+    # the test items (held-out parameters x held-out motions: the evaluation's), then the partly held out
+    order = {"train": 0, "test": 1, "test_params": 2, "test_motions": 3}
     todo = sorted((it for it in items if not finished(it)),
                   key=lambda it: order[split_of(it.params_index, it.motion.name, s)])
     timings = _load_timings(out)

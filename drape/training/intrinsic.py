@@ -90,7 +90,7 @@ def invariant_loss(model: IntrinsicSpace, v: torch.Tensor, w: torch.Tensor, sets
     between = zs.mean(dim=1).var(dim=0).mean()
     recon = ((model.f_decoder(z, c) - s) ** 2).mean()
     ratio = within / (between + 1e-6)
-    return ratio + lam * recon, {"ratio": float(ratio), "recon": float(recon)}
+    return ratio + lam * recon, {"ratio": ratio.item(), "recon": recon.item()}
 
 
 def _latest(ckpt_dir: Path, phase: str) -> Path | None:
@@ -182,6 +182,38 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
         model.load_state_dict(best[1])
     summary["phases"]["invariant"] = {"steps": ic["steps"], "val_set_latent_error_mm": best[0], "last": parts}
     summary["seconds"] = round(time.perf_counter() - t0, 1)
+    summary["latent_mean"], summary["latent_std"] = latent_statistics(model, train_f)
     torch.save({"model": model.state_dict(), "config": config, "model_config": model.cfg.to_dict(),
                 "summary": summary, "faces": faces}, ckpt / "best.pt")
     return model, summary
+
+
+@torch.no_grad()
+def latent_statistics(model: IntrinsicSpace, frames: Frames) -> tuple[list[float], list[float]]:
+    """Mean and standard deviation, per latent dimension, of the parameter sets' mean latents: (Z,), (Z,).
+    `sample` draws design candidates from them."""
+    means = []
+    for p in np.unique(frames.params):
+        f = frames.subset(frames.params == p)
+        means.append(model.encode(torch.as_tensor(f.vertices), torch.as_tensor(f.windows)).mean(dim=0))
+    m = torch.stack(means)
+    return m.mean(dim=0).tolist(), m.std(dim=0).tolist()
+
+
+def export_trained(model: IntrinsicSpace, summary: dict, out: str | Path) -> list[Path]:
+    """The trained model -> the folder the service serves (drape/assets/models/intrinsic/<template>):
+    the template (the dataset's `<template>.obj`, the rest shape it was simulated from), the body and
+    fps of the dataset, the latent statistics and the training summary."""
+    from drape.export.intrinsic import export_intrinsic
+    from drape.geometry.mesh_io import load_mesh
+
+    config = summary["config"]
+    dataset = Path(config["dataset"])
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    rest, faces = load_mesh(dataset / f"{config['template']}.obj")
+    with np.load(dataset / manifest["items"][0]["file"], allow_pickle=False) as z:
+        fps = float(z["fps"])
+    training = {k: v for k, v in summary.items() if k not in ("latent_mean", "latent_std")}
+    return export_intrinsic(model, out, template=config["template"], rest_vertices=rest, faces=faces,
+                            body=manifest["body"], fps=fps, latent_mean=np.asarray(summary["latent_mean"]),
+                            latent_std=np.asarray(summary["latent_std"]), extra={"training": training})

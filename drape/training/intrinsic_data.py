@@ -19,32 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.assets.body import load_body
-from drape.geometry.skeleton import forward_kinematics
-
-
-def root_frames(poses: np.ndarray, trans: np.ndarray, rest_joints: np.ndarray, parents: np.ndarray,
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """poses (T, 24, 3) rad, trans (T, 3) m -> (joint positions (T, 24, 3), root position (T, 3),
-    root rotation (T, 3, 3)), metres, world space."""
-    tf, joints = forward_kinematics(poses, rest_joints, parents, trans)
-    return joints, joints[:, 0], tf[:, 0, :3, :3]
-
-
-def character_space_numpy(points: np.ndarray, root_position: np.ndarray, root_rotation: np.ndarray) -> np.ndarray:
-    """points (T, ..., 3) world -> R_t^T (p - root_t) per frame t; root_position (T, 3), root_rotation (T, 3, 3)."""
-    shape = points.shape
-    p = points.reshape(shape[0], -1, 3) - root_position[:, None, :]
-    return np.einsum("tnj,tjk->tnk", p, root_rotation).reshape(shape)
-
-
-def motion_windows(joints: np.ndarray, root_position: np.ndarray, root_rotation: np.ndarray,
-                   window: int) -> np.ndarray:
-    """joints (T, 24, 3) world -> (T, window + 1, 24, 3): frames t - window .. t (clamped at 0), each
-    in the character space of frame t."""
-    T = len(joints)
-    idx = np.clip(np.arange(T)[:, None] + np.arange(-window, 1)[None, :], 0, None)  # (T, W + 1)
-    w = joints[idx] - root_position[:, None, None, :]  # (T, W + 1, 24, 3)
-    return np.einsum("twnj,tjk->twnk", w, root_rotation).astype(np.float32)
+from drape.geometry.character_space import character_space_numpy, motion_windows, root_frames
 
 
 @dataclass

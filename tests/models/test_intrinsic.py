@@ -71,7 +71,7 @@ def synthetic_dataset(tmp_path_factory):
     from drape.assets.motion import load_clip
     from drape.sim.dataset import save_sequence, split_of, splits
     from drape.sim.params import sample_params
-    from drape.training.intrinsic_data import character_space_numpy, root_frames
+    from drape.geometry.character_space import character_space_numpy, root_frames
 
     out = tmp_path_factory.mktemp("intrinsic")
     (out / "items").mkdir()
