@@ -7,12 +7,27 @@
         for frame in client.animate_stream(outfit_id=rig.outfit_id, motion="walk"):
             ...                                                   # (N, 3) float32, as it arrives
 
+Garments (the intrinsic space of trained templates; a keyframe is a shape or a latent):
+
+    client.garments()                                              # what is served
+    tpl = client.garment("skirt")                                  # its template mesh
+    z = client.encode_keyframe("skirt", vertices=shape, motion="walk", frame=10)        # (Z,)
+    verts = client.animate_keyframes("skirt", motion="walk", keyframes=[{"frame": 10, "latent": z}])
+    designs = client.sample_designs("skirt", count=8, seed=1, motion="walk", frame=0)  # latents, shapes
+
 Outfits: a mesh file path (OBJ, PLY, GLB), a (vertices, faces) pair of arrays, or any
 object with `.vertices` and `.faces` (a trimesh.Trimesh). Motions: an embedded clip
 name, a poses array (T, 24, 3) or (T, 72), or an object/mapping with poses, trans or
 translation, fps. Answers travel as npz or the binary frame stream by default.
 """
 
-from drape.client.client import AsyncClient, Client, DrapeAPIError, RigResult
+from drape.client.client import (
+    AsyncClient,
+    Client,
+    DesignSamples,
+    DrapeAPIError,
+    GarmentTemplate,
+    RigResult,
+)
 
-__all__ = ["AsyncClient", "Client", "DrapeAPIError", "RigResult"]
+__all__ = ["AsyncClient", "Client", "DesignSamples", "DrapeAPIError", "GarmentTemplate", "RigResult"]

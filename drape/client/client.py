@@ -4,22 +4,27 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import AsyncIterator, Iterator, Mapping
+from collections.abc import AsyncIterator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, overload
+from urllib.parse import quote
 
 import httpx
 import numpy as np
 
 from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, FrameReader, decode_npz, encode_npz
 from drape.schemas.catalog import BodyList, Health, MotionList
+from drape.schemas.garments import GarmentList
 from drape.schemas.models import ModelList
 
 OutfitLike = Any  # path | (vertices, faces) | object with .vertices/.faces
 Format = Literal["array", "glb", "pc2"]  # frames as one (T, N, 3) array, or the file bytes of an engine format
 _FILE_TYPES = {"glb": "model/gltf-binary", "pc2": "application/x-pc2"}
 MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps
+# a keyframe: {"frame": f, "vertices": (N, 3)} or {"frame": f, "latent": (Z,)}, or a (frame, array) pair whose
+# array is vertices (N, 3) (2-D) or a latent (Z,) (1-D)
+KeyframeLike = Mapping[str, Any] | tuple[int, Any]
 
 
 class DrapeAPIError(Exception):
@@ -42,6 +47,25 @@ class RigResult:
     parents: np.ndarray
     rest_joints: np.ndarray
     diagnostics: dict = field(default_factory=dict)  # inside_share, distance_mm, bbox, warnings (sentences)
+
+
+@dataclass(frozen=True)
+class GarmentTemplate:
+    """A served garment template in rest pose on its body: vertices (N, 3) float32 m, faces (F, 3) int32."""
+
+    name: str
+    body: str
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+@dataclass(frozen=True)
+class DesignSamples:
+    """Design candidates: latents (count, Z) float32 and their shapes (count, N, 3) float32 m, world space at the
+    frame they were decoded at."""
+
+    latents: np.ndarray
+    vertices: np.ndarray
 
 
 def _raise_for(response: httpx.Response) -> None:
@@ -121,6 +145,70 @@ def _refine_npz(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, bod
         options["relief_iterations"] = np.array(int(relief_iterations))
     return encode_npz({"vertices": np.asarray(vertices, np.float32), "faces": np.asarray(faces, np.int64),
                        **_motion_arrays(motion), "body": np.array(body), **options})
+
+
+def _garment_path(name: str, route: str = "") -> str:
+    return f"/v1/garments/{quote(name, safe='')}" + (f"/{route}" if route else "")
+
+
+def _keyframe_arrays(keyframes: Sequence[KeyframeLike]) -> dict[str, np.ndarray]:
+    """Keyframes as the animate request's npz members: vertex_frames (Kv,) + vertices (Kv, N, 3) and
+    latent_frames (Kl,) + latents (Kl, Z)."""
+    shapes: list[tuple[int, np.ndarray]] = []
+    latents: list[tuple[int, np.ndarray]] = []
+    for key in keyframes:
+        if isinstance(key, Mapping):
+            if ("vertices" in key) == ("latent" in key):
+                raise ValueError("a keyframe mapping needs 'frame' and exactly one of 'vertices' and 'latent'")
+            frame, value, is_latent = key["frame"], key.get("latent", key.get("vertices")), "latent" in key
+        else:
+            frame, value = key
+            is_latent = np.ndim(value) == 1
+        (latents if is_latent else shapes).append((int(frame), np.asarray(value, np.float32)))
+    if not shapes and not latents:
+        raise ValueError("give at least one keyframe")
+    out: dict[str, np.ndarray] = {}
+    if shapes:
+        out["vertex_frames"] = np.array([f for f, _ in shapes], np.int64)
+        out["vertices"] = np.stack([v for _, v in shapes])
+    if latents:
+        out["latent_frames"] = np.array([f for f, _ in latents], np.int64)
+        out["latents"] = np.stack([z for _, z in latents])
+    return out
+
+
+def _encode_npz(vertices: np.ndarray, motion: MotionLike, frame: int) -> dict:
+    return {"content": encode_npz({"vertices": np.asarray(vertices, np.float32), "frame": np.array(int(frame)),
+                                   **_motion_arrays(motion)}),
+            "headers": {"Content-Type": NPZ, "Accept": NPZ}}
+
+
+def _keyframes_npz(motion: MotionLike, keyframes: Sequence[KeyframeLike], refine: bool) -> dict:
+    return {"content": encode_npz({**_motion_arrays(motion), **_keyframe_arrays(keyframes),
+                                   "refine": np.array(bool(refine))}), "headers": {"Content-Type": NPZ}}
+
+
+def _sample_npz(count: int, seed: int, motion: MotionLike, frame: int) -> dict:
+    return {"content": encode_npz({"count": np.array(int(count)), "seed": np.array(int(seed)),
+                                   "frame": np.array(int(frame)), **_motion_arrays(motion)}),
+            "headers": {"Content-Type": NPZ, "Accept": NPZ}}
+
+
+def _template(response: httpx.Response) -> GarmentTemplate:
+    _raise_for(response)
+    z = decode_npz(response.content)
+    return GarmentTemplate(str(z["name"]), str(z["body"]), z["vertices"], z["faces"])
+
+
+def _latent(response: httpx.Response) -> np.ndarray:
+    _raise_for(response)
+    return decode_npz(response.content)["latent"]
+
+
+def _samples(response: httpx.Response) -> DesignSamples:
+    _raise_for(response)
+    z = decode_npz(response.content)
+    return DesignSamples(z["latents"], z["vertices"])
 
 
 def _file_type(format: str) -> str:
@@ -273,6 +361,45 @@ class Client(_Base):
             if not dec.done:
                 raise DrapeAPIError(r.status_code, "", "Truncated stream", "the frame stream ended early")
 
+    def garments(self) -> GarmentList:
+        """The served garment templates (name, vertex count, body, models; intrinsic: fps, window, version,
+        latent size)."""
+        return GarmentList.model_validate(self._get("/v1/garments"))
+
+    def garment(self, name: str) -> GarmentTemplate:
+        """A garment's template mesh in rest pose on its body."""
+        return _template(self._http.get(_garment_path(name), headers={"Accept": NPZ}))
+
+    def encode_keyframe(self, name: str, *, vertices: np.ndarray, motion: MotionLike, frame: int) -> np.ndarray:
+        """A keyframe shape -> its latent (Z,) float32: vertices (N, 3) m, world space at `frame` (0-based) of
+        `motion` (a clip name, a poses array, or a mapping with poses, trans, fps)."""
+        return _latent(self._http.post(_garment_path(name, "encode"), **_encode_npz(vertices, motion, frame)))
+
+    @overload
+    def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
+                          refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
+
+    @overload
+    def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
+                          refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+
+    def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
+                          refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+        """The garment's stream (T, N, 3) float32 m from keyframes: each {"frame": f, "vertices": (N, 3)} (world
+        space at frame f) or {"frame": f, "latent": (Z,)}, or a (frame, array) pair; latents are interpolated
+        between keyframes and decoded with every frame's motion window; `refine` pushes the garment out of its
+        body. format="glb" / "pc2": the bytes of a GLB vertex animation / a PC2 point cache."""
+        req = _keyframes_npz(motion, keyframes, refine)
+        if format != "array":
+            return self._file(_garment_path(name, "animate"), _file_type(format), **req)
+        return self._frames(_garment_path(name, "animate"), **req)
+
+    def sample_designs(self, name: str, *, count: int, seed: int = 0, motion: MotionLike,
+                       frame: int = 0) -> DesignSamples:
+        """`count` design candidates (latents from the model's latent statistics, numpy default_rng(seed)) and
+        their shapes at `frame` of `motion`."""
+        return _samples(self._http.post(_garment_path(name, "sample"), **_sample_npz(count, seed, motion, frame)))
+
 
 class AsyncClient(_Base):
     """The async twin of Client, on httpx.AsyncClient."""
@@ -292,6 +419,46 @@ class AsyncClient(_Base):
 
     async def aclose(self) -> None:
         await self._http.aclose()
+
+    async def _get(self, path: str) -> Any:
+        r = await self._http.get(path)
+        _raise_for(r)
+        return r.json()
+
+    async def garments(self) -> GarmentList:
+        """The served garment templates (see Client.garments)."""
+        return GarmentList.model_validate(await self._get("/v1/garments"))
+
+    async def garment(self, name: str) -> GarmentTemplate:
+        """A garment's template mesh in rest pose on its body."""
+        return _template(await self._http.get(_garment_path(name), headers={"Accept": NPZ}))
+
+    async def encode_keyframe(self, name: str, *, vertices: np.ndarray, motion: MotionLike,
+                              frame: int) -> np.ndarray:
+        """A keyframe shape -> its latent (Z,) float32 (see Client.encode_keyframe)."""
+        return _latent(await self._http.post(_garment_path(name, "encode"), **_encode_npz(vertices, motion, frame)))
+
+    @overload
+    async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
+                                refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
+
+    @overload
+    async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
+                                refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+
+    async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
+                                refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+        """The garment's stream (T, N, 3) float32 m from keyframes (see Client.animate_keyframes)."""
+        req = _keyframes_npz(motion, keyframes, refine)
+        if format != "array":
+            return await self._file(_garment_path(name, "animate"), _file_type(format), **req)
+        return await self._frames(_garment_path(name, "animate"), **req)
+
+    async def sample_designs(self, name: str, *, count: int, seed: int = 0, motion: MotionLike,
+                             frame: int = 0) -> DesignSamples:
+        """Design candidates and their shapes at `frame` (see Client.sample_designs)."""
+        return _samples(await self._http.post(_garment_path(name, "sample"),
+                                              **_sample_npz(count, seed, motion, frame)))
 
     async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4) -> RigResult:
         r = await self._http.post("/v1/outfits/rig", headers={"Accept": NPZ},

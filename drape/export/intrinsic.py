@@ -1,8 +1,12 @@
 """The intrinsic garment space of one template -> a model folder the runtime serves.
 
-- encode.onnx: vertices (T, N, 3) float32 m and windows (T, W + 1, 24, 3) float32 m, both in each
-  frame's character space -> latent (T, Z).
-- decode.onnx: latent (T, Z), windows -> vertices (T, N, 3) in character space. T is dynamic.
+- shape_encode.onnx (N_E): vertices (T, N, 3) float32 m in each frame's character space -> descriptor (T, D).
+- shape_decode.onnx (N_D): descriptor (T, D) -> vertices (T, N, 3) m, character space.
+- encode.onnx (M_E, F_E): descriptor (T, D), windows (T, W + 1, 24, 3) float32 m (character space) -> latent (T, Z).
+- decode.onnx (M_E, F_D): latent (T, Z), windows -> descriptor (T, D). T is dynamic in all four.
+  The runtime composes them (vertices -> latent: shape_encode then encode; latent -> vertices: decode then
+  shape_decode); apart, the shape autoencoder gives the descriptor-interpolation baseline, and the large
+  first/last layers of N_E/N_D are stored once.
 - template.npz: the template in rest pose on its body: vertices (N, 3) float32 m, faces (F, 3) int32.
 - manifest.json: name "intrinsic", version, template name, body, fps, the motion window, the model
   config, the latent statistics (`latent_mean`, `latent_std`: (Z,) over the training parameter sets'
@@ -19,7 +23,13 @@ import numpy as np
 import torch
 
 from drape.export.onnx_export import export_onnx, io_spec, sha256
-from drape.models.intrinsic import DecodeGraph, EncodeGraph, IntrinsicSpace
+from drape.models.intrinsic import (
+    DecodeGraph,
+    EncodeGraph,
+    IntrinsicSpace,
+    ShapeDecodeGraph,
+    ShapeEncodeGraph,
+)
 
 VERSION = "0.1.0"
 
@@ -28,7 +38,7 @@ def export_intrinsic(model: IntrinsicSpace, out: str | Path, *, template: str = 
                      rest_vertices: np.ndarray | None = None, faces: np.ndarray | None = None,
                      body: str = "neutral", fps: float = 30.0, latent_mean: np.ndarray | None = None,
                      latent_std: np.ndarray | None = None, extra: dict | None = None) -> list[Path]:
-    """Write encode.onnx, decode.onnx, template.npz (when rest_vertices and faces are given) and
+    """Write the four ONNX files, template.npz (when rest_vertices and faces are given) and
     manifest.json under `out`; returns their paths. rest_vertices (N, 3) m, faces (F, 3)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -36,13 +46,18 @@ def export_intrinsic(model: IntrinsicSpace, out: str | Path, *, template: str = 
     model.eval()
     frames = torch.export.Dim("frames", min=1, max=100_000)
     v = torch.zeros(2, cfg.num_vertices, 3)
+    s = torch.zeros(2, cfg.descriptor)
     w = torch.zeros(2, cfg.window + 1, 24, 3)
     z = torch.zeros(2, cfg.latent)
-    enc = export_onnx(EncodeGraph(model), (v, w), out / "encode.onnx", ["vertices", "windows"], ["latent"],
+    se = export_onnx(ShapeEncodeGraph(model), (v,), out / "shape_encode.onnx", ["vertices"], ["descriptor"],
+                     ({0: frames},))
+    sd = export_onnx(ShapeDecodeGraph(model), (s,), out / "shape_decode.onnx", ["descriptor"], ["vertices"],
+                     ({0: frames},))
+    enc = export_onnx(EncodeGraph(model), (s, w), out / "encode.onnx", ["descriptor", "windows"], ["latent"],
                       ({0: frames}, {0: frames}))
-    dec = export_onnx(DecodeGraph(model), (z, w), out / "decode.onnx", ["latent", "windows"], ["vertices"],
+    dec = export_onnx(DecodeGraph(model), (z, w), out / "decode.onnx", ["latent", "windows"], ["descriptor"],
                       ({0: frames}, {0: frames}))
-    files = [enc, dec]
+    files = [enc, dec, se, sd]
     if rest_vertices is not None and faces is not None:
         if rest_vertices.shape != (cfg.num_vertices, 3):
             raise ValueError(f"rest_vertices {rest_vertices.shape} do not match the model's {cfg.num_vertices} vertices")

@@ -144,26 +144,48 @@ class IntrinsicSpace(nn.Module):
         return self.shape.decode(self.f_decoder(z, self.motion(window)))
 
 
-class EncodeGraph(nn.Module):
-    """The exported `encode`: vertices (T, N, 3), windows (T, W + 1, 24, 3) -> z (T, latent)."""
+class ShapeEncodeGraph(nn.Module):
+    """The exported `shape_encode` (N_E): vertices (T, N, 3) m, character space -> descriptor (T, D)."""
 
     def __init__(self, model: IntrinsicSpace):
         super().__init__()
         self.model = model
 
-    def forward(self, vertices: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
-        return self.model.encode(vertices, window)
+    def forward(self, vertices: torch.Tensor) -> torch.Tensor:
+        return self.model.shape.encode(vertices)
+
+
+class ShapeDecodeGraph(nn.Module):
+    """The exported `shape_decode` (N_D): descriptor (T, D) -> vertices (T, N, 3) m, character space."""
+
+    def __init__(self, model: IntrinsicSpace):
+        super().__init__()
+        self.model = model
+
+    def forward(self, descriptor: torch.Tensor) -> torch.Tensor:
+        return self.model.shape.decode(descriptor)
+
+
+class EncodeGraph(nn.Module):
+    """The exported `encode` (M_E, F_E): descriptor (T, D), windows (T, W + 1, 24, 3) -> z (T, latent)."""
+
+    def __init__(self, model: IntrinsicSpace):
+        super().__init__()
+        self.model = model
+
+    def forward(self, descriptor: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
+        return self.model.f_encoder(descriptor, self.model.motion(window))
 
 
 class DecodeGraph(nn.Module):
-    """The exported `decode`: z (T, latent), windows (T, W + 1, 24, 3) -> vertices (T, N, 3)."""
+    """The exported `decode` (M_E, F_D): z (T, latent), windows (T, W + 1, 24, 3) -> descriptor (T, D)."""
 
     def __init__(self, model: IntrinsicSpace):
         super().__init__()
         self.model = model
 
     def forward(self, z: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
-        return self.model.decode(z, window)
+        return self.model.f_decoder(z, self.model.motion(window))
 
 
 def uniform_laplacian_loss(pred: torch.Tensor, target: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:

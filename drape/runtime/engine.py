@@ -1,4 +1,5 @@
-"""The serving engine: the DeePSD model, an outfit rig cache, chunked posing (numpy + ORT only).
+"""The serving engine: the DeePSD model, an outfit rig cache, chunked posing, and the intrinsic garment
+models (`drape.runtime.intrinsic`) with their chunked decoding (numpy + ORT only).
 
 Refinement of a chunk of frames is split over `refine_workers` processes (frames are refined
 independently, so the result is the same as in one process): on the 2-core machine a 6k-vertex
@@ -34,6 +35,7 @@ from drape.geometry.refine import (
 from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
+from drape.runtime.intrinsic import DECODE_BLOCK, INTRINSIC_DIR, GarmentRegistry, IntrinsicGarment
 from drape.runtime.sparse_rig import INFLUENCES, fit_poses, sparse_rig
 
 POSE_BLOCK = 128  # frames posed per call (then handed out a chunk at a time)
@@ -176,11 +178,14 @@ class RefinePool:
 
 
 class Engine:
-    """Loads the model once; rigs outfits (cached by content) and poses them chunk by chunk."""
+    """Loads the models once; rigs outfits (cached by content) and poses them chunk by chunk; decodes the
+    intrinsic garments' latents (`garments`: every model folder under `intrinsic_dir`, none if it is missing)."""
 
     def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, cache_bytes: int = 512 * 2**20,
-                 observe: Callable[[str, float], None] | None = None, refine_workers: int = 1):
+                 observe: Callable[[str, float], None] | None = None, refine_workers: int = 1,
+                 intrinsic_dir: str | Path | None = INTRINSIC_DIR):
         self.model = DeePSDModel(model_dir, threads=threads)
+        self.garments = GarmentRegistry(intrinsic_dir, threads=threads)
         self.refine_pool = RefinePool(refine_workers)
         self.cache: LRUBytesCache[RiggedOutfit] = LRUBytesCache(cache_bytes)
         self._observe = observe or (lambda stage, seconds: None)
@@ -289,6 +294,28 @@ class Engine:
             yield self.refine_pool.refine(vertices[s], faces, body, poses[s], translation[s], options)
             self._observe("refine", time.perf_counter() - t)
 
+    def garment_chunks(self, garment: IntrinsicGarment, latents: np.ndarray, poses: np.ndarray,
+                       translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,
+                       ) -> Iterator[np.ndarray]:
+        """An intrinsic garment's stream: latents (T, Z), one per frame of the motion (poses (T, 24, 3) rad,
+        translation (T, 3) m) -> world-space vertices (n, N, 3) float32 m in chunks of up to `chunk` frames,
+        refined against the garment's body (its template faces) if asked. Decoding runs DECODE_BLOCK
+        frames per ONNX Runtime call, handed out a chunk at a time; the root frames are computed once."""
+        motion = garment.motion_frames(poses, translation)
+        block = max(chunk, DECODE_BLOCK)
+        start = 0
+        for frames in garment.decode_chunks(latents, motion, block, observe=self._observe):
+            for s in range(0, len(frames), chunk):
+                part = frames[s : s + chunk]
+                if refine is not None:
+                    t = time.perf_counter()
+                    at = slice(start + s, start + s + len(part))
+                    part = self.refine_pool.refine(part, garment.faces, garment.body, poses[at], translation[at],
+                                                   refine)
+                    self._observe("refine", time.perf_counter() - t)
+                yield part
+            start += len(frames)
+
     def close(self) -> None:
         """Stop the refinement worker processes, if any started."""
         self.refine_pool.close()
@@ -302,5 +329,6 @@ class Engine:
         for _ in self.pose_chunks(outfit, np.zeros((2, 24, 3)), np.zeros((2, 3))):
             pass
         self.fit_frames()
+        self.garments.warm_up()
         if self.refine_pool.workers >= 2:
             self.refine_pool.start()

@@ -12,6 +12,18 @@ from fastapi.openapi.utils import get_openapi
 
 from drape import __version__
 from drape.runtime.engine import Engine
+from drape.runtime.intrinsic import garment_names
+from drape.schemas.garments import (
+    EncodeFields,
+    EncodeRequest,
+    EncodeResponse,
+    GarmentTemplate,
+    KeyframeAnimateRequest,
+    KeyframeFields,
+    SampleFields,
+    SampleRequest,
+    SampleResponse,
+)
 from drape.schemas.outfits import (
     AnimateRequest,
     AnimateResponse,
@@ -25,7 +37,7 @@ from drape.service.admission import Admission
 from drape.service.http import require_api_key
 from drape.service.metrics import CountRequests, Metrics
 from drape.service.routers import catalog as catalog_router
-from drape.service.routers import health, models, outfits, viewer
+from drape.service.routers import garments, health, models, outfits, viewer
 from drape.service.settings import Settings
 
 
@@ -39,7 +51,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             catalog.bodies()
             catalog.motions()
             engine = Engine(settings.model_dir, settings.ort_threads, settings.outfit_cache_bytes,
-                            observe=metrics.observe_inference, refine_workers=settings.refine_workers)
+                            observe=metrics.observe_inference, refine_workers=settings.refine_workers,
+                            intrinsic_dir=settings.intrinsic_dir)
             engine.warm_up()
             app.state.engine = engine
 
@@ -53,7 +66,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = FastAPI(
         title="drape", version=__version__, lifespan=lifespan,
-        description="Neural garment animation: outfit rigging (DeePSD) and posed vertex streams. "
+        description="Neural garment animation: outfit rigging (DeePSD) and posed vertex streams; the intrinsic "
+                    "garment space of trained garment templates (keyframes -> streams, design samples). "
                     "Errors are RFC 9457 problem documents. Units: metres, +Y up, 24-joint SMPL skeleton.",
     )
     app.state.ready = False
@@ -69,7 +83,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(viewer.router)  # the page and its files; the page calls /v1 with the key typed into it
     auth = [Depends(require_api_key)]
-    for router in (catalog_router.router, models.router, outfits.router, outfits.refine_router):
+    for router in (catalog_router.router, models.router, outfits.router, outfits.refine_router, garments.router):
         app.include_router(router, dependencies=auth)
 
     def openapi() -> dict:
@@ -77,12 +91,29 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             return app.openapi_schema
         schema = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
         comps = schema.setdefault("components", {}).setdefault("schemas", {})
-        for model in (RigRequest, RigResponse, AnimateRequest, AnimateResponse, RefineRequest, Problem):
+        for model in (RigRequest, RigResponse, AnimateRequest, AnimateResponse, RefineRequest, Problem,
+                      GarmentTemplate, EncodeRequest, EncodeFields, EncodeResponse, KeyframeAnimateRequest,
+                      KeyframeFields, SampleRequest, SampleFields, SampleResponse):
             js = model.model_json_schema(ref_template="#/components/schemas/{model}")
             comps.update(js.pop("$defs", {}))
             comps[model.__name__] = js
+        _garment_name_examples(schema, garment_names(settings.intrinsic_dir))
         app.openapi_schema = schema
         return schema
 
     app.openapi = openapi  # type: ignore[method-assign]
     return app
+
+
+def _garment_name_examples(schema: dict, names: list[str]) -> None:
+    """The served garments' names as the example of every garment route's `name` parameter (the docs page and
+    the contract tests then reach a garment)."""
+    if not names:
+        return
+    for path, item in schema.get("paths", {}).items():
+        if not path.startswith("/v1/garments/{name}"):
+            continue
+        for operation in item.values():
+            for param in operation.get("parameters", []) if isinstance(operation, dict) else []:
+                if param.get("name") == "name" and param.get("in") == "path":
+                    param["example"] = names[0]

@@ -13,6 +13,14 @@ from pydantic import BaseModel, ValidationError
 
 from drape.runtime.engine import Engine
 from drape.schemas.binary import NpzTooLarge, decode_npz
+from drape.schemas.garments import (
+    EncodeFields,
+    EncodeRequest,
+    KeyframeAnimateRequest,
+    KeyframeFields,
+    SampleFields,
+    SampleRequest,
+)
 from drape.schemas.outfits import AnimateRequest, RefineOptions, RefineRequest, RigRequest
 from drape.service import uploads
 from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotFound, quoted
@@ -332,3 +340,117 @@ def _refine_form(data: bytes, content_type: str, settings: Settings) -> tuple[An
     body = check_body(_text(parts, "body"))
     motion = _form_motion(parts, body, settings)
     return npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), motion, body, _form_options(parts)
+
+
+# ---- the garment routes (intrinsic space) --------------------------------------------------------
+
+GARMENT_FORM = ("motion_file", "fps", "up", "request")
+GARMENT_NPZ = {
+    "encode": ("vertices", "frame"),
+    "animate": ("vertex_frames", "vertices", "latent_frames", "latents", "refine", *REFINE_OPTIONS),
+    "sample": ("count", "seed", "frame"),
+}
+MOTION_NPZ = ("poses", "translation", "fps", "clip")
+GARMENT_REQUESTS: dict[str, type[BaseModel]] = {"encode": EncodeRequest, "animate": KeyframeAnimateRequest,
+                                                "sample": SampleRequest}
+GARMENT_FIELDS: dict[str, type[BaseModel]] = {"encode": EncodeFields, "animate": KeyframeFields,
+                                              "sample": SampleFields}
+
+
+def garment_request(route: str, kind: str, data: bytes, settings: Settings, body: str, content_type: str = "") -> dict:
+    """A garment route's body (route: "encode", "animate" or "sample") -> a dict shaped like its request model
+    (EncodeRequest, KeyframeAnimateRequest, SampleRequest), the arrays not yet checked against the garment.
+
+    JSON: the model itself. npz: the motion's members (clip or poses, translation, fps) and the route's:
+    encode: vertices (N, 3), frame (integer scalar); sample: count, seed, frame (integer scalars); animate:
+    vertex_frames (Kv,) with vertices (Kv, N, 3) and/or latent_frames (Kl,) with latents (Kl, Z) (keyframes
+    numbered vertex ones first), refine (boolean scalar) and/or the refine options as scalars. A multipart form:
+    motion_file (a BVH or AMASS npz, retargeted onto the garment's `body`), fps, up, and `request`: the JSON
+    request without its motion."""
+    if kind == "application/x-npz":
+        return _garment_npz(route, data, settings)
+    if kind == "multipart/form-data":
+        parts = _form(data, content_type, GARMENT_FORM)
+        text = parts.get("request")
+        doc = _document(text.data) if text is not None else {}
+        _precheck_garment(route, doc, settings)
+        request = _model(GARMENT_FIELDS[route], doc).model_dump()
+        request["motion"] = _form_motion(parts, body, settings)
+        return request
+    doc = _document(data)
+    _precheck_garment(route, doc, settings)
+    _precheck_motion(doc.get("motion"), settings)
+    return _model(GARMENT_REQUESTS[route], doc).model_dump()
+
+
+def _precheck_garment(route: str, doc: dict, settings: Settings) -> None:
+    """Counts over the limits, before the models validate every number."""
+    if route == "encode":
+        _count(doc.get("vertices"), settings.max_vertices, "vertices", "vertices")
+    elif route == "animate":
+        keys = doc.get("keyframes")
+        _count(keys, settings.max_frames, "keyframes", "keyframes")
+        for i, key in enumerate(keys if isinstance(keys, list) else []):
+            if isinstance(key, dict):
+                _count(key.get("vertices"), settings.max_vertices, "vertices", f"keyframes[{i}].vertices")
+
+
+def _npz_motion(z: dict[str, np.ndarray]) -> dict:
+    fps = npz_scalar(z, "fps")
+    return {"clip": npz_text(z, "clip"), "fps": 30.0 if fps is None else float(fps),
+            "poses": npz_numbers(z, "poses") if "poses" in z else None,
+            "translation": npz_numbers(z, "translation") if "translation" in z else None}
+
+
+def npz_integer(z: dict[str, np.ndarray], name: str) -> int | None:
+    """An integer scalar member, or None when absent."""
+    if name not in z:
+        return None
+    a = z[name]
+    if a.shape != () or a.dtype.kind not in "iu":
+        raise InvalidInput(f"expected an integer scalar, got dtype {a.dtype} and shape {a.shape}", name)
+    return int(a)
+
+
+def _garment_npz(route: str, data: bytes, settings: Settings) -> dict:
+    z = npz_members(data, (*MOTION_NPZ, *GARMENT_NPZ[route]), settings)
+    request: dict[str, Any] = {"motion": _npz_motion(z)}
+    if route == "encode":
+        if "vertices" not in z or "frame" not in z:
+            raise InvalidInput("the archive needs 'vertices' (N, 3) and 'frame' (an integer scalar)", "body")
+        request.update(vertices=npz_numbers(z, "vertices"), frame=npz_integer(z, "frame"))
+    elif route == "sample":
+        if "count" not in z:
+            raise InvalidInput("the archive needs 'count' (an integer scalar)", "body")
+        request["count"] = npz_integer(z, "count")
+        for name in ("seed", "frame"):
+            if name in z:
+                request[name] = npz_integer(z, name)
+    else:
+        keyframes: list[dict[str, Any]] = []
+        for frames_name, values_name, key in (("vertex_frames", "vertices", "vertices"),
+                                              ("latent_frames", "latents", "latent")):
+            if (frames_name in z) != (values_name in z):
+                raise InvalidInput(f"give '{frames_name}' and '{values_name}' together", "body")
+            if frames_name not in z:
+                continue
+            frames = npz_numbers(z, frames_name, integer=True)
+            values = npz_numbers(z, values_name)
+            if frames.ndim != 1 or values.ndim < 1 or len(values) != len(frames):
+                raise InvalidInput(f"'{frames_name}' must be (K,) and '{values_name}' hold K keyframes, got shapes "
+                                   f"{frames.shape} and {values.shape}", values_name)
+            if len(frames) > settings.max_frames:
+                raise LimitExceeded(f"{len(frames)} keyframes exceed the limit of {settings.max_frames}", frames_name)
+            keyframes += [{"frame": int(f), key: v} for f, v in zip(frames, values, strict=True)]
+        if not keyframes:
+            raise InvalidInput("give at least one keyframe: 'vertex_frames' with 'vertices' and/or 'latent_frames' "
+                               "with 'latents'", "keyframes")
+        refine: bool | dict | None = npz_options(z)
+        if "refine" in z:
+            flag = z["refine"]
+            if flag.shape != () or flag.dtype.kind != "b":
+                raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}",
+                                   "refine")
+            refine = refine if (bool(flag) and refine) else bool(flag)
+        request.update(keyframes=keyframes, refine=refine or False)
+    return request

@@ -8,6 +8,7 @@ from pydantic import field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from drape.runtime.deepsd import MODEL_DIR
+from drape.runtime.intrinsic import INTRINSIC_DIR
 
 
 class Settings(BaseSettings):
@@ -16,6 +17,7 @@ class Settings(BaseSettings):
     host: str = "127.0.0.1"
     port: int = 8000
     model_dir: Path = MODEL_DIR
+    intrinsic_dir: Path = INTRINSIC_DIR  # one folder per intrinsic garment model; missing or empty: no garments
     ort_threads: int = 2
     # what one request may hold
     max_vertices: int = 100_000

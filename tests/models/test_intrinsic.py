@@ -54,12 +54,13 @@ def test_the_onnx_exports_equal_torch(tmp_path):
     with torch.no_grad():
         z = model.encode(v, w)
         out = model.decode(z, w)
-    enc = ort.InferenceSession(str(paths[0]))
-    dec = ort.InferenceSession(str(paths[1]))
-    z_ort = enc.run(None, {"vertices": v.numpy(), "windows": w.numpy()})[0]
-    out_ort = dec.run(None, {"latent": z_ort, "windows": w.numpy()})[0]
+    sess = {p.stem: ort.InferenceSession(str(p)) for p in paths if p.suffix == ".onnx"}
+    s_ort = sess["shape_encode"].run(None, {"vertices": v.numpy()})[0]
+    z_ort = sess["encode"].run(None, {"descriptor": s_ort, "windows": w.numpy()})[0]
+    s2_ort = sess["decode"].run(None, {"latent": z_ort, "windows": w.numpy()})[0]
+    out_ort = sess["shape_decode"].run(None, {"descriptor": s2_ort})[0]
     assert np.abs(z_ort - z.numpy()).max() <= 1e-4 and np.abs(out_ort - out.numpy()).max() <= 1e-4
-    manifest = json.loads(paths[2].read_text())
+    manifest = json.loads(paths[-1].read_text())
     assert manifest["files"]["encode"]["inputs"][0]["shape"][0] == -1  # dynamic frame count
 
 
@@ -69,9 +70,9 @@ def synthetic_dataset(tmp_path_factory):
     shapes depend on (parameter set, motion) as simulated ones do, in a learnable way."""
     from drape.assets.body import load_body
     from drape.assets.motion import load_clip
+    from drape.geometry.character_space import character_space_numpy, root_frames
     from drape.sim.dataset import save_sequence, split_of, splits
     from drape.sim.params import sample_params
-    from drape.geometry.character_space import character_space_numpy, root_frames
 
     out = tmp_path_factory.mktemp("intrinsic")
     (out / "items").mkdir()

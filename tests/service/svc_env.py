@@ -1,4 +1,5 @@
-"""One freshly initialised exported model per test session, and the small-limit settings around it."""
+"""One freshly initialised exported model per test session (and a small intrinsic garment model, served from
+its intrinsic_dir), and the small-limit settings around them."""
 
 import functools
 import tempfile
@@ -7,11 +8,13 @@ from pathlib import Path
 from bench.http import loopback_server as live_server  # noqa: F401  (the tests' live server)
 from drape.export.deepsd import export_deepsd_from_checkpoints
 from drape.service.settings import Settings
+from tests.intrinsic_model import intrinsic_model
 
 
 @functools.cache
 def test_settings() -> Settings:
     out = Path(tempfile.mkdtemp(prefix="drape-model-"))
     export_deepsd_from_checkpoints("unused", out, init=True)
-    return Settings(model_dir=out, max_vertices=3000, max_faces=6000, max_frames=200,
-                    max_posed_values=300_000, max_json_values=600_000, max_body_bytes=4 * 2**20, outfit_cache_bytes=64 * 2**20)
+    return Settings(model_dir=out, intrinsic_dir=intrinsic_model().root, max_vertices=3000, max_faces=6000,
+                    max_frames=200, max_posed_values=300_000, max_json_values=600_000, max_body_bytes=4 * 2**20,
+                    outfit_cache_bytes=64 * 2**20)

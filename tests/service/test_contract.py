@@ -42,9 +42,13 @@ def test_api_conforms_to_its_schema(case):
 
 def test_zz_enough_generated_cases():
     """Runs after the schema tests in this module: >= 1,000 generated cases in the default run, and each
-    computing route answered 200 to some of them (they reached the engine, not only the validation)."""
+    computing route answered 200 to some of them (they reached the engine, not only the validation); the
+    garment routes' `name` example is the served test garment (encode needs its exact vertex count, which
+    generated cases do not hit)."""
     print(f"\n{CASES['count']} cases;", ", ".join(f"{m} {p} {s}: {n}" for (m, p, s), n in sorted(STATUS.items())
                                                   if m == "POST"))
     assert CASES["count"] >= 1000, CASES["count"]
-    for path in ("/v1/outfits/rig", "/v1/outfits/animate", "/v1/refine"):
+    for path in ("/v1/outfits/rig", "/v1/outfits/animate", "/v1/refine", "/v1/garments/{name}/animate",
+                 "/v1/garments/{name}/sample"):
         assert STATUS[("POST", path, 200)] >= 1, sorted(STATUS.items())
+    assert STATUS[("GET", "/v1/garments/{name}", 200)] >= 1, sorted(STATUS.items())

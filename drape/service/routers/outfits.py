@@ -104,7 +104,7 @@ def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Respon
     })
 
 
-def _max_posed(answer: str, settings: Settings) -> int | None:
+def max_posed(answer: str, settings: Settings) -> int | None:
     """frames x vertices one answer may hold in this format (None: the frame stream, unbounded)."""
     return {JSON: settings.max_json_values // 3, NPZ: settings.max_posed_values,
             GLB: settings.max_posed_values}.get(answer)
@@ -159,14 +159,14 @@ async def animate_outfit(request: Request) -> Response:
     if answer == GLB:
         def glb() -> Response:
             req = decode.animate_request(kind, data, settings, engine, content_type)
-            p = handlers.plan_animation(engine, settings, req, _max_posed(answer, settings))
+            p = handlers.plan_animation(engine, settings, req, max_posed(answer, settings))
             return Response(handlers.outfit_glb(engine, p.outfit, p), media_type=GLB)
 
-        return await _whole(request, glb)
+        return await whole_answer(request, glb)
 
     def plan() -> FrameSource:
         req = decode.animate_request(kind, data, settings, engine, content_type)
-        p = handlers.plan_animation(engine, settings, req, _max_posed(answer, settings))
+        p = handlers.plan_animation(engine, settings, req, max_posed(answer, settings))
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.pose_chunks(p.outfit, p.poses, p.translation, settings.stream_chunk_frames,
@@ -174,10 +174,10 @@ async def animate_outfit(request: Request) -> Response:
 
         return FrameSource(chunks, p.outfit.faces, p.num_frames, len(p.outfit.vertices), p.fps, p.outfit.outfit_id)
 
-    return await _stream(request, answer, plan)
+    return await stream_answer(request, answer, plan)
 
 
-async def _whole(request: Request, work: Any) -> Response:
+async def whole_answer(request: Request, work: Any) -> Response:
     """Take a computing slot and make a whole answer off the event loop (GLB: not streamed)."""
     slot = await admission_of(request).enter()
     try:
@@ -186,7 +186,7 @@ async def _whole(request: Request, work: Any) -> Response:
         slot.release()
 
 
-async def _stream(request: Request, answer: str, plan: Any) -> Response:
+async def stream_answer(request: Request, answer: str, plan: Any) -> Response:
     """Take a computing slot, plan off the event loop, and stream the answer (which keeps the slot)."""
     settings = settings_of(request)
     slot = await admission_of(request).enter()
@@ -222,7 +222,7 @@ async def refine_stream(request: Request) -> Response:
 
     def plan() -> FrameSource:
         args = decode.refine_arguments(kind, data, settings, content_type)
-        p = handlers.plan_refine(settings, *args, _max_posed(answer, settings))
+        p = handlers.plan_refine(settings, *args, max_posed(answer, settings))
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.refine_chunks(p.vertices, p.faces, p.body, p.poses, p.translation, p.options,
@@ -236,5 +236,5 @@ async def refine_stream(request: Request) -> Response:
             frames = np.concatenate(list(src.chunks()))
             return Response(vertex_animation_glb(frames, src.faces, src.fps), media_type=GLB)
 
-        return await _whole(request, glb)
-    return await _stream(request, answer, plan)
+        return await whole_answer(request, glb)
+    return await stream_answer(request, answer, plan)

@@ -1,0 +1,162 @@
+"""Handlers of the garment routes (the intrinsic garment space); they know nothing of HTTP.
+
+Requests arrive as dicts shaped like the wire models of drape.schemas.garments (from JSON, npz or a form: the
+arrays may be lists or numpy arrays); every array is checked here against the garment (vertex count, latent
+size), the motion (frame range) and for finiteness, and each error names its field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from drape.runtime.engine import Engine, RefineSettings
+from drape.runtime.intrinsic import IntrinsicGarment, interpolate
+from drape.schemas.garments import MAX_SAMPLES, MAX_SEED, GarmentInfo, GarmentList
+from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
+from drape.service.handlers import _array, check_answer_size, check_motion, check_refine
+from drape.service.settings import Settings
+
+MAX_COORDINATE_M = 1e4 + 100.0  # a garment vertex, world space: the motion's translation bound plus a body's reach
+MAX_LATENT = 1e4  # |latent value|: far beyond any trained latent, and far from float32's range
+
+
+def find(engine: Engine, name: str) -> IntrinsicGarment:
+    """The garment named `name`, or a 404 naming it and listing the served ones."""
+    garment = engine.garments.get(name)
+    if garment is None:
+        known = engine.garments.names()
+        served = f"the served garments: {', '.join(known)}" if known else "no garments are served"
+        raise NotFound(f"unknown garment {quoted(name, 80)}; {served} (GET /v1/garments)", "name")
+    return garment
+
+
+def garment_list(engine: Engine) -> GarmentList:
+    return GarmentList(garments=[GarmentInfo(**g.info()) for g in engine.garments])
+
+
+def check_frame(value: Any, num_frames: int, field: str) -> int:
+    """An integer frame index of a motion of `num_frames` frames: 0 <= frame < num_frames."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise InvalidInput(f"expected an integer frame index, got {quoted(value, 40)}", field)
+    if not 0 <= int(value) < num_frames:
+        raise InvalidInput(f"frame {int(value)} is outside the motion's {num_frames} frames (0 to {num_frames - 1})",
+                           field)
+    return int(value)
+
+
+def check_shape(value: Any, garment: IntrinsicGarment, field: str) -> np.ndarray:
+    """A garment shape: (N, 3) metres, N the template's vertex count, finite -> float64 array."""
+    v = _array(value, field, np.float64, 2)
+    if v.shape != (garment.num_vertices, 3):
+        raise InvalidInput(f"expected ({garment.num_vertices}, 3), the vertices of garment {garment.name!r} in its "
+                           f"template's order, got {v.shape}", field)
+    if not np.isfinite(v).all():
+        raise InvalidInput("contains NaN or infinite values", field)
+    if np.abs(v).max() > MAX_COORDINATE_M:
+        raise InvalidInput(f"coordinates beyond {MAX_COORDINATE_M:g} m: the vertices must be in metres", field)
+    return v
+
+
+def check_latent(value: Any, garment: IntrinsicGarment, field: str) -> np.ndarray:
+    """A latent (Z,), Z the garment's latent size, finite and within +-MAX_LATENT -> float32 array."""
+    z = _array(value, field, np.float64, 1)
+    if z.shape != (garment.latent_size,):
+        raise InvalidInput(f"expected {garment.latent_size} values (the latent size of garment {garment.name!r}), "
+                           f"got {len(z)}", field)
+    if not np.isfinite(z).all():
+        raise InvalidInput("contains NaN or infinite values", field)
+    if np.abs(z).max() > MAX_LATENT:
+        raise InvalidInput(f"values beyond +-{MAX_LATENT:g}", field)
+    return z.astype(np.float32)
+
+
+def check_int(value: Any, low: int, high: int, field: str) -> int:
+    """An integer in [low, high] (an npz or form scalar; the JSON models check theirs)."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise InvalidInput(f"expected an integer, got {quoted(value, 40)}", field)
+    if not low <= int(value) <= high:
+        raise InvalidInput(f"must be in [{low}, {high}], got {int(value)}", field)
+    return int(value)
+
+
+def encode(settings: Settings, garment: IntrinsicGarment, request: dict) -> np.ndarray:
+    """request {"vertices": (N, 3) m world space at `frame`, "motion": {...}, "frame": int} -> latent (Z,) float32."""
+    poses, trans, _ = check_motion(request["motion"], settings)
+    frame = check_frame(request.get("frame"), len(poses), "frame")
+    vertices = check_shape(request.get("vertices"), garment, "vertices")
+    return garment.encode(vertices, poses, trans, frame)
+
+
+@dataclass(frozen=True)
+class KeyframePlan:
+    """A garment's stream to compute: latents (T, Z) float32, one per frame of the motion (poses (T, 24, 3) rad,
+    translation (T, 3) m), refined against the garment's body when `refine` is set."""
+
+    garment: IntrinsicGarment
+    poses: np.ndarray
+    translation: np.ndarray
+    fps: float
+    latents: np.ndarray
+    refine: RefineSettings | None = None
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.poses)
+
+
+def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
+                   max_posed: int | None) -> KeyframePlan:
+    """request {"motion", "keyframes": [{"frame", "vertices" | "latent"}, ...], "refine"} -> the plan: keyframes
+    given as vertices encoded with the motion up to their frame, latents interpolated over every frame."""
+    keyframes = request.get("keyframes")
+    if not isinstance(keyframes, list) or not keyframes:
+        raise InvalidInput("give at least one keyframe", "keyframes")
+    poses, trans, fps = check_motion(request["motion"], settings)
+    T = len(poses)
+    if len(keyframes) > T:
+        raise InvalidInput(f"{len(keyframes)} keyframes for a motion of {T} frames (one keyframe per frame at most)",
+                           "keyframes")
+    check_answer_size(T, garment.num_vertices, max_posed, "motion")
+    seen: dict[int, int] = {}
+    latent_keys: list[tuple[int, np.ndarray]] = []
+    shapes: list[tuple[int, np.ndarray]] = []
+    for i, key in enumerate(keyframes):
+        field = f"keyframes[{i}]"
+        if not isinstance(key, dict):
+            raise InvalidInput("expected an object with 'frame' and one of 'vertices' and 'latent'", field)
+        frame = check_frame(key.get("frame"), T, f"{field}.frame")
+        if frame in seen:
+            raise InvalidInput(f"frame {frame} is also the frame of keyframes[{seen[frame]}]: one keyframe per frame",
+                               f"{field}.frame")
+        seen[frame] = i
+        given_v, given_z = key.get("vertices") is not None, key.get("latent") is not None
+        if given_v == given_z:
+            raise InvalidInput("give exactly one of 'vertices' and 'latent'", field)
+        if given_z:
+            latent_keys.append((frame, check_latent(key["latent"], garment, f"{field}.latent")))
+        else:
+            shapes.append((frame, check_shape(key["vertices"], garment, f"{field}.vertices")))
+    if shapes:
+        motion = garment.motion_frames(poses, trans)
+        frames = [f for f, _ in shapes]
+        encoded = garment.encode_at(np.stack([v for _, v in shapes]), frames, motion)
+        latent_keys += list(zip(frames, encoded, strict=True))
+    return KeyframePlan(garment, poses, trans, fps, interpolate(latent_keys, T), check_refine(request.get("refine")))
+
+
+def sample(settings: Settings, garment: IntrinsicGarment, request: dict,
+           max_values: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """request {"count", "seed", "motion", "frame"} -> (latents (count, Z) float32, vertices (count, N, 3) float32
+    m world space at the frame); `max_values` bounds the numbers of the answer's format (None: unbounded)."""
+    count = check_int(request.get("count"), 1, MAX_SAMPLES, "count")
+    seed = check_int(request.get("seed", 0), 0, MAX_SEED, "seed")
+    poses, trans, _ = check_motion(request["motion"], settings)
+    frame = check_frame(request.get("frame", 0), len(poses), "frame")
+    numbers = count * (garment.num_vertices * 3 + garment.latent_size)
+    if max_values is not None and numbers > max_values:
+        raise LimitExceeded(f"{count} samples of {garment.num_vertices} vertices are {numbers} numbers, over the limit "
+                            f"of {max_values} for one answer in this format; ask for application/x-npz", "count")
+    return garment.sample(count, seed, frame, poses, trans)

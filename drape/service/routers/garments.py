@@ -1,0 +1,183 @@
+"""The intrinsic garment space (Wang et al. 2019) of the served garment templates:
+
+GET /v1/garments, GET /v1/garments/{name} (the template mesh), POST /v1/garments/{name}/encode (a keyframe shape
+-> its latent), .../animate (keyframes + motion -> the garment's stream, every answer format of
+/v1/outfits/animate) and .../sample (design candidates at a frame).
+
+The POST routes are heavy: like rig and animate they read the body within the limits, take a computing slot
+(a 503 + Retry-After when the service is full) and decode, validate and compute off the event loop; the work
+is in drape.service.garments.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+from fastapi import APIRouter, Path, Request, Response
+from fastapi.responses import JSONResponse
+
+from drape.schemas.binary import FRAMES, NPZ, encode_npz
+from drape.schemas.garments import GarmentList
+from drape.schemas.gltf import GLB, vertex_animation_glb
+from drape.schemas.pc2 import PC2
+from drape.service import decode
+from drape.service import garments as handlers
+from drape.service.answers import JSON, FrameSource
+from drape.service.errors import UnsupportedMediaType
+from drape.service.http import engine_of, media_type, read_body, settings_of
+from drape.service.negotiate import choose
+from drape.service.problems import problem_responses
+from drape.service.routers.outfits import (
+    BINARY,
+    ERRORS,
+    FORM_FPS,
+    FORM_UP,
+    MOTION_FILE,
+    STREAM_FORMATS,
+    max_posed,
+    stream_answer,
+    whole_answer,
+)
+
+router = APIRouter(prefix="/v1/garments", tags=["garments"])
+NAME = Path(description="the garment template's name (GET /v1/garments)")
+BODY_KINDS = (JSON, NPZ, "multipart/form-data", "")
+MOTION_NPZ_HELP = "the motion: clip (text) or poses (T, 24, 3) / (T, 72) with optional translation (T, 3) and fps"
+
+
+def _form(fields_model: str, help: str) -> dict:
+    return {"schema": {"type": "object", "required": ["motion_file", "request"], "properties": {
+        "motion_file": {**MOTION_FILE, "description": MOTION_FILE["description"] + "; retargeted onto the "
+                        "garment's body"},
+        "fps": FORM_FPS, "up": FORM_UP,
+        "request": {"type": "string", "contentMediaType": JSON, "description":
+                    f"the rest of the request as JSON text ({fields_model}: {help})"}}}}
+
+
+def _request_body(model: str, npz_help: str, fields_model: str, form_help: str) -> dict:
+    return {"requestBody": {"required": True, "content": {
+        JSON: {"schema": {"$ref": f"#/components/schemas/{model}"}},
+        NPZ: {"schema": {"type": "string", "format": "binary", "description": f"npz: {MOTION_NPZ_HELP}; {npz_help}"}},
+        "multipart/form-data": _form(fields_model, form_help)}}}
+
+
+def _body_kind(request: Request) -> str:
+    kind = media_type(request)
+    if kind not in BODY_KINDS:
+        raise UnsupportedMediaType(f"send {JSON}, {NPZ} or multipart/form-data, not {kind!r}", "Content-Type")
+    return kind
+
+
+@router.get("", response_model=GarmentList, responses=problem_responses(401))
+def list_garments(request: Request) -> GarmentList:
+    """The served garment templates: name, vertex count, body, models; for intrinsic ones the frame rate, the
+    motion window (past frames besides the current one), the model version and the latent size Z."""
+    return handlers.garment_list(engine_of(request))
+
+
+@router.get("/{name}", responses={200: {"description": "the template mesh in rest pose on its body", "content": {
+    JSON: {"schema": {"$ref": "#/components/schemas/GarmentTemplate"}}, NPZ: BINARY}},
+    **problem_responses(401, 404, 406)})
+def get_garment(request: Request, name: str = NAME) -> Response:
+    """The template mesh: vertices (N, 3) metres in rest pose on its body, faces (F, 3); JSON or npz by Accept."""
+    answer = choose(request.headers.get("accept"), [JSON, NPZ])
+    g = handlers.find(engine_of(request), name)
+    if answer == NPZ:
+        return Response(encode_npz({"name": np.array(g.name), "body": np.array(g.body), "vertices": g.vertices,
+                                    "faces": g.faces}), media_type=NPZ)
+    return JSONResponse({"name": g.name, "body": g.body, "vertices": g.vertices.tolist(), "faces": g.faces.tolist()})
+
+
+@router.post("/{name}/encode", responses={200: {"description": "the keyframe's latent (Z,)", "content": {
+    JSON: {"schema": {"$ref": "#/components/schemas/EncodeResponse"}}, NPZ: BINARY}}, **ERRORS},
+    openapi_extra=_request_body("EncodeRequest", "vertices (N, 3), frame (integer scalar)", "EncodeFields",
+                                "vertices, frame"))
+async def encode_keyframe(request: Request, name: str = NAME) -> Response:
+    """A keyframe shape -> its latent: vertices (N, 3) m, world space at `frame` of the motion (the frames up to
+    it give the motion window) -> latent (Z,). JSON or npz (a `latent` member) by Accept."""
+    answer = choose(request.headers.get("accept"), [JSON, NPZ])
+    kind = _body_kind(request)
+    settings, engine = settings_of(request), engine_of(request)
+    garment = handlers.find(engine, name)
+    data = await read_body(request)
+    content_type = request.headers.get("content-type", "")
+
+    def work() -> Response:
+        req = decode.garment_request("encode", kind, data, settings, garment.body, content_type)
+        latent = handlers.encode(settings, garment, req)
+        if answer == NPZ:
+            return Response(encode_npz({"latent": latent}), media_type=NPZ)
+        return JSONResponse({"latent": latent.tolist()})
+
+    return await whole_answer(request, work)
+
+
+@router.post("/{name}/animate", responses={200: {
+    "description": "the garment's frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB (a vertex "
+                   "animation)", "content": {
+        JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY, PC2: BINARY,
+        GLB: BINARY}}, **ERRORS},
+    openapi_extra=_request_body(
+        "KeyframeAnimateRequest", "vertex_frames (Kv,) integers with vertices (Kv, N, 3) and/or latent_frames (Kl,) "
+        "with latents (Kl, Z); refine (boolean scalar) and/or the refine options as scalars: eps, max_iterations, "
+        "relief_iterations", "KeyframeFields", "keyframes, refine"))
+async def animate_keyframes(request: Request, name: str = NAME) -> Response:
+    """Keyframes + motion (+ refine) -> the garment's vertices (T, N, 3) m, world space. A keyframe is a shape
+    (vertices (N, 3), world space at its frame: encoded with the motion up to that frame) or a latent (Z,); the
+    latents are interpolated linearly between keyframes (held before the first and after the last) and each
+    frame is decoded with its motion window; refinement pushes the garment out of its body. Answers as
+    /v1/outfits/animate: JSON, npz, the frame stream, PC2, or GLB (the stream as a vertex animation)."""
+    answer = choose(request.headers.get("accept"), STREAM_FORMATS)
+    kind = _body_kind(request)
+    settings, engine = settings_of(request), engine_of(request)
+    garment = handlers.find(engine, name)
+    data = await read_body(request)
+    content_type = request.headers.get("content-type", "")
+
+    def plan() -> FrameSource:
+        req = decode.garment_request("animate", kind, data, settings, garment.body, content_type)
+        p = handlers.plan_keyframes(settings, garment, req, max_posed(answer, settings))
+
+        def chunks() -> Iterator[np.ndarray]:
+            return engine.garment_chunks(garment, p.latents, p.poses, p.translation, settings.stream_chunk_frames,
+                                         refine=p.refine)
+
+        return FrameSource(chunks, garment.faces, p.num_frames, garment.num_vertices, p.fps, "")
+
+    if answer == GLB:
+        def glb() -> Response:
+            src = plan()
+            frames = np.concatenate(list(src.chunks()))
+            return Response(vertex_animation_glb(frames, src.faces, src.fps, name=garment.name), media_type=GLB)
+
+        return await whole_answer(request, glb)
+    return await stream_answer(request, answer, plan)
+
+
+@router.post("/{name}/sample", responses={200: {
+    "description": "latents (count, Z) and their shapes (count, N, 3) at the frame", "content": {
+        JSON: {"schema": {"$ref": "#/components/schemas/SampleResponse"}}, NPZ: BINARY}}, **ERRORS},
+    openapi_extra=_request_body("SampleRequest", "count, seed, frame (integer scalars)", "SampleFields",
+                                "count, seed, frame"))
+async def sample_designs(request: Request, name: str = NAME) -> Response:
+    """Design candidates: `count` latents drawn from the training latents' statistics (mean + std * standard
+    normal, numpy's default_rng(seed)) and their shapes (count, N, 3) m, world space at `frame` of the motion.
+    JSON or npz (latents, vertices) by Accept."""
+    answer = choose(request.headers.get("accept"), [JSON, NPZ])
+    kind = _body_kind(request)
+    settings, engine = settings_of(request), engine_of(request)
+    garment = handlers.find(engine, name)
+    data = await read_body(request)
+    content_type = request.headers.get("content-type", "")
+
+    def work() -> Response:
+        req = decode.garment_request("sample", kind, data, settings, garment.body, content_type)
+        max_values = settings.max_json_values if answer == JSON else None
+        latents, vertices = handlers.sample(settings, garment, req, max_values)
+        if answer == NPZ:
+            return Response(encode_npz({"latents": latents, "vertices": vertices}), media_type=NPZ)
+        return JSONResponse({"latents": latents.tolist(), "vertices": vertices.tolist()})
+
+    return await whole_answer(request, work)
+

@@ -1,0 +1,207 @@
+"""`drape eval intrinsic`: a shipped intrinsic garment space (ONNX) on the dataset's test items.
+
+Test items are held-out parameter sets x held-out motions (`drape sim dataset` splits): nothing of them
+was trained on or used to choose a checkpoint. Every figure is against the simulated vertices.
+
+Tables (one per template):
+- two_keyframes (Wang et al. Fig. 13): keyframes at the first and last frame of a 96-frame window at
+  the end of each test sequence; the in-between frames from drape (the two latents interpolated and
+  decoded along the motion), from linear interpolation of the vertices in character space, and from
+  linear interpolation of the shape descriptors (N_E, then N_D); mean vertex error (mm).
+- retarget: one keyframe (the middle frame) of (p, m1) encoded, decoded along the other held-out
+  motion m2 and compared with the simulation of (p, m2): mean vertex error, Hausdorff (mm), STED;
+  beside DeePSD's animation of the template (no keyframe) and decoding the mean training latent.
+- invariance: variance of z within a parameter set (over its frames and motions) over the variance of
+  the set means, on test items.
+- plausibility: share of garment vertices inside the body (closest triangle) of the re-targeted
+  sequences before and after refinement (the service's post step), of the simulation, and the edge
+  error against the template (mm).
+
+Runs on numpy + ONNX Runtime; DeePSD's rig through drape.runtime.deepsd.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from drape.assets.body import load_body
+from drape.geometry.character_space import character_space_numpy, root_frames, world_space_numpy
+from drape.geometry.metrics import (
+    collision_share,
+    edge_length_error_mm,
+    hausdorff_mm,
+    mean_vertex_error_mm,
+    sted,
+)
+from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
+
+WINDOW = 96  # frames between and including the two keyframes (Fig. 13)
+
+
+def _test_items(dataset: Path, template: str) -> list[dict]:
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    items = [it for it in manifest["items"] if it["split"] == "test" and it["garment"] == template]
+    if not items:
+        raise ValueError(f"{dataset}: no accepted test items of {template!r} (held-out parameters x held-out "
+                         "motions); the dataset simulates them after the training items")
+    return items
+
+
+def _load(dataset: Path, item: dict) -> dict:
+    with np.load(dataset / item["file"], allow_pickle=False) as z:
+        return {"vertices": z["vertices"].astype(np.float64), "poses": z["poses"].astype(np.float64),
+                "trans": z["trans"].astype(np.float64), "fps": float(z["fps"])}
+
+
+def two_keyframes(garment: IntrinsicGarment, seq: dict, length: int = WINDOW) -> dict[str, float]:
+    """Keyframes at the first and last frame of the last `length` frames of `seq`; mean vertex error (mm)
+    of the in-between frames for drape, vertex interpolation and descriptor interpolation."""
+    v, poses, trans = seq["vertices"], seq["poses"], seq["trans"]
+    T = len(v)
+    if T < length:
+        raise ValueError(f"sequence of {T} frames is shorter than the {length}-frame window")
+    a, b = T - length, T - 1
+    body = load_body(garment.body)
+    _, rp, rr = root_frames(poses, trans, body.joints, body.parents)
+    cs = character_space_numpy(v, rp, rr)
+    t = (np.arange(a, b + 1) - a) / (b - a)  # (length,)
+    between = slice(1, length - 1)
+    truth = v[a:b + 1][between]
+
+    z = garment.interpolate([(a, garment.encode(v[a], poses, trans, a)), (b, garment.encode(v[b], poses, trans, b))], T)
+    drape = garment.decode(z, poses, trans)[a:b + 1]
+    lerp_cs = (1 - t)[:, None, None] * cs[a] + t[:, None, None] * cs[b]
+    vertex = world_space_numpy(lerp_cs, rp[a:b + 1], rr[a:b + 1])
+    s = garment.descriptors(cs[[a, b]])
+    s_lerp = (1 - t)[:, None] * s[0] + t[:, None] * s[1]
+    descriptor = world_space_numpy(garment.shapes(s_lerp), rp[a:b + 1], rr[a:b + 1])
+    return {"drape_mm": mean_vertex_error_mm(drape[between], truth),
+            "vertex_interp_mm": mean_vertex_error_mm(vertex[between], truth),
+            "descriptor_interp_mm": mean_vertex_error_mm(descriptor[between], truth)}
+
+
+def _deepsd_poser(garment: IntrinsicGarment, deepsd_dir: Path | None):  # noqa: ANN202
+    from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, pose_outfit
+
+    model = DeePSDModel(deepsd_dir or MODEL_DIR)
+    rest = garment.template_vertices.astype(np.float64)
+    rig = model.rig(rest, garment.faces)
+    joints = load_body(garment.body).joints
+
+    def pose(poses: np.ndarray, trans: np.ndarray) -> np.ndarray:
+        return pose_outfit(rest, rig, model.pose_keys(poses), joints, poses, trans)
+
+    return pose
+
+
+def _refined(garment: IntrinsicGarment, frames: np.ndarray, poses: np.ndarray, trans: np.ndarray) -> np.ndarray:
+    from drape.runtime.engine import RefineSettings, posed_body, refine_against
+
+    refiner = RefineSettings().refiner(garment.faces, len(garment.template_vertices))
+    return refine_against(frames, garment.body, posed_body(garment.body, poses, trans), refiner)
+
+
+def evaluate(dataset: str | Path, template: str, model_dir: str | Path | None = None,
+             deepsd_dir: str | Path | None = None, log=print) -> dict:
+    """Every table of one template -> a JSON-able dict (per-row figures and their means)."""
+    dataset = Path(dataset)
+    garment = IntrinsicGarment(Path(model_dir) if model_dir else INTRINSIC_DIR / template)
+    items = _test_items(dataset, template)
+    seqs = {(it["params"], it["motion"]): _load(dataset, it) for it in items}
+    body = load_body(garment.body)
+    deepsd = _deepsd_poser(garment, Path(deepsd_dir) if deepsd_dir else None)
+    mean_latent = np.asarray(garment.latent_mean, np.float32)
+    rows_kf, rows_rt, plaus = [], [], []
+    latents: dict[int, list[np.ndarray]] = {}
+    for (p, m), seq in sorted(seqs.items()):
+        row = {"params": p, "motion": m, **two_keyframes(garment, seq)}
+        rows_kf.append(row)
+        log(f"two keyframes p{p:02d} {m}: " + ", ".join(f"{k} {v:.1f}" for k, v in row.items() if k.endswith("_mm")))
+        T = len(seq["vertices"])
+        every = garment.encode_frames(seq["vertices"], seq["poses"], seq["trans"])
+        latents.setdefault(p, []).append(every)
+        for (p2, m2), target in sorted(seqs.items()):
+            if p2 != p or m2 == m:
+                continue
+            k = T // 2
+            z = garment.encode(seq["vertices"][k], seq["poses"], seq["trans"], k)
+            T2 = len(target["vertices"])
+            truth = target["vertices"]
+            preds = {"drape": garment.decode(np.repeat(z[None], T2, axis=0), target["poses"], target["trans"]),
+                     "mean_latent": garment.decode(np.repeat(mean_latent[None], T2, axis=0), target["poses"],
+                                                   target["trans"]),
+                     "deepsd": deepsd(target["poses"], target["trans"])}
+            r = {"params": p, "keyframe_motion": m, "motion": m2}
+            for name, pred in preds.items():
+                r[f"{name}_mm"] = mean_vertex_error_mm(pred, truth)
+                r[f"{name}_hausdorff_mm"] = hausdorff_mm(pred, truth)
+                r[f"{name}_sted"] = sted(pred, truth, garment.faces, target["fps"])["sted"]
+            rows_rt.append(r)
+            log(f"retarget p{p:02d} {m} -> {m2}: drape {r['drape_mm']:.1f} mm, mean latent "
+                f"{r['mean_latent_mm']:.1f}, DeePSD {r['deepsd_mm']:.1f}")
+            bodies = body.pose(target["poses"], target["trans"]).astype(np.float64)
+            refined = _refined(garment, preds["drape"], target["poses"], target["trans"])
+            plaus.append({
+                "params": p, "motion": m2,
+                "inside_pct": 100 * collision_share(preds["drape"], bodies, body.faces),
+                "inside_refined_pct": 100 * collision_share(refined, bodies, body.faces),
+                "inside_simulation_pct": 100 * collision_share(truth, bodies, body.faces),
+                "edge_error_mm": edge_length_error_mm(preds["drape"], garment.template_vertices, garment.faces),
+                "edge_error_refined_mm": edge_length_error_mm(refined, garment.template_vertices, garment.faces),
+                "edge_error_simulation_mm": edge_length_error_mm(truth, garment.template_vertices, garment.faces),
+            })
+    set_means = np.stack([np.concatenate(z).mean(axis=0) for z in latents.values()])
+    within = float(np.mean([np.concatenate(z).var(axis=0).mean() for z in latents.values()]))
+    between = float(set_means.var(axis=0).mean())
+
+    def means(rows: list[dict]) -> dict[str, float]:
+        keys = [k for k in rows[0] if isinstance(rows[0][k], float)]
+        return {k: float(np.mean([r[k] for r in rows])) for k in keys}
+
+    return {"template": template, "dataset": str(dataset), "test_items": len(items),
+            "test_params": sorted({it["params"] for it in items}), "test_motions": sorted({it["motion"] for it in items}),
+            "two_keyframes": {"window": WINDOW, "rows": rows_kf, "mean": means(rows_kf)},
+            "retarget": {"rows": rows_rt, "mean": means(rows_rt) if rows_rt else {}},
+            "invariance": {"within_set_var": within, "between_set_var": between,
+                           "ratio": within / max(between, 1e-12)},
+            "plausibility": {"rows": plaus, "mean": means(plaus) if plaus else {}}}
+
+
+def format_table(results: dict) -> str:
+    """Markdown tables of `evaluate`'s means."""
+    kf, rt, pl, inv = (results["two_keyframes"]["mean"], results["retarget"]["mean"],
+                       results["plausibility"]["mean"], results["invariance"])
+    lines = [f"### {results['template']}: {results['test_items']} test sequences (parameter sets "
+             f"{results['test_params']} x motions {results['test_motions']}, never trained on)", "",
+             f"Two keyframes, {results['two_keyframes']['window']} frames (mean vertex error of the in-between "
+             "frames, mm):", "",
+             "| drape (latent interpolation) | vertex interpolation | descriptor interpolation |",
+             "|---|---|---|",
+             f"| {kf['drape_mm']:.1f} | {kf['vertex_interp_mm']:.1f} | {kf['descriptor_interp_mm']:.1f} |", ""]
+    if rt:
+        lines += ["Re-targeting (one keyframe of the other held-out motion):", "",
+                  "| method | mean vertex error (mm) | Hausdorff (mm) | STED |", "|---|---|---|---|"]
+        for name, label in (("drape", "drape (keyframe latent)"), ("mean_latent", "mean training latent"),
+                            ("deepsd", "DeePSD (no keyframe)")):
+            lines.append(f"| {label} | {rt[f'{name}_mm']:.1f} | {rt[f'{name}_hausdorff_mm']:.1f} | "
+                         f"{rt[f'{name}_sted']:.3f} |")
+        lines.append("")
+    lines += [f"Motion invariance: within-set / between-set variance of z = {inv['ratio']:.3f}", ""]
+    if pl:
+        lines += ["| inside the body, drape | refined | simulation | edge error drape (mm) | refined | simulation |",
+                  "|---|---|---|---|---|---|",
+                  f"| {pl['inside_pct']:.2f}% | {pl['inside_refined_pct']:.2f}% | {pl['inside_simulation_pct']:.2f}% "
+                  f"| {pl['edge_error_mm']:.2f} | {pl['edge_error_refined_mm']:.2f} | "
+                  f"{pl['edge_error_simulation_mm']:.2f} |", ""]
+    return "\n".join(lines)
+
+
+def write_results(results: dict, model_dir: str | Path) -> None:
+    """Store the table in the model's manifest (`evaluation`), keeping every other field."""
+    path = Path(model_dir) / "manifest.json"
+    manifest = json.loads(path.read_text())
+    manifest["evaluation"] = results
+    path.write_text(json.dumps(manifest, indent=2) + "\n")
