@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: serve test test-slow sim-dataset intrinsic-data check-blender lint typecheck clean
+.PHONY: serve test test-slow sim-dataset intrinsic-data intrinsic-data-long check-blender lint typecheck clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -53,6 +53,21 @@ intrinsic-data: $(VENV)/.dev-installed
 	cd $(INTRINSIC_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \
 		--motions motions/proc1.npz,motions/proc2.npz,motions/proc3.npz,motions/proc4.npz,motions/proc5.npz,walk,dance_a \
 		--frames 120 --holdout-params 4 --holdout-motions 2 --workers $(WORKERS) --out .
+
+# long held-out sequences of the same template for `drape eval intrinsic`'s keyframe-ratio table: the same
+# 44 parameter sets (--seed 21), only the held-out ones (--splits test), along two real CMU clips of
+# >= 300 frames from ../shared/data/mocap (imported at 30 fps); proc1 stands in as the (unsimulated) training motion
+INTRINSIC_LONG_DIR ?= data/intrinsic/skirt_long
+MOCAP ?= ../shared/data/mocap
+intrinsic-data-long: $(VENV)/.dev-installed
+	mkdir -p $(INTRINSIC_LONG_DIR)/motions
+	test -f $(INTRINSIC_LONG_DIR)/skirt.obj || cp $(INTRINSIC_DIR)/skirt.obj $(INTRINSIC_LONG_DIR)/skirt.obj
+	test -f $(INTRINSIC_LONG_DIR)/motions/proc1.npz || cp $(INTRINSIC_DIR)/motions/proc1.npz $(INTRINSIC_LONG_DIR)/motions/
+	for c in 05_12_dance 05_18_dance; do test -f $(INTRINSIC_LONG_DIR)/motions/cmu_$$c.npz || \
+		$(BIN)/drape motions import $(MOCAP)/$$c.bvh --fps 30 --out $(INTRINSIC_LONG_DIR)/motions/cmu_$$c.npz; done
+	cd $(INTRINSIC_LONG_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \
+		--motions motions/proc1.npz,motions/cmu_05_12_dance.npz,motions/cmu_05_18_dance.npz \
+		--frames 300 --holdout-params 4 --holdout-motions 2 --splits test --workers $(WORKERS) --out .
 
 # Blender (bpy, ~400 MB wheel, needs numpy < 2) lives in its own venv, installed once (stamp file);
 # check-blender imports drape's GLB and PC2 answers into Blender and compares the evaluated meshes

@@ -258,7 +258,8 @@ def _eval_intrinsic(args: argparse.Namespace) -> None:
 
     model_dir = Path(args.model) if args.model else ASSETS / "models" / "intrinsic" / args.template
     dataset = args.dataset or f"data/intrinsic/{args.template}"
-    results = evaluate(dataset, args.template, model_dir)
+    long_dataset = args.long_dataset if args.long_dataset is not None else f"data/intrinsic/{args.template}_long"
+    results = evaluate(dataset, args.template, model_dir, long_dataset=long_dataset or None)
     table = format_table(results)
     print(table)
     if args.write:
@@ -324,7 +325,7 @@ def _sim_dataset(args: argparse.Namespace) -> None:
     manifest = build_dataset(
         args.out, garments, sample_params(args.params, seed=args.seed), motions, args.frames, body=args.body,
         holdout_params=args.holdout_params, holdout_motions=args.holdout_motions, workers=args.workers,
-        ray_address=args.ray,
+        ray_address=args.ray, only_splits=tuple(args.splits.split(",")) if args.splits else None,
     )
     summ = manifest["summary"]
     print(f"{args.out}: {summ['items']} sequences accepted, {len(manifest['rejected'])} rejected, "
@@ -443,6 +444,8 @@ def build_parser() -> argparse.ArgumentParser:
     evi.add_argument("--template", required=True)
     evi.add_argument("--dataset", help="the `drape sim dataset` folder (default data/intrinsic/<template>)")
     evi.add_argument("--model", help="default drape/assets/models/intrinsic/<template>")
+    evi.add_argument("--long-dataset", help="long test sequences for the keyframe-ratio table "
+                                            "(default data/intrinsic/<template>_long; '' to skip)")
     evi.add_argument("--write", action="store_true", help="store the tables in the manifest and docs/intrinsic.md")
     evi.add_argument("--docs", default="docs/intrinsic.md")
     evi.set_defaults(func=_eval_intrinsic)
@@ -465,6 +468,7 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--body", default="neutral")
     sd.add_argument("--holdout-params", type=int, default=2)
     sd.add_argument("--holdout-motions", type=int, default=1)
+    sd.add_argument("--splits", help="simulate only these splits, comma list of train,test,test_params,test_motions")
     sd.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
     sd.add_argument("--ray", metavar="ADDRESS", default=None, help="run the items as tasks on this Ray cluster")
     sd.add_argument("--out", required=True)

@@ -179,10 +179,13 @@ def build_dataset(
     workers: int | None = None,
     ray_address: str | None = None,
     progress: bool = True,
+    only_splits: tuple[str, ...] | None = None,
 ) -> dict:
     """Simulate every (garment, parameter set, motion) not yet finished under `out`; return the manifest.
 
-    garments: name -> (rest vertices (N, 3) m on `body`, faces (F, 3)).
+    garments: name -> (rest vertices (N, 3) m on `body`, faces (F, 3)). only_splits: simulate only the
+    items of these splits ("train", "test", "test_params", "test_motions"), e.g. ("test",) for a set of
+    long held-out sequences that shares the parameter sampler (same --params and --seed) with a dataset.
     """
     out = Path(out)
     (out / "items").mkdir(parents=True, exist_ok=True)
@@ -199,6 +202,8 @@ def build_dataset(
         Item(item_key(g, i, m.name), g, np.asarray(v, np.float32), np.asarray(f, np.int32), body, i, p, m, frames)
         for g, (v, f) in garments.items() for i, p in enumerate(params) for m in motions
     ]
+    if only_splits is not None:
+        items = [it for it in items if split_of(it.params_index, it.motion.name, s) in only_splits]
     by_key = {it.key: it for it in items}
 
     def finished(it: Item) -> bool:

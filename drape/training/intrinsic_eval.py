@@ -13,6 +13,9 @@ Tables (one per template):
   beside DeePSD's animation of the template (no keyframe) and decoding the mean training latent.
 - invariance: variance of z within a parameter set (over its frames and motions) over the variance of
   the set means, on test items.
+- keyframe_ratio (when a dataset of long test sequences exists, `make intrinsic-data-long`): on each
+  sequence of >= 300 frames, the fewest evenly spaced keyframes that keep the mean vertex error under
+  KEYFRAME_THRESHOLD_MM, for drape and for vertex interpolation, as % of the frames.
 - plausibility: share of garment vertices inside the body (closest triangle) of the re-targeted
   sequences before and after refinement (the service's post step), of the simulation, and the edge
   error against the template (mm).
@@ -83,6 +86,41 @@ def two_keyframes(garment: IntrinsicGarment, seq: dict, length: int = WINDOW) ->
             "descriptor_interp_mm": mean_vertex_error_mm(descriptor[between], truth)}
 
 
+KEYFRAME_THRESHOLD_MM = 10.0  # the mean vertex error a keyframed sequence must stay under (stated before measuring)
+KEYFRAME_COUNTS = (2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 75, 100, 150)
+
+
+def keyframe_ratio(garment: IntrinsicGarment, seq: dict, threshold_mm: float = KEYFRAME_THRESHOLD_MM,
+                   counts: tuple[int, ...] = KEYFRAME_COUNTS) -> dict:
+    """The fewest evenly spaced keyframes (first and last frame included) that keep the mean vertex error of
+    the whole sequence under `threshold_mm`, for drape (latents interpolated) and for linear interpolation
+    of the vertices in character space; as counts and as % of the frames (None: not reached by the
+    largest count tried), with each method's error at every count tried."""
+    v, poses, trans = seq["vertices"], seq["poses"], seq["trans"]
+    T = len(v)
+    body = load_body(garment.body)
+    _, rp, rr = root_frames(poses, trans, body.joints, body.parents)
+    cs = character_space_numpy(v, rp, rr)
+    motion = garment.motion_frames(poses, trans)
+    errors: dict[str, dict[int, float]] = {"drape": {}, "vertex_interp": {}}
+    for k in (c for c in counts if c <= T):
+        keys = np.unique(np.round(np.linspace(0, T - 1, k)).astype(int))
+        z = garment.encode_at(v[keys], keys, motion)
+        drape = garment.decode(garment.interpolate(list(zip(keys.tolist(), z, strict=True)), T), poses, trans)
+        errors["drape"][k] = mean_vertex_error_mm(drape, v)
+        j = np.clip(np.searchsorted(keys, np.arange(T), side="right") - 1, 0, len(keys) - 2)
+        a = ((np.arange(T) - keys[j]) / (keys[j + 1] - keys[j]))[:, None, None]
+        lerp = world_space_numpy((1 - a) * cs[keys[j]] + a * cs[keys[j + 1]], rp, rr)
+        errors["vertex_interp"][k] = mean_vertex_error_mm(lerp, v)
+    out: dict = {"frames": T, "threshold_mm": threshold_mm}
+    for name, e in errors.items():
+        fewest = next((k for k in sorted(e) if e[k] < threshold_mm), None)
+        out[f"{name}_keyframes"] = fewest
+        out[f"{name}_pct"] = None if fewest is None else 100.0 * fewest / T
+        out[f"{name}_errors_mm"] = {str(k): round(x, 2) for k, x in e.items()}
+    return out
+
+
 def _deepsd_poser(garment: IntrinsicGarment, deepsd_dir: Path | None):  # noqa: ANN202
     from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, pose_outfit
 
@@ -105,8 +143,9 @@ def _refined(garment: IntrinsicGarment, frames: np.ndarray, poses: np.ndarray, t
 
 
 def evaluate(dataset: str | Path, template: str, model_dir: str | Path | None = None,
-             deepsd_dir: str | Path | None = None, log=print) -> dict:
-    """Every table of one template -> a JSON-able dict (per-row figures and their means)."""
+             deepsd_dir: str | Path | None = None, long_dataset: str | Path | None = None, log=print) -> dict:
+    """Every table of one template -> a JSON-able dict (per-row figures and their means). long_dataset: a
+    dataset of long (>= 300 frames) test sequences for the keyframe-ratio table (skipped when absent)."""
     dataset = Path(dataset)
     garment = IntrinsicGarment(Path(model_dir) if model_dir else INTRINSIC_DIR / template)
     items = _test_items(dataset, template)
@@ -161,7 +200,17 @@ def evaluate(dataset: str | Path, template: str, model_dir: str | Path | None = 
         keys = [k for k in rows[0] if isinstance(rows[0][k], float)]
         return {k: float(np.mean([r[k] for r in rows])) for k in keys}
 
-    return {"template": template, "dataset": str(dataset), "test_items": len(items),
+    ratio: dict = {}
+    if long_dataset is not None and (Path(long_dataset) / "manifest.json").exists():
+        rows = []
+        for it in _test_items(Path(long_dataset), template):
+            r = {"params": it["params"], "motion": it["motion"],
+                 **keyframe_ratio(garment, _load(Path(long_dataset), it))}
+            rows.append(r)
+            log(f"keyframe ratio p{it['params']:02d} {it['motion']}: drape {r['drape_keyframes']}, "
+                f"vertex interpolation {r['vertex_interp_keyframes']} of {r['frames']} frames")
+        ratio = {"dataset": str(long_dataset), "threshold_mm": KEYFRAME_THRESHOLD_MM, "rows": rows}
+    return {"template": template, "dataset": str(dataset), "test_items": len(items), "keyframe_ratio": ratio,
             "test_params": sorted({it["params"] for it in items}), "test_motions": sorted({it["motion"] for it in items}),
             "two_keyframes": {"window": WINDOW, "rows": rows_kf, "mean": means(rows_kf)},
             "retarget": {"rows": rows_rt, "mean": means(rows_rt) if rows_rt else {}},
@@ -188,6 +237,18 @@ def format_table(results: dict) -> str:
                             ("deepsd", "DeePSD (no keyframe)")):
             lines.append(f"| {label} | {rt[f'{name}_mm']:.1f} | {rt[f'{name}_hausdorff_mm']:.1f} | "
                          f"{rt[f'{name}_sted']:.3f} |")
+        lines.append("")
+    kr = results.get("keyframe_ratio") or {}
+    if kr.get("rows"):
+        def pct(r: dict, name: str) -> str:
+            return "not reached" if r[f"{name}_keyframes"] is None else \
+                f"{r[f'{name}_keyframes']} ({r[f'{name}_pct']:.1f}%)"
+
+        lines += [f"Keyframe ratio: fewest evenly spaced keyframes keeping the mean vertex error under "
+                  f"{kr['threshold_mm']:g} mm ({kr['dataset']}):", "",
+                  "| parameter set | motion | frames | drape | vertex interpolation |", "|---|---|---|---|---|"]
+        lines += [f"| {r['params']} | {r['motion']} | {r['frames']} | {pct(r, 'drape')} | {pct(r, 'vertex_interp')} |"
+                  for r in kr["rows"]]
         lines.append("")
     lines += [f"Motion invariance: within-set / between-set variance of z = {inv['ratio']:.3f}", ""]
     if pl:
