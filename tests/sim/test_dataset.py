@@ -90,3 +90,10 @@ def test_ray_matches_local(tmp_path):
     finally:
         ray.shutdown()
     _same(_arrays(tmp_path / "local"), _arrays(tmp_path / "ray"))
+
+
+def test_only_splits_simulates_just_those_items(tmp_path):
+    m = _build(tmp_path, workers=1, only_splits=("test",))
+    assert m["last_run"]["simulated"] == 1  # 2 parameter sets x 2 motions, one held out of each
+    assert [e["split"] for e in m["items"]] + [r.get("split", "test") for r in m["rejected"]] == ["test"]
+    assert _build(tmp_path, workers=1, only_splits=("test",))["last_run"]["simulated"] == 0
