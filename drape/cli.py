@@ -176,8 +176,24 @@ def _render_sim(args: argparse.Namespace) -> None:
                f"young {params['young']:.3g} Pa, density {params['density']:.3g} kg/m2, "
                f"thickness {1000 * params['thickness']:.2g} mm")
     titles = [f"frame {f}" for f in frames]
+    if args.keyframes:
+        from drape.render import view_matrix
+        from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
+
+        garment = IntrinsicGarment(args.garment_model or INTRINSIC_DIR / str(seq["garment"]))
+        keys = _frames_arg(args.keyframes, T)
+        latents = [(k, garment.encode(seq["vertices"][k], seq["poses"], seq["trans"], k)) for k in keys]
+        keyed = garment.decode(garment.interpolate(latents, T), seq["poses"], seq["trans"])[frames]
+        side = 0.45 * view_matrix(args.azimuth)[0]  # screen x in world space
+        layers = [Layer(posed - side, body.faces, (0.86, 0.74, 0.62)),
+                  Layer(seq["vertices"][frames] - side, seq["faces"], (0.25, 0.45, 0.8)),
+                  Layer(posed + side, body.faces, (0.86, 0.74, 0.62)),
+                  Layer(keyed + side, garment.faces, (0.85, 0.45, 0.2))]
+        titles = [f"frame {f}" + (" (keyframe)" if f in keys else "") for f in frames]
+        caption = (f"left: the simulation ({caption.split(': ', 1)[1]}); right: drape's intrinsic space "
+                   f"from keyframes at frames {', '.join(map(str, keys))} of it")
     print(render_frames(layers, list(range(len(frames))), args.out, azimuth=args.azimuth, titles=titles,
-                        caption=caption))
+                        caption=caption, follow_all=bool(args.keyframes)))
 
 
 def _train_deepsd(args: argparse.Namespace) -> None:
@@ -486,6 +502,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--clip", help="embedded clip name")
     r.add_argument("--motion", help="motion npz file")
     r.add_argument("--sim", help="a simulated sequence npz (drape sim run / dataset item): cloth next to the body")
+    r.add_argument("--keyframes", help="with --sim: comma list of frames given to the template's intrinsic model as "
+                                       "keyframes; its sequence is drawn beside the simulation")
+    r.add_argument("--garment-model", help="with --keyframes: the model folder (default the shipped one of the "
+                                           "sequence's garment)")
     r.add_argument("--frames", default=None, help="comma list (default 0,10,20,30; six spread frames with --sim)")
     r.add_argument("--azimuth", type=float, default=25.0, help="view angle about +Y from the front, degrees")
     r.add_argument("--smooth", type=int, default=40, help="weight diffusion steps for the outfit's skinning")

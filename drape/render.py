@@ -24,7 +24,7 @@ class Layer:
     color: tuple[float, float, float]
 
 
-def _view(azimuth_deg: float) -> np.ndarray:
+def view_matrix(azimuth_deg: float) -> np.ndarray:
     a = np.radians(azimuth_deg)
     # rows: screen x, screen y, depth toward the viewer
     return np.array([[np.cos(a), 0.0, -np.sin(a)], [0.0, 1.0, 0.0], [np.sin(a), 0.0, np.cos(a)]])
@@ -38,22 +38,25 @@ def render_frames(
     titles: Sequence[str] | None = None,
     panel_size: float = 3.0,
     caption: str | None = None,
+    follow_all: bool = False,
 ) -> Path:
-    """Draw the chosen frames side by side into a PNG at `out`; each panel follows the first layer."""
+    """Draw the chosen frames side by side into a PNG at `out`; each panel follows the first layer (or the
+    mean of all layers with follow_all)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    view = _view(azimuth)
+    view = view_matrix(azimuth)
     light = np.array([0.3, 0.5, 1.0])
     light /= np.linalg.norm(light)
     fig, axes = plt.subplots(1, len(frames), figsize=(panel_size * len(frames), panel_size * 1.6))
     axes = np.atleast_1d(axes)
     for ax, t, k in zip(axes, frames, range(len(frames)), strict=True):
         polys, depth, colors = [], [], []
-        centre = layers[0].vertices[t].mean(axis=0)
+        centre = (np.mean([layer.vertices[t].mean(axis=0) for layer in layers], axis=0) if follow_all
+                  else layers[0].vertices[t].mean(axis=0))
         for rank, layer in enumerate(layers):
             v = (layer.vertices[t] - centre) @ view.T  # (N, 3) screen coords
             tri = v[layer.faces]
