@@ -70,7 +70,8 @@ def export_intrinsic(model: IntrinsicSpace, out: str | Path, *, template: str = 
                 "window": cfg.window, "model_config": cfg.to_dict(),
                 "latent_mean": [round(float(x), 6) for x in mean], "latent_std": [round(float(x), 6) for x in std],
                 **(extra or {}),
-                "files": {p.stem: {"file": p.name, "sha256": sha256(p), **(io_spec(p) if p.suffix == ".onnx" else {})}
+                "files": {p.stem: {"file": p.name, "sha256": sha256(p), "bytes": p.stat().st_size,
+                            **(io_spec(p) if p.suffix == ".onnx" else {})}
                           for p in files}}
     path = out / "manifest.json"
     path.write_text(json.dumps(manifest, indent=2) + "\n")

@@ -83,6 +83,16 @@ def test_list_and_template(server_url, http, garment):
     problem(http.get(f"/v1/garments/{NAME}", headers={"accept": "text/csv"}), 406, "Accept")
 
 
+def test_models_lists_each_intrinsic_space(http, garment):
+    """/v1/models names each garment's intrinsic space; a random-init test model says it is not trained."""
+    info = http.get(f"/v1/models/intrinsic-{NAME}").json()
+    assert info["trained"] is False and info["version"] == garment.version
+    assert set(info["files"]) == {"encode", "decode", "shape_encode", "shape_decode"}
+    assert info["files"]["decode"]["sha256"] == garment.manifest["files"]["decode"]["sha256"]
+    assert info["files"]["decode"]["inputs"][0]["shape"][0] == -1
+    assert f"intrinsic-{NAME}" in [m["name"] for m in http.get("/v1/models").json()["models"]]
+
+
 def test_a_keyframe_as_vertices_equals_its_encoded_latent(server_url, garment, motion, shape):
     with drape.Client(server_url) as client:
         z = client.encode_keyframe(NAME, vertices=shape, motion=motion, frame=12)

@@ -13,9 +13,16 @@ router = APIRouter(prefix="/v1", tags=["models"], responses=problem_responses(40
 
 
 def _info(request: Request) -> list[ModelInfo]:
-    m = engine_of(request).model.manifest
-    return [ModelInfo(name=m["name"], version=m["version"], trained=m["trained"], files=m["files"],
-                      evaluation=m.get("evaluation"))]
+    engine = engine_of(request)
+    m = engine.model.manifest
+    models = [ModelInfo(name=m["name"], version=m["version"], trained=m["trained"], files=m["files"],
+                        evaluation=m.get("evaluation"))]
+    for garment in engine.garments:  # the intrinsic spaces, one per garment template: intrinsic-<template>
+        g = garment.manifest
+        onnx = {k: f for k, f in g["files"].items() if str(f["file"]).endswith(".onnx")}
+        models.append(ModelInfo(name=f"intrinsic-{garment.name}", version=g["version"], trained="training" in g,
+                                files=onnx, evaluation=g.get("evaluation")))
+    return models
 
 
 @router.get("/models", response_model=ModelList)
