@@ -56,13 +56,14 @@ intrinsic-data: $(VENV)/.dev-installed
 
 # long held-out sequences of the same template for `drape eval intrinsic`'s keyframe-ratio table: the same
 # 44 parameter sets (--seed 21), only the held-out ones (--splits test), along two real CMU clips of
-# >= 300 frames from ../shared/data/mocap (imported at 30 fps); proc1 stands in as the (unsimulated) training motion
+# >= 300 frames from ../shared/data/mocap (imported at 30 fps); a 300-frame proc1 stands in as the (unsimulated) training motion
 INTRINSIC_LONG_DIR ?= data/intrinsic/skirt_long
 MOCAP ?= ../shared/data/mocap
 intrinsic-data-long: $(VENV)/.dev-installed
 	mkdir -p $(INTRINSIC_LONG_DIR)/motions
 	test -f $(INTRINSIC_LONG_DIR)/skirt.obj || cp $(INTRINSIC_DIR)/skirt.obj $(INTRINSIC_LONG_DIR)/skirt.obj
-	test -f $(INTRINSIC_LONG_DIR)/motions/proc1.npz || cp $(INTRINSIC_DIR)/motions/proc1.npz $(INTRINSIC_LONG_DIR)/motions/
+	test -f $(INTRINSIC_LONG_DIR)/motions/proc1.npz || \
+		$(BIN)/drape motions generate --frames 300 --seed 1 --fps 30 --out $(INTRINSIC_LONG_DIR)/motions/proc1.npz
 	for c in 05_12_dance 05_18_dance; do test -f $(INTRINSIC_LONG_DIR)/motions/cmu_$$c.npz || \
 		$(BIN)/drape motions import $(MOCAP)/$$c.bvh --fps 30 --out $(INTRINSIC_LONG_DIR)/motions/cmu_$$c.npz; done
 	cd $(INTRINSIC_LONG_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \

@@ -6,7 +6,9 @@ One config (drape/training/configs/intrinsic_<template>.json), two phases, one c
 2. invariant: N_E frozen; M_E, F_E, F_D on batches of `sets_per_batch` parameter sets x
    `frames_per_set` frames (frames of one set come from all its motions). Loss per batch:
    mean within-set variance of z over the variance of the set means (motion invariance, scale-free)
-   + lambda * ||S - F_D(F_E(S, c), c)||^2 (descriptor reconstruction).
+   + lambda * ||S - F_D(F_E(S, c), c)||^2 (descriptor reconstruction) + set_lambda * ||S - F_D(z_set, c)||^2
+   with z_set the mean z of the frame's set in the batch (reconstruction from the set's latent, which is
+   how a keyframe is used; set_lambda 0, the default, is the paper's loss).
 
 Validation: the last `val_params` training parameter sets are held out of training (the dataset's own
 held-out parameter sets and motions are never read here: they are the test table's). After each
@@ -79,8 +81,12 @@ def set_latent_error_mm(model: IntrinsicSpace, frames: Frames) -> float:
 
 
 def invariant_loss(model: IntrinsicSpace, v: torch.Tensor, w: torch.Tensor, sets: int, lam: float,
-                   ) -> tuple[torch.Tensor, dict]:
-    """v (sets * n, N, 3), w (sets * n, W + 1, 24, 3), grouped by set -> loss and its parts."""
+                   set_lam: float = 0.0) -> tuple[torch.Tensor, dict]:
+    """v (sets * n, N, 3), w (sets * n, W + 1, 24, 3), grouped by set -> loss and its parts.
+
+    ratio (within-set over between-set variance of z) + lam * descriptor reconstruction from each frame's own
+    z (the paper's loss) + set_lam * reconstruction from the mean z of the frame's set (`set_recon`: what a
+    keyframe gives at the other frames; 0 leaves the paper's loss)."""
     with torch.no_grad():
         s = model.shape.encode(v)
     c = model.motion(w)
@@ -90,7 +96,14 @@ def invariant_loss(model: IntrinsicSpace, v: torch.Tensor, w: torch.Tensor, sets
     between = zs.mean(dim=1).var(dim=0).mean()
     recon = ((model.f_decoder(z, c) - s) ** 2).mean()
     ratio = within / (between + 1e-6)
-    return ratio + lam * recon, {"ratio": ratio.item(), "recon": recon.item()}
+    loss = ratio + lam * recon
+    parts = {"ratio": ratio.item(), "recon": recon.item()}
+    if set_lam > 0:
+        z_set = zs.mean(dim=1, keepdim=True).expand_as(zs).reshape(z.shape)
+        set_recon = ((model.f_decoder(z_set, c) - s) ** 2).mean()
+        loss = loss + set_lam * set_recon
+        parts["set_recon"] = set_recon.item()
+    return loss, parts
 
 
 def _latest(ckpt_dir: Path, phase: str) -> Path | None:
@@ -160,13 +173,14 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         start, best, parts = state["step"], state["best"], state.get("parts", {})
+    rng = np.random.default_rng(config["seed"])  # each phase its own batches: a run resumed here equals a fresh one
     by_set = {p: np.flatnonzero(train_f.params == p) for p in np.unique(train_f.params)}
     set_ids = np.array(sorted(by_set))
     wins = torch.as_tensor(train_f.windows)
     for step in tqdm(range(start, ic["steps"]), desc="invariant", initial=start, total=ic["steps"]):
         chosen = rng.choice(set_ids, ic["sets_per_batch"], replace=False)
         pick = np.concatenate([rng.choice(by_set[p], ic["frames_per_set"]) for p in chosen])
-        loss, parts = invariant_loss(model, verts[pick], wins[pick], len(chosen), ic["lambda"])
+        loss, parts = invariant_loss(model, verts[pick], wins[pick], len(chosen), ic["lambda"], ic.get("set_lambda", 0.0))
         opt.zero_grad()
         loss.backward()
         opt.step()
