@@ -1,6 +1,7 @@
 """What the intrinsic garment space costs to serve: encode and decode of a whole motion, batched, with ONNX
-Runtime (what the service runs) against torch eager on the same architecture in the same run, and the
-refinement post step per frame.
+Runtime (what the service runs) against torch eager on the same architecture in the same run (both timed
+from poses to world-space vertices: root frames, motion windows, the networks, character to world space),
+and the refinement post step per frame.
 
 The torch model is built from the shipped manifest's model_config with fresh weights: the cost of a
 forward pass does not depend on the weight values, so this times the same computation (torch is a dev
@@ -16,7 +17,12 @@ import time
 import numpy as np
 
 from drape.assets.procedural import generate_motion
-from drape.geometry.character_space import character_space_numpy, motion_windows, root_frames
+from drape.geometry.character_space import (
+    character_space_numpy,
+    motion_windows,
+    root_frames,
+    world_space_numpy,
+)
 from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
 
 
@@ -53,14 +59,16 @@ def main() -> None:
 
     cfg = IntrinsicConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in g.manifest["model_config"].items()})
     model = IntrinsicSpace(cfg, torch.as_tensor(g.vertices)).eval()
-    joints, rp, rr = root_frames(poses, trans, g.rest_joints, g.parents)
 
-    def torch_decode() -> None:
+    def torch_decode() -> None:  # the runtime's whole path: root frames, windows, decode, back to world space
+        joints, rp, rr = root_frames(poses, trans, g.rest_joints, g.parents)
         w = torch.as_tensor(motion_windows(joints, rp, rr, cfg.window))
         with torch.no_grad():
-            model.decode(torch.as_tensor(z), w)
+            local = model.decode(torch.as_tensor(z), w).numpy()
+        world_space_numpy(local, rp.astype(np.float32), rr.astype(np.float32))
 
     def torch_encode() -> None:
+        joints, rp, rr = root_frames(poses, trans, g.rest_joints, g.parents)
         w = torch.as_tensor(motion_windows(joints, rp, rr, cfg.window))
         v = torch.as_tensor(character_space_numpy(decoded.astype(np.float64), rp, rr).astype(np.float32))
         with torch.no_grad():

@@ -24,13 +24,13 @@ def character_space_numpy(points: np.ndarray, root_position: np.ndarray, root_ro
     """points (T, ..., 3) world -> R_t^T (p - root_t) per frame t."""
     shape = points.shape
     p = points.reshape(shape[0], -1, 3) - root_position[:, None, :]
-    return np.einsum("tnj,tjk->tnk", p, root_rotation).reshape(shape)
+    return np.matmul(p, root_rotation).reshape(shape)  # row vectors: p R == (R^T p^T)^T
 
 
 def world_space_numpy(points: np.ndarray, root_position: np.ndarray, root_rotation: np.ndarray) -> np.ndarray:
     """The inverse of `character_space_numpy`: points (T, ..., 3) -> R_t p + root_t."""
     shape = points.shape
-    p = np.einsum("tnk,tjk->tnj", points.reshape(shape[0], -1, 3), root_rotation)
+    p = np.matmul(points.reshape(shape[0], -1, 3), np.swapaxes(root_rotation, 1, 2))
     return (p + root_position[:, None, :]).reshape(shape)
 
 
@@ -40,5 +40,5 @@ def motion_windows(joints: np.ndarray, root_position: np.ndarray, root_rotation:
     each in the character space of frame t."""
     T = len(joints)
     idx = np.clip(np.arange(T)[:, None] + np.arange(-window, 1)[None, :], 0, None)  # (T, W + 1)
-    w = joints[idx] - root_position[:, None, None, :]  # (T, W + 1, 24, 3)
-    return np.einsum("twnj,tjk->twnk", w, root_rotation).astype(np.float32)
+    w = (joints[idx] - root_position[:, None, None, :]).reshape(T, -1, 3)  # (T, (W + 1) * 24, 3)
+    return np.matmul(w, root_rotation).reshape(T, window + 1, -1, 3).astype(np.float32)

@@ -233,8 +233,8 @@ class IntrinsicGarment:
             local = self._decode_local(np.ascontiguousarray(z[s:e]), motion.windows(s, e, self.window))
             if observe is not None:
                 observe("intrinsic_decode", time.perf_counter() - t)
-            yield world_space_numpy(local.astype(np.float64), motion.root_position[s:e],
-                                    motion.root_rotation[s:e]).astype(np.float32)
+            yield world_space_numpy(local, motion.root_position[s:e].astype(np.float32),
+                                    motion.root_rotation[s:e].astype(np.float32))
 
     def decode(self, latents: np.ndarray, poses: np.ndarray, trans: np.ndarray,
                chunk: int = DECODE_BLOCK) -> np.ndarray:
