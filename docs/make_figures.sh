@@ -18,3 +18,6 @@ rm -rf "$tmp"
 make sim-dataset
 $DRAPE render --sim data/sim/skirt/items/skirt__p02__walk.npz --frames 0,15,30,45,60,75,89 \
   --out docs/sim_skirt_walk.png
+# the intrinsic skirt keyframed on a held-out simulation (needs make intrinsic-data's test items)
+$DRAPE render --sim data/intrinsic/skirt/items/skirt__p40__walk.npz --keyframes 24,119 --frames 24,48,72,96,119 \
+  --out docs/intrinsic_skirt_walk.png
