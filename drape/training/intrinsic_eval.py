@@ -105,7 +105,7 @@ def keyframe_ratio(garment: IntrinsicGarment, seq: dict, threshold_mm: float = K
     errors: dict[str, dict[int, float]] = {"drape": {}, "vertex_interp": {}}
     for k in (c for c in counts if c <= T):
         keys = np.unique(np.round(np.linspace(0, T - 1, k)).astype(int))
-        z = garment.encode_at(v[keys], keys, motion)
+        z = garment.encode_at(v[keys], keys.tolist(), motion)
         drape = garment.decode(garment.interpolate(list(zip(keys.tolist(), z, strict=True)), T), poses, trans)
         errors["drape"][k] = mean_vertex_error_mm(drape, v)
         j = np.clip(np.searchsorted(keys, np.arange(T), side="right") - 1, 0, len(keys) - 2)
