@@ -53,10 +53,8 @@ def check_shape(value: Any, garment: IntrinsicGarment, field: str) -> np.ndarray
     if v.shape != (garment.num_vertices, 3):
         raise InvalidInput(f"expected ({garment.num_vertices}, 3), the vertices of garment {garment.name!r} in its "
                            f"template's order, got {v.shape}", field)
-    if not np.isfinite(v).all():
-        raise InvalidInput("contains NaN or infinite values", field)
-    if np.abs(v).max() > MAX_COORDINATE_M:
-        raise InvalidInput(f"coordinates beyond {MAX_COORDINATE_M:g} m: the vertices must be in metres", field)
+    _check_finite_within(v, MAX_COORDINATE_M, f"coordinates beyond {MAX_COORDINATE_M:g} m: the vertices must be "
+                         "in metres", field)
     return v
 
 
@@ -66,11 +64,16 @@ def check_latent(value: Any, garment: IntrinsicGarment, field: str) -> np.ndarra
     if z.shape != (garment.latent_size,):
         raise InvalidInput(f"expected {garment.latent_size} values (the latent size of garment {garment.name!r}), "
                            f"got {len(z)}", field)
-    if not np.isfinite(z).all():
-        raise InvalidInput("contains NaN or infinite values", field)
-    if np.abs(z).max() > MAX_LATENT:
-        raise InvalidInput(f"values beyond +-{MAX_LATENT:g}", field)
+    _check_finite_within(z, MAX_LATENT, f"values beyond +-{MAX_LATENT:g}", field)
     return z.astype(np.float32)
+
+
+def _check_finite_within(a: np.ndarray, bound: float, beyond: str, field: str) -> None:
+    """InvalidInput naming `field` if `a` holds NaN or inf, or a value beyond +-bound (`beyond` says so)."""
+    if not np.isfinite(a).all():
+        raise InvalidInput("contains NaN or infinite values", field)
+    if np.abs(a).max() > bound:
+        raise InvalidInput(beyond, field)
 
 
 def check_int(value: Any, low: int, high: int, field: str) -> int:
