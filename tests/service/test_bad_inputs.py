@@ -5,20 +5,12 @@ import pickle
 
 import numpy as np
 import pytest
+from svc_env import problem
 
-PROBLEM = "application/problem+json"
 V = [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]]
 F = [[0, 1, 2], [1, 3, 2]]
 
 
-def problem(r, status, *words):
-    assert r.status_code == status, r.text
-    assert r.headers["content-type"].startswith(PROBLEM)
-    p = r.json()
-    assert p["status"] == status and p["type"].startswith("https://drape.dev/problems/") and p["title"]
-    for w in words:
-        assert w in p["detail"], p["detail"]
-    return p
 
 
 def rig(http, **body):

@@ -28,19 +28,11 @@ from tests.intrinsic_model import NAME, intrinsic_model
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "schemas"))
 from glb_player import GlbPlayer  # noqa: E402
 from gltf_validator import validate  # noqa: E402
+from svc_env import problem
 
-PROBLEM = "application/problem+json"
 ROUTES = ["encode", "animate", "sample"]
 
 
-def problem(r, status, *words):
-    assert r.status_code == status, r.text[:500]
-    assert r.headers["content-type"].startswith(PROBLEM)
-    p = r.json()
-    assert p["status"] == status and p["type"].startswith("https://drape.dev/problems/") and p["title"]
-    for w in words:
-        assert w in p["detail"], p["detail"]
-    return p
 
 
 @pytest.fixture(scope="module")

@@ -12,26 +12,17 @@ import time
 import httpx
 import numpy as np
 import pytest
-from svc_env import live_server
+from svc_env import live_server, problem
 
 from bench.soak import served
 from drape.service import handlers
 from drape.service.settings import Settings
 
-PROBLEM = "application/problem+json"
 V = [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]]
 F = [[0, 1, 2], [1, 3, 2]]
 POST_ROUTES = ["/v1/outfits/rig", "/v1/outfits/animate", "/v1/refine"]
 
 
-def problem(r, status, *words):
-    assert r.status_code == status, r.text[:500]
-    assert r.headers["content-type"].startswith(PROBLEM)
-    p = r.json()
-    assert p["status"] == status and p["type"].startswith("https://drape.dev/problems/")
-    for w in words:
-        assert w in p["detail"], p["detail"]
-    return p
 
 
 def npz(**arrays) -> bytes:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from svc_env import problem
 
 from drape.assets.motion import resampled_count
 from drape.assets.outfits import generate_outfit
@@ -19,7 +20,6 @@ from drape.schemas.binary import NPZ, decode_npz, encode_npz
 from tests.cmu_bvh import cmu_bvh as make_cmu_bvh
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "mocap"
-PROBLEM = "application/problem+json"
 
 
 
@@ -28,13 +28,6 @@ def cmu_bvh(frames: int, fps: float = 120.0, first: str = "Hips") -> bytes:
     return make_cmu_bvh(frames, fps, rename={"Hips": first})
 
 
-def problem(r, status: int, *words: str) -> dict:
-    assert r.status_code == status, r.text
-    assert r.headers["content-type"].startswith(PROBLEM)
-    p = r.json()
-    for w in words:
-        assert w in p["detail"], p["detail"]
-    return p
 
 
 @pytest.fixture(scope="module")

@@ -12,11 +12,14 @@ is in drape.service.garments.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 from fastapi import APIRouter, Path, Request, Response
 from fastapi.responses import JSONResponse
 
+from drape.runtime.engine import Engine
+from drape.runtime.intrinsic import IntrinsicGarment
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
 from drape.schemas.garments import GarmentList
 from drape.schemas.gltf import GLB, vertex_animation_glb
@@ -39,6 +42,7 @@ from drape.service.routers.outfits import (
     stream_answer,
     whole_answer,
 )
+from drape.service.settings import Settings
 
 router = APIRouter(prefix="/v1/garments", tags=["garments"])
 NAME = Path(description="the garment template's name (GET /v1/garments)")
@@ -69,6 +73,32 @@ def _body_kind(request: Request) -> str:
     return kind
 
 
+@dataclass(frozen=True)
+class _Post:
+    """A garment POST, read on the event loop: what its work (off the loop) needs."""
+
+    settings: Settings
+    engine: Engine
+    garment: IntrinsicGarment
+    kind: str  # the body's media type, one of BODY_KINDS
+    data: bytes
+    content_type: str
+
+    def decode(self, what: str):  # noqa: ANN201 (the request model of `what`)
+        """The body as the `what` ("encode", "animate", "sample") request, validated (4xx on bad input)."""
+        return decode.garment_request(what, self.kind, self.data, self.settings, self.garment.body,
+                                      self.content_type)
+
+
+async def _read_post(request: Request, name: str) -> _Post:
+    """The checks every garment POST makes in this order (415 body type, 404 template, 413 body size), then the
+    body read within the limits."""
+    kind = _body_kind(request)
+    settings, engine = settings_of(request), engine_of(request)
+    garment = handlers.find(engine, name)
+    return _Post(settings, engine, garment, kind, await read_body(request), request.headers.get("content-type", ""))
+
+
 @router.get("", response_model=GarmentList, responses=problem_responses(401))
 def list_garments(request: Request) -> GarmentList:
     """The served garment templates: name, vertex count, body, models; for intrinsic ones the frame rate, the
@@ -97,15 +127,10 @@ async def encode_keyframe(request: Request, name: str = NAME) -> Response:
     """A keyframe shape -> its latent: vertices (N, 3) m, world space at `frame` of the motion (the frames up to
     it give the motion window) -> latent (Z,). JSON or npz (a `latent` member) by Accept."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ])
-    kind = _body_kind(request)
-    settings, engine = settings_of(request), engine_of(request)
-    garment = handlers.find(engine, name)
-    data = await read_body(request)
-    content_type = request.headers.get("content-type", "")
+    post = await _read_post(request, name)
 
     def work() -> Response:
-        req = decode.garment_request("encode", kind, data, settings, garment.body, content_type)
-        latent = handlers.encode(settings, garment, req)
+        latent = handlers.encode(post.settings, post.garment, post.decode("encode"))
         if answer == NPZ:
             return Response(encode_npz({"latent": latent}), media_type=NPZ)
         return JSONResponse({"latent": latent.tolist()})
@@ -129,14 +154,11 @@ async def animate_keyframes(request: Request, name: str = NAME) -> Response:
     frame is decoded with its motion window; refinement pushes the garment out of its body. Answers as
     /v1/outfits/animate: JSON, npz, the frame stream, PC2, or GLB (the stream as a vertex animation)."""
     answer = choose(request.headers.get("accept"), STREAM_FORMATS)
-    kind = _body_kind(request)
-    settings, engine = settings_of(request), engine_of(request)
-    garment = handlers.find(engine, name)
-    data = await read_body(request)
-    content_type = request.headers.get("content-type", "")
+    post = await _read_post(request, name)
+    settings, engine, garment = post.settings, post.engine, post.garment
 
     def plan() -> FrameSource:
-        req = decode.garment_request("animate", kind, data, settings, garment.body, content_type)
+        req = post.decode("animate")
         p = handlers.plan_keyframes(settings, garment, req, max_posed(answer, settings))
 
         def chunks() -> Iterator[np.ndarray]:
@@ -165,16 +187,11 @@ async def sample_designs(request: Request, name: str = NAME) -> Response:
     normal, numpy's default_rng(seed)) and their shapes (count, N, 3) m, world space at `frame` of the motion.
     JSON or npz (latents, vertices) by Accept."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ])
-    kind = _body_kind(request)
-    settings, engine = settings_of(request), engine_of(request)
-    garment = handlers.find(engine, name)
-    data = await read_body(request)
-    content_type = request.headers.get("content-type", "")
+    post = await _read_post(request, name)
 
     def work() -> Response:
-        req = decode.garment_request("sample", kind, data, settings, garment.body, content_type)
-        max_values = settings.max_json_values if answer == JSON else None
-        latents, vertices = handlers.sample(settings, garment, req, max_values)
+        max_values = post.settings.max_json_values if answer == JSON else None
+        latents, vertices = handlers.sample(post.settings, post.garment, post.decode("sample"), max_values)
         if answer == NPZ:
             return Response(encode_npz({"latents": latents, "vertices": vertices}), media_type=NPZ)
         return JSONResponse({"latents": latents.tolist(), "vertices": vertices.tolist()})
