@@ -105,6 +105,32 @@ def _outfits_generate(args: argparse.Namespace) -> None:
     print(f"{args.out}: {len(outfit.vertices)} vertices, {len(outfit.faces)} faces, garments {outfit.garments}")
 
 
+def _outfits_fit(args: argparse.Namespace) -> None:
+    import json
+    import time
+
+    from drape.assets.body import load_body
+    from drape.geometry.fitting import FitError, fit_garment
+    from drape.geometry.mesh_io import load_mesh, save_mesh
+
+    vertices, faces = load_mesh(args.mesh)
+    start = time.perf_counter()
+    try:
+        result = fit_garment(vertices, faces, load_body(args.body), units=args.units, up=args.up, pose=args.pose)
+    except FitError as exc:
+        raise SystemExit(f"{args.mesh}: {exc}") from None
+    save_mesh(args.out, result.vertices, faces)
+    r = result.report
+    print(f"{args.out}: {len(vertices)} vertices fitted onto {args.body} in {time.perf_counter() - start:.1f} s; "
+          f"units {r['units']}{' (inferred)' if r['units_inferred'] else ''}, "
+          f"up {r['up']}{' (inferred)' if r['up_inferred'] else ''}, pose {r['pose']}")
+    print(f"inside the body at rest: {100 * r['inside_before']:.2f}% before the push-out, "
+          f"{100 * r['inside_after']:.2f}% after; moves {r['mean_move_mm']:.1f} mm mean, {r['max_move_mm']:.1f} mm "
+          f"max; largest edge lengthening {r['max_stretch_mm']:.1f} mm")
+    if args.report:
+        Path(args.report).write_text(json.dumps({"transform": result.transform.tolist(), "report": r}, indent=1))
+
+
 def _frames_arg(text: str, num_frames: int) -> list[int]:
     """A comma list of frame indices, each checked against 0..num_frames - 1."""
     frames = [int(f) for f in text.split(",")]
@@ -414,6 +440,16 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--length", type=float, default=None, help="0 (short) .. 1 (long); random if omitted")
     o.add_argument("--out", required=True)
     o.set_defaults(func=_outfits_generate)
+    of = outfits.add_parser("fit", help="fit a garment made for another body (any units, Y- or Z-up, T- or A-pose) "
+                            "onto a body at rest")
+    of.add_argument("mesh", help="OBJ, PLY, GLB or glTF")
+    of.add_argument("--body", default="neutral")
+    of.add_argument("--units", choices=["m", "cm", "mm"], default=None, help="default: inferred from the size")
+    of.add_argument("--up", choices=["y", "z"], default=None, help="default: inferred (the thinnest axis is depth)")
+    of.add_argument("--pose", choices=["t", "a"], default="t", help="the pose the garment was made in")
+    of.add_argument("--out", required=True, help="the fitted mesh (OBJ, PLY, ...)")
+    of.add_argument("--report", default=None, help="also write the transform and the report as JSON here")
+    of.set_defaults(func=_outfits_fit)
 
     from drape.training import DEFAULT_DEEPSD_CONFIG, DEFAULT_GROUND_TRUTH
 

@@ -26,8 +26,9 @@ from drape.client.client import (
     Client,
     DesignSamples,
     DrapeAPIError,
+    FitResult,
     GarmentTemplate,
     RigResult,
 )
 
-__all__ = ["AsyncClient", "Client", "DesignSamples", "DrapeAPIError", "GarmentTemplate", "RigResult"]
+__all__ = ["AsyncClient", "Client", "DesignSamples", "DrapeAPIError", "FitResult", "GarmentTemplate", "RigResult"]

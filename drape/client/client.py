@@ -47,6 +47,20 @@ class RigResult:
     parents: np.ndarray
     rest_joints: np.ndarray
     diagnostics: dict = field(default_factory=dict)  # inside_share, distance_mm, bbox, warnings (sentences)
+    fit: FitResult | None = None  # with rig(..., fit=True): the fitted mesh the rig belongs to
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """A garment fitted onto a body at rest: vertices (N, 3) float32 m, Y-up; faces (F, 3) int32; transform
+    (4, 4): the similarity applied before the push-out (units, up axis, facing, translation); report: units and
+    up (given or inferred), inside_before / inside_after (shares at rest), max_move_mm, mean_move_mm,
+    max_stretch_mm."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    transform: np.ndarray
+    report: dict
 
 
 @dataclass(frozen=True)
@@ -103,14 +117,36 @@ def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
     return out
 
 
-def _rig_request(outfit: OutfitLike, body: str, influences: int) -> dict:
+def _mesh_request(outfit: OutfitLike, **fields: Any) -> dict:
+    """httpx arguments sending a mesh (a file path: multipart `mesh`; arrays: JSON) with the given fields
+    (None: left out)."""
+    given = {k: v for k, v in fields.items() if v is not None}
     arrays = _mesh_arrays(outfit)
     if arrays is None:
         path = Path(outfit)
         return {"files": {"mesh": (path.name, path.read_bytes())},
-                "data": {"body": body, "influences": str(influences)}}
-    return {"json": {"vertices": arrays[0].tolist(), "faces": arrays[1].tolist(), "body": body,
-                     "influences": influences}}
+                "data": {k: (str(v).lower() if isinstance(v, bool) else v if isinstance(v, str) else json.dumps(v))
+                         for k, v in given.items()}}
+    return {"json": {"vertices": arrays[0].tolist(), "faces": arrays[1].tolist(), **given}}
+
+
+def _rig_request(outfit: OutfitLike, body: str, influences: int, fit: bool = False) -> dict:
+    return _mesh_request(outfit, body=body, influences=influences, fit=fit or None)
+
+
+def _fit_result(z: dict, prefix: str = "") -> FitResult:
+    return FitResult(z[f"{prefix}vertices"], z[f"{prefix}faces"], z[f"{prefix}transform"],
+                     json.loads(str(z[f"{prefix}report"])))
+
+
+def _fit_request(outfit: OutfitLike, body: str, units: str | None, up: str | None, pose: Any) -> dict:
+    pose = pose if isinstance(pose, str) else np.asarray(pose, dtype=float).tolist()
+    return _mesh_request(outfit, body=body, units=units, up=up, pose=pose)
+
+
+def _fit_answer(response: httpx.Response) -> FitResult:
+    _raise_for(response)
+    return _fit_result(decode_npz(response.content))
 
 
 def _rig_result(response: httpx.Response) -> RigResult:
@@ -118,7 +154,8 @@ def _rig_result(response: httpx.Response) -> RigResult:
     z = decode_npz(response.content)
     return RigResult(str(z["outfit_id"]), z["skinning_weights"], z["blend_shapes"],
                      [str(n) for n in z["joint_names"]], z["parents"], z["rest_joints"],
-                     json.loads(str(z["diagnostics"])) if "diagnostics" in z else {})
+                     json.loads(str(z["diagnostics"])) if "diagnostics" in z else {},
+                     _fit_result(z, "fit_") if "fit_vertices" in z else None)
 
 
 def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
@@ -273,11 +310,19 @@ class Client(_Base):
     def models(self) -> ModelList:
         return ModelList.model_validate(self._get("/v1/models"))
 
-    def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4) -> RigResult:
+    def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False) -> RigResult:
         """Rig an outfit: blend weights (at most `influences`, 4 or 8, non-zero per vertex), blend shapes,
-        skeleton and its outfit_id (animate it by outfit_id; an outfit given to animate is rigged with 4)."""
+        skeleton and its outfit_id (animate it by outfit_id; an outfit given to animate is rigged with 4).
+        fit: fit the mesh onto the body first (see `fit`, units and up inferred); RigResult.fit then holds it."""
         return _rig_result(self._http.post("/v1/outfits/rig", headers={"Accept": NPZ},
-                                           **_rig_request(outfit, body, influences)))
+                                           **_rig_request(outfit, body, influences, fit)))
+
+    def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None, up: str | None = None,
+            pose: str | np.ndarray = "t") -> FitResult:
+        """Fit a garment made for another body onto `body` at rest: units ("m", "cm", "mm"; None: inferred),
+        up axis ("y", "z"; None: inferred), the pose it was made in ("t", "a" or (24, 3) radians)."""
+        return _fit_answer(self._http.post("/v1/outfits/fit", headers={"Accept": NPZ},
+                                           **_fit_request(outfit, body, units, up, pose)))
 
     def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
         """The animate request's httpx arguments (an npz body)."""
@@ -460,10 +505,17 @@ class AsyncClient(_Base):
         return _samples(await self._http.post(_garment_path(name, "sample"),
                                               **_sample_npz(count, seed, motion, frame)))
 
-    async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4) -> RigResult:
+    async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4,
+                  fit: bool = False) -> RigResult:
         r = await self._http.post("/v1/outfits/rig", headers={"Accept": NPZ},
-                                  **_rig_request(outfit, body, influences))
+                                  **_rig_request(outfit, body, influences, fit))
         return _rig_result(r)
+
+    async def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None,
+                  up: str | None = None, pose: str | np.ndarray = "t") -> FitResult:
+        """See Client.fit."""
+        return _fit_answer(await self._http.post("/v1/outfits/fit", headers={"Accept": NPZ},
+                                                 **_fit_request(outfit, body, units, up, pose)))
 
     async def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
         arrays, needs_rig = self._prepare(outfit, outfit_id)

@@ -52,6 +52,7 @@ class RiggedOutfit:
     rig: Rig
     influences: int = 24  # skin weights per vertex at most (the served rigs: 4 or 8)
     diagnostics: dict | None = None  # where the mesh sits on the body at rest (drape.geometry.placement)
+    fit: dict | None = None  # with rig's fit: the fitted mesh, transform and report (POST /v1/outfits/fit's answer)
 
     @property
     def nbytes(self) -> int:

@@ -26,6 +26,50 @@ INFLUENCES_HELP = ("skin influences per vertex of the served rig: 4 (what three.
                    "the blend shapes are refit for them")
 
 
+FIT_HELP = ("fit the mesh onto the body first, as POST /v1/outfits/fit does with its units and up axis inferred; "
+            "the answer then carries the fitted vertices")
+
+
+class FitRequest(Mesh):
+    """A garment made for another body, in any units and up axis, to be put on a drape body at rest."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [{**EXAMPLE_MESH, "body": "neutral", "units": "m"}]})
+
+    body: str = Field("neutral", description="body preset to fit the garment onto (GET /v1/bodies)")
+    units: Literal["m", "cm", "mm"] | None = Field(None, description="the mesh's units (default: inferred from "
+                                                   "its size, and said so in the report)")
+    up: Literal["y", "z"] | None = Field(None, description="the mesh's up axis (default: inferred: a garment is "
+                                         "thinnest front to back)")
+    pose: Literal["t", "a"] | Annotated[list[Vec3], Field(min_length=24, max_length=24)] = Field(
+        "t", description="the pose the garment was made in: 't' (T-pose), 'a' (arms 45 degrees down) or (24, 3) "
+        "axis-angle radians; un-posed with the body's own inverse skinning")
+
+
+class FitReport(BaseModel):
+    units: str = Field(description="m, cm or mm: as given or inferred")
+    units_inferred: bool
+    up: str = Field(description="y or z: as given or inferred")
+    up_inferred: bool
+    pose: str = Field(description="t, a or given")
+    placement_score_mm: float = Field(description="how closely the placed garment hugs the body (mean distance, "
+                                      "capped at 10 cm, inside counted thrice), mm")
+    inside_before: float = Field(description="share of the vertices inside the body at rest before the push-out")
+    inside_after: float = Field(description="share of the vertices inside the body at rest after it")
+    max_move_mm: float = Field(description="largest move of the push-out, mm")
+    mean_move_mm: float = Field(description="mean move of the push-out, mm")
+    max_stretch_mm: float = Field(description="largest edge lengthening by the push-out, mm")
+
+
+class FitResponse(BaseModel):
+    """The garment fitted onto the body at rest: vertices (N, 3) metres, Y-up; the faces as given; the
+    similarity (4, 4) applied before the push-out (units, up axis, facing, translation); what was done."""
+
+    vertices: list[Vec3]
+    faces: list[list[int]]
+    transform: list[list[float]] = Field(description="(4, 4), row-major, acting on column vectors")
+    report: FitReport
+
+
 class RigRequest(Mesh):
     """A template outfit (strict types: no string-to-number coercion)."""
 
@@ -33,6 +77,7 @@ class RigRequest(Mesh):
 
     body: str = Field("neutral", description="body preset the outfit is dressed on (GET /v1/bodies)")
     influences: Literal[4, 8] = Field(4, description=INFLUENCES_HELP)
+    fit: bool = Field(False, description=FIT_HELP)
 
 
 class Skeleton(BaseModel):
@@ -66,6 +111,7 @@ class RigResponse(BaseModel):
     blend_shapes: list[list[list[float]]]
     skeleton: Skeleton
     diagnostics: RigDiagnostics
+    fit: FitResponse | None = Field(None, description="with fit: true, the fitted mesh the rig belongs to")
 
 
 class MotionInput(BaseModel):
@@ -101,6 +147,7 @@ class AnimateRequest(BaseModel):
     influences: Literal[4, 8] | None = Field(None, description=INFLUENCES_HELP + " (default 4; with outfit_id: "
                                              "the rigged outfit's)")
     refine: bool | RefineOptions = Field(False, description="collision refinement post step: true or options")
+    fit: bool = Field(False, description=FIT_HELP.split(";")[0] + " (with outfit, not outfit_id)")
 
 
 class RefineRequest(BaseModel):

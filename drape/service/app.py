@@ -27,6 +27,8 @@ from drape.schemas.garments import (
 from drape.schemas.outfits import (
     AnimateRequest,
     AnimateResponse,
+    FitRequest,
+    FitResponse,
     Problem,
     RefineRequest,
     RigRequest,
@@ -91,7 +93,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             return app.openapi_schema
         schema = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
         comps = schema.setdefault("components", {}).setdefault("schemas", {})
-        for model in (RigRequest, RigResponse, AnimateRequest, AnimateResponse, RefineRequest, Problem,
+        for model in (RigRequest, RigResponse, FitRequest, FitResponse, AnimateRequest, AnimateResponse, RefineRequest, Problem,
                       GarmentTemplate, EncodeRequest, EncodeFields, EncodeResponse, KeyframeAnimateRequest,
                       KeyframeFields, SampleRequest, SampleFields, SampleResponse):
             js = model.model_json_schema(ref_template="#/components/schemas/{model}")

@@ -6,6 +6,7 @@ the models validate every number. Pure CPU work, no HTTP: the routers call these
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,13 @@ from drape.schemas.garments import (
     SampleFields,
     SampleRequest,
 )
-from drape.schemas.outfits import AnimateRequest, RefineOptions, RefineRequest, RigRequest
+from drape.schemas.outfits import (
+    AnimateRequest,
+    FitRequest,
+    RefineOptions,
+    RefineRequest,
+    RigRequest,
+)
 from drape.service import uploads
 from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotFound, quoted
 from drape.service.http import parse_form, parse_json
@@ -126,29 +133,86 @@ def _refine_options(given: dict) -> dict | None:
 
 # ---- the routes' bodies -------------------------------------------------------------------------
 
+def npz_flag(z: dict[str, np.ndarray], name: str) -> bool | None:
+    """A boolean scalar member, or None when absent."""
+    if name not in z:
+        return None
+    flag = z[name]
+    if flag.shape != () or flag.dtype.kind != "b":
+        raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}", name)
+    return bool(flag)
+
+
+def _form_flag(parts: dict[str, Any], name: str) -> bool | None:
+    text = _text(parts, name)
+    if text not in (None, "true", "false", "1", "0"):
+        raise InvalidInput(f"expected true or false, got {quoted(text, 40)}", name)
+    return None if text is None else text in ("true", "1")
+
+
+def _form_mesh(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarray, np.ndarray]:
+    mesh = parts.get("mesh")
+    if mesh is None or mesh.filename is None:
+        raise InvalidInput("a mesh file is required", "mesh")
+    return uploads.mesh_from_file(mesh.data, mesh.filename, max_vertices=settings.max_vertices,
+                                  max_faces=settings.max_faces)
+
+
 def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
-                  ) -> tuple[Any, Any, str | None, Any]:
-    """A rig request's body -> (vertices, faces, body preset or None, influences or None), not yet checked."""
+                  ) -> tuple[Any, Any, str | None, Any, bool]:
+    """A rig request's body -> (vertices, faces, body preset or None, influences or None, fit), not yet checked."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
-        mesh = parts.get("mesh")
-        if mesh is None or mesh.filename is None:
-            raise InvalidInput("a mesh file is required", "mesh")
-        body, influences = parts.get("body"), parts.get("influences")
-        v, f = uploads.mesh_from_file(mesh.data, mesh.filename, max_vertices=settings.max_vertices,
-                                      max_faces=settings.max_faces)
-        return (v, f, body.data.decode("utf-8", "replace") if body is not None else None,
-                influences.data.decode("utf-8", "replace") if influences is not None else None)
+        v, f = _form_mesh(parts, settings)
+        return v, f, _text(parts, "body"), _text(parts, "influences"), bool(_form_flag(parts, "fit"))
     if kind == "application/x-npz":
-        z = npz_members(data, ("vertices", "faces", "body", "influences"), settings)
+        z = npz_members(data, ("vertices", "faces", "body", "influences", "fit"), settings)
         if "vertices" not in z or "faces" not in z:
             raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
         return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), npz_text(z, "body"),
-                npz_scalar(z, "influences"))
+                npz_scalar(z, "influences"), bool(npz_flag(z, "fit")))
     doc = _document(data)
     _precheck_mesh(doc, settings)
     req = _model(RigRequest, doc)
-    return req.vertices, req.faces, req.body, req.influences
+    return req.vertices, req.faces, req.body, req.influences, req.fit
+
+
+FIT_FIELDS = ("body", "units", "up", "pose")
+
+
+def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings) -> dict[str, Any]:
+    """A fit request's body (JSON FitRequest; multipart: mesh file + body, units, up, pose ('t', 'a' or JSON
+    (24, 3)); npz: vertices, faces + the same as text, pose also as a (24, 3) array) -> keyword arguments of
+    handlers.fit, not yet checked."""
+    if kind == "multipart/form-data":
+        parts = parse_form(data, content_type)
+        unknown = sorted(set(parts) - {"mesh", *FIT_FIELDS})
+        if unknown:
+            raise InvalidInput(f"unknown form field; expected mesh and some of {', '.join(FIT_FIELDS)}",
+                               quoted(unknown[0], 40))
+        v, f = _form_mesh(parts, settings)
+        pose: Any = _text(parts, "pose")
+        if pose is not None and pose not in ("t", "a"):
+            try:
+                pose = json.loads(pose)
+            except ValueError:
+                raise InvalidInput(f"expected 't', 'a' or a JSON (24, 3) array, got {quoted(pose, 40)}",
+                                   "pose") from None
+        return {"vertices": v, "faces": f, "body": _text(parts, "body"), "units": _text(parts, "units"),
+                "up": _text(parts, "up"), "pose": pose}
+    if kind == "application/x-npz":
+        z = npz_members(data, ("vertices", "faces", *FIT_FIELDS), settings)
+        if "vertices" not in z or "faces" not in z:
+            raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
+        pose = npz_text(z, "pose") if "pose" in z and z["pose"].dtype.kind == "U" else (
+            npz_numbers(z, "pose") if "pose" in z else None)
+        return {"vertices": npz_numbers(z, "vertices"), "faces": npz_numbers(z, "faces", integer=True),
+                "body": npz_text(z, "body"), "units": npz_text(z, "units"), "up": npz_text(z, "up"), "pose": pose}
+    doc = _document(data)
+    _precheck_mesh(doc, settings)
+    req = _model(FitRequest, doc)
+    return {"vertices": req.vertices, "faces": req.faces, "body": req.body, "units": req.units, "up": req.up,
+            "pose": req.pose}
 
 
 def animate_request(kind: str, data: bytes, settings: Settings, engine: Engine, content_type: str = "") -> dict:
@@ -174,7 +238,7 @@ def _known(outfit_id: str, engine: Engine) -> None:
                        "outfit_id")
 
 
-ANIMATE_NPZ = ("outfit_id", "vertices", "faces", "poses", "translation", "fps", "clip", "body", "influences", "refine",
+ANIMATE_NPZ = ("outfit_id", "vertices", "faces", "poses", "translation", "fps", "clip", "body", "influences", "refine", "fit",
                *REFINE_OPTIONS)
 
 
@@ -200,7 +264,8 @@ def _animate_npz(data: bytes, settings: Settings, engine: Engine) -> dict:
             raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}", "refine")
         refine = refine if (bool(flag) and refine) else bool(flag)
     request: dict[str, Any] = {"motion": motion, "body": npz_text(z, "body"), "refine": refine or False,
-                               "outfit_id": outfit_id, "outfit": None, "influences": npz_scalar(z, "influences")}
+                               "outfit_id": outfit_id, "outfit": None, "influences": npz_scalar(z, "influences"),
+                               "fit": bool(npz_flag(z, "fit"))}
     if outfit_id is None:
         request["outfit"] = {"vertices": npz_numbers(z, "vertices"), "faces": npz_numbers(z, "faces", integer=True)}
     return request

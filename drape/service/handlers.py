@@ -10,6 +10,7 @@ import numpy as np
 
 from drape.assets.body import list_bodies, load_body
 from drape.assets.motion import list_clips, load_clip
+from drape.geometry.fitting import UNITS, FitError, FitResult, fit_garment, infer_units
 from drape.geometry.placement import FAR_M, body_distance, placement
 from drape.geometry.queries import MeshDistance
 from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
@@ -31,8 +32,10 @@ def _array(value: Any, field: str, dtype: type, ndim: int) -> np.ndarray:
     return arr
 
 
-def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "") -> tuple[np.ndarray, np.ndarray]:
-    """-> (vertices (N, 3) float32, faces (F, 3) int32), or a domain error naming the field."""
+def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "",
+               max_abs: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+    """-> (vertices (N, 3) float32, faces (F, 3) int32), or a domain error naming the field; coordinates
+    beyond `max_abs` are refused (100: metres; a mesh to fit may be in millimetres)."""
     pre = f"{field}." if field else ""
     if isinstance(faces, np.ndarray) and faces.dtype.kind not in "iu":
         raise InvalidInput(f"must be integer indices, got dtype {faces.dtype}", f"{pre}faces")
@@ -48,8 +51,9 @@ def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "") -
         raise LimitExceeded(f"{len(f)} faces exceed the limit of {settings.max_faces}", f"{pre}faces")
     if not np.isfinite(v).all():
         raise InvalidInput("contains NaN or infinite values", f"{pre}vertices")
-    if np.abs(v).max() > 100.0:
-        raise InvalidInput("coordinates beyond 100 m: the mesh must be in metres", f"{pre}vertices")
+    if np.abs(v).max() > max_abs:
+        raise InvalidInput(f"coordinates beyond {max_abs:g}: the mesh must be in metres" if max_abs == 100.0 else
+                           f"coordinates beyond {max_abs:g} (100 m in millimetres)", f"{pre}vertices")
     if f.min() < 0 or f.max() >= len(v):
         raise InvalidInput(f"indices must lie in [0, {len(v) - 1}], got [{f.min()}, {f.max()}]", f"{pre}faces")
     if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])):
@@ -153,14 +157,63 @@ def check_on_body(vertices: np.ndarray, body: str, field: str = "vertices") -> d
     return report
 
 
+def _choice(value: Any, allowed: tuple[str, ...], field: str) -> str | None:
+    if value is None:
+        return None
+    if not isinstance(value, str) or value not in allowed:
+        raise InvalidInput(f"must be one of {', '.join(allowed)} (or left out to infer it), got "
+                           f"{quoted(str(value), 40)}", field)
+    return value
+
+
+def _fit_pose(value: Any) -> str | np.ndarray:
+    if value is None or (isinstance(value, str) and value in ("t", "a")):
+        return value or "t"
+    if isinstance(value, str):
+        raise InvalidInput(f"must be 't', 'a' or (24, 3) axis-angle radians, got {quoted(value, 40)}", "pose")
+    p = _array(value, "pose", np.float64, 2)
+    if p.shape != (24, 3):
+        raise InvalidInput(f"expected (24, 3) axis-angle radians, got {p.shape}", "pose")
+    if not np.isfinite(p).all() or np.abs(p).max() > 2 * np.pi:
+        raise InvalidInput("must be finite axis-angle radians within 2 pi", "pose")
+    return p
+
+
+def fit(settings: Settings, vertices: Any, faces: Any, body: str | None, units: Any = None, up: Any = None,
+        pose: Any = None, field: str = "") -> FitResult:
+    """Fit a garment made for another body onto a body preset at rest (drape.geometry.fitting); a 422 when
+    it sits nowhere on the body. field: the mesh's field prefix in errors (e.g. "outfit")."""
+    pre = f"{field}." if field else ""
+    v, f = check_mesh(vertices, faces, settings, field, max_abs=1e5)
+    body_name = check_body(body)
+    units_ = _choice(units, tuple(UNITS), "units")
+    up_ = _choice(up, ("y", "z"), "up")
+    pose_ = _fit_pose(pose)
+    scale = UNITS[units_ or infer_units(v)]
+    if np.abs(v).max() * scale > 100.0:
+        raise InvalidInput(f"coordinates beyond 100 m in {units_ or infer_units(v)}", f"{pre}vertices")
+    try:
+        return fit_garment(v, f, load_body(body_name), units=units_, up=up_, pose=pose_)
+    except FitError as exc:
+        raise InvalidInput(str(exc), f"{pre}vertices") from None
+
+
+def fit_answer(result: FitResult, faces: np.ndarray) -> dict:
+    """A FitResult as the FitResponse document."""
+    return {"vertices": result.vertices.tolist(), "faces": np.asarray(faces).tolist(),
+            "transform": result.transform.tolist(), "report": result.report}
+
+
 def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str | None,
-        influences: Any = None) -> RiggedOutfit:
-    """Rig an outfit; the answer carries its placement diagnostics."""
-    v, f = check_mesh(vertices, faces, settings)
+        influences: Any = None, fit_first: bool = False) -> RiggedOutfit:
+    """Rig an outfit (fitted onto the body first with fit_first); the answer carries its placement
+    diagnostics, and with fit_first the fit (RiggedOutfit.fit: vertices, faces, transform, report)."""
+    fitted = fit(settings, vertices, faces, body) if fit_first else None
+    v, f = check_mesh(vertices if fitted is None else fitted.vertices, faces, settings)
     body_name = check_body(body)
     diagnostics = check_on_body(v, body_name)
     outfit = engine.rig(v, f, body_name, check_influences(influences))
-    return replace(outfit, diagnostics=diagnostics)
+    return replace(outfit, diagnostics=diagnostics, fit=None if fitted is None else fit_answer(fitted, f))
 
 
 def check_refine(value: Any) -> RefineSettings | None:
@@ -189,6 +242,8 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
     if (outfit_in is None) == (outfit_id is None):
         raise InvalidInput("give exactly one of 'outfit' and 'outfit_id'", "outfit")
     if outfit_id is not None:
+        if request.get("fit"):
+            raise InvalidInput("fit applies to an outfit mesh; an outfit_id is already rigged", "fit")
         outfit = engine.lookup(outfit_id)
         if outfit is None:
             raise NotFound(f"unknown outfit_id {quoted(outfit_id)}: rig the outfit again (ids expire from the cache)",
@@ -202,6 +257,9 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
         check_answer_size(len(poses), len(outfit.vertices), max_posed, "motion")
     else:  # every cheap check before the rig
         assert outfit_in is not None
+        if request.get("fit"):
+            fitted = fit(settings, outfit_in["vertices"], outfit_in["faces"], request.get("body"), field="outfit")
+            outfit_in = {**outfit_in, "vertices": fitted.vertices}
         v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
         body = check_body(request.get("body"))
         check_on_body(v, body, "outfit.vertices")

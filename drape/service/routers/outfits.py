@@ -54,10 +54,12 @@ def _rig_payload(outfit: RiggedOutfit) -> dict[str, np.ndarray]:
         JSON: {"schema": {"$ref": "#/components/schemas/RigRequest"}},
         "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
             "mesh": {"type": "string", "format": "binary", "description": "OBJ, PLY, GLB or glTF file"},
-            "body": {"type": "string"}, "influences": {"type": "string", "enum": ["4", "8"]}}}},
+            "body": {"type": "string"}, "influences": {"type": "string", "enum": ["4", "8"]},
+            "fit": {"type": "string", "enum": ["true", "false"]}}}},
         NPZ: {"schema": {"type": "string", "format": "binary",
                          "description": "npz with vertices (N, 3), faces (F, 3), optional body (unicode scalar), "
-                                        "optional influences (integer scalar, 4 or 8)"}},
+                                        "optional influences (integer scalar, 4 or 8), optional fit (boolean "
+                                        "scalar)"}},
     }}},
 )
 async def rig_outfit(request: Request) -> Response:
@@ -71,8 +73,8 @@ async def rig_outfit(request: Request) -> Response:
     content_type = request.headers.get("content-type", "")
 
     def work() -> Response:
-        vertices, faces, body_name, influences = decode.rig_arguments(kind, content_type, data, settings)
-        outfit = handlers.rig(engine, settings, vertices, faces, body_name, influences)
+        vertices, faces, body_name, influences, fit = decode.rig_arguments(kind, content_type, data, settings)
+        outfit = handlers.rig(engine, settings, vertices, faces, body_name, influences, fit_first=fit)
         if answer == GLB:
             return Response(handlers.outfit_glb(engine, outfit), media_type=GLB)
         return _rig_answer(answer, outfit, settings)
@@ -87,8 +89,10 @@ async def rig_outfit(request: Request) -> Response:
 def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Response:
     payload = _rig_payload(outfit)
     if answer == NPZ:
+        fitted = {} if outfit.fit is None else _fit_members(outfit.fit, "fit_")
         return Response(encode_npz({"outfit_id": np.array(outfit.outfit_id), **payload,
-                                    "diagnostics": np.array(json.dumps(outfit.diagnostics))}), media_type=NPZ)
+                                    "diagnostics": np.array(json.dumps(outfit.diagnostics)), **fitted}),
+                        media_type=NPZ)
     numbers = payload["skinning_weights"].size + payload["blend_shapes"].size
     if numbers > settings.max_json_values:
         raise LimitExceeded(f"the rig has {numbers} numbers, over the limit of {settings.max_json_values} for a "
@@ -101,7 +105,56 @@ def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Respon
         "skeleton": {"joint_names": list(payload["joint_names"]), "parents": payload["parents"].tolist(),
                      "rest_joints": payload["rest_joints"].tolist()},
         "diagnostics": outfit.diagnostics,
+        **({"fit": outfit.fit} if outfit.fit is not None else {}),
     })
+
+
+def _fit_members(fit: dict, prefix: str = "") -> dict[str, np.ndarray]:
+    """A fit answer (FitResponse document) as npz members: vertices, faces, transform, report (JSON text)."""
+    return {f"{prefix}vertices": np.asarray(fit["vertices"], np.float32),
+            f"{prefix}faces": np.asarray(fit["faces"], np.int32),
+            f"{prefix}transform": np.asarray(fit["transform"], np.float64),
+            f"{prefix}report": np.array(json.dumps(fit["report"]))}
+
+
+@router.post(
+    "/fit",
+    responses={200: {"description": "the garment fitted onto the body at rest", "content": {
+        JSON: {"schema": {"$ref": "#/components/schemas/FitResponse"}}, NPZ: BINARY}}, **ERRORS},
+    openapi_extra={"requestBody": {"required": True, "content": {
+        JSON: {"schema": {"$ref": "#/components/schemas/FitRequest"}},
+        "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
+            "mesh": {"type": "string", "format": "binary", "description": "OBJ, PLY, GLB or glTF file"},
+            "body": {"type": "string"}, "units": {"type": "string", "enum": ["m", "cm", "mm"]},
+            "up": {"type": "string", "enum": ["y", "z"]},
+            "pose": {"type": "string", "description": "t, a, or a JSON (24, 3) array of axis-angle radians"}}}},
+        NPZ: {"schema": {"type": "string", "format": "binary",
+                         "description": "npz with vertices (N, 3), faces (F, 3), optional body, units, up (unicode "
+                                        "scalars), optional pose (unicode scalar t or a, or (24, 3) radians)"}},
+    }}},
+)
+async def fit_outfit(request: Request) -> Response:
+    """A garment made for another body (any units, Y- or Z-up, T- or A-pose) -> the garment on the body at rest:
+    units converted, up axis turned, placed on the body (rigid), un-posed, pushed out of the body keeping its
+    local shape. Answers vertices (N, 3) m, faces, the transform (4, 4) applied before the push-out, and a report
+    (units and up as given or inferred, inside shares before and after, the push-out's moves and stretch)."""
+    answer = choose(request.headers.get("accept"), [JSON, NPZ])
+    kind = media_type(request)
+    if kind not in ("multipart/form-data", NPZ, JSON, ""):
+        raise UnsupportedMediaType(f"send {JSON}, multipart/form-data or {NPZ}, not {kind!r}", "Content-Type")
+    settings = settings_of(request)
+    data = await read_body(request)
+    content_type = request.headers.get("content-type", "")
+
+    def work() -> Response:
+        args = decode.fit_arguments(kind, content_type, data, settings)
+        result = handlers.fit(settings, **args)
+        doc = handlers.fit_answer(result, np.asarray(args["faces"]))
+        if answer == NPZ:
+            return Response(encode_npz(_fit_members(doc)), media_type=NPZ)
+        return JSONResponse(doc)
+
+    return await whole_answer(request, work)
 
 
 def max_posed(answer: str, settings: Settings) -> int | None:
@@ -141,7 +194,7 @@ REFINE_FORM = {"schema": {"type": "object", "required": ["garment", "motion_file
     JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
                      "npz: outfit_id (text) or vertices (N, 3) + faces (F, 3); clip (text) or poses (T, 24, 3) / "
-                     "(T, 72) with optional translation (T, 3) and fps; optional body (text); influences (4 or 8); refine (boolean "
+                     "(T, 72) with optional translation (T, 3) and fps; optional body (text); influences (4 or 8); fit (boolean scalar); refine (boolean "
                      "scalar) and/or the refine options as scalars: eps, max_iterations, relief_iterations"}},
     "multipart/form-data": ANIMATE_FORM}}})
 async def animate_outfit(request: Request) -> Response:

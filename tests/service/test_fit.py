@@ -1,0 +1,110 @@
+"""POST /v1/outfits/fit and `fit: true` on rig and animate (issue 20, item 3), over HTTP and through the real
+client: a garment made for another body (Z-up, centimetres, far away) comes back on the body with the report,
+the same as the library gives; bad fields answer 422 naming them."""
+
+import io
+import json
+
+import numpy as np
+import pytest
+from svc_env import problem
+
+import drape
+from drape.assets.body import load_body
+from drape.assets.outfits import generate_outfit
+from drape.geometry.fitting import fit_garment
+
+Z_UP_CM = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]) * 100.0  # Y-up metres -> Z-up centimetres
+NPZ = "application/x-npz"
+REPORT = {"units", "units_inferred", "up", "up_inferred", "pose", "placement_score_mm", "inside_before",
+          "inside_after", "max_move_mm", "mean_move_mm", "max_stretch_mm"}
+
+
+@pytest.fixture(scope="module")
+def foreign():
+    """A t-shirt made for the female body, Z-up in centimetres, 5 m away: (vertices, faces)."""
+    o = generate_outfit("tshirt", vertices=500, seed=8, body="female")
+    return o.vertices.astype(np.float64) @ Z_UP_CM.T + [500.0, 0.0, 20.0], o.faces
+
+
+def test_fit_answers_the_fitted_mesh_its_transform_and_report(http, foreign):
+    v, f = foreign
+    r = http.post("/v1/outfits/fit", json={"vertices": v.tolist(), "faces": f.tolist(), "body": "male"})
+    assert r.status_code == 200, r.text[:300]
+    doc = r.json()
+    assert set(doc["report"]) == REPORT
+    assert (doc["report"]["units"], doc["report"]["up"]) == ("cm", "z")
+    assert doc["report"]["inside_after"] <= 0.001 and doc["faces"] == f.tolist()
+    expected = fit_garment(v.astype(np.float32), f, load_body("male"))  # the service reads float32
+    np.testing.assert_allclose(doc["vertices"], expected.vertices, atol=1e-5)
+    np.testing.assert_allclose(doc["transform"], expected.transform, atol=1e-9)
+    # npz by Accept: the same
+    z = np.load(io.BytesIO(http.post("/v1/outfits/fit", json={"vertices": v.tolist(), "faces": f.tolist(),
+                                                                "body": "male"}, headers={"Accept": NPZ}).content))
+    np.testing.assert_allclose(z["vertices"], doc["vertices"], atol=1e-6)
+    assert json.loads(str(z["report"])) == doc["report"]
+
+
+def test_fit_takes_a_mesh_file_and_an_npz(http, foreign, tmp_path):
+    v, f = foreign
+    obj = "".join(f"v {a} {b} {c}\n" for a, b, c in v) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f)
+    r = http.post("/v1/outfits/fit", files={"mesh": ("shirt.obj", obj.encode())},
+                  data={"body": "male", "units": "cm", "up": "z"})
+    assert r.status_code == 200, r.text[:300]
+    assert not r.json()["report"]["units_inferred"] and not r.json()["report"]["up_inferred"]
+    buf = io.BytesIO()
+    np.savez(buf, vertices=v, faces=f, body=np.array("male"), pose=np.array("t"))
+    r2 = http.post("/v1/outfits/fit", content=buf.getvalue(), headers={"Content-Type": NPZ})
+    assert r2.status_code == 200, r2.text[:300]
+    np.testing.assert_allclose(r2.json()["vertices"], r.json()["vertices"], atol=1e-4)
+
+
+def test_rig_and_animate_with_fit_first(http, foreign):
+    v, f = foreign
+    r = http.post("/v1/outfits/rig", json={"vertices": v.tolist(), "faces": f.tolist(), "body": "male",
+                                           "fit": True})
+    assert r.status_code == 200, r.text[:300]
+    doc = r.json()
+    assert doc["diagnostics"]["inside_share"] <= 0.001 and doc["fit"]["report"]["units"] == "cm"
+    assert doc["num_vertices"] == len(v)
+    # without fit the same mesh is refused: it is nowhere near the body
+    problem(http.post("/v1/outfits/rig", json={"vertices": v.tolist(), "faces": f.tolist()}), 422, "vertices")
+    a = http.post("/v1/outfits/animate", json={"outfit": {"vertices": v.tolist(), "faces": f.tolist()},
+                                               "body": "male", "fit": True,
+                                               "motion": {"poses": np.zeros((2, 72)).tolist()}})
+    assert a.status_code == 200, a.text[:300]
+    # animate fits the same way, so it poses the rig's own fitted mesh: the same frames as by outfit_id
+    by_id = http.post("/v1/outfits/animate", json={"outfit_id": doc["outfit_id"],
+                                                   "motion": {"poses": np.zeros((2, 72)).tolist()}})
+    assert a.json()["outfit_id"] == doc["outfit_id"]
+    np.testing.assert_allclose(a.json()["vertices"], by_id.json()["vertices"], atol=1e-6)
+    problem(http.post("/v1/outfits/animate", json={"outfit_id": doc["outfit_id"], "fit": True,
+                                                   "motion": {"clip": "walk"}}), 422, "fit")
+
+
+@pytest.mark.parametrize(("field", "value", "words"), [
+    ("units", "km", ("units",)),
+    ("up", "x", ("up",)),
+    ("pose", "b", ("pose",)),
+    ("pose", [[0.0, 0.0, 0.0]] * 23, ("pose",)),
+])
+def test_bad_fit_fields_are_named(http, foreign, field, value, words):
+    v, f = foreign
+    r = http.post("/v1/outfits/fit", json={"vertices": v.tolist(), "faces": f.tolist(), field: value})
+    problem(r, 422, *words)
+
+
+def test_a_mesh_taller_than_the_body_is_a_422(http):
+    v = [[0, 0, 0], [0.1, 0, 0], [0, 2.5, 0], [0.1, 2.5, 0.05]]
+    problem(http.post("/v1/outfits/fit", json={"vertices": v, "faces": [[0, 1, 2], [1, 3, 2]], "units": "m",
+                                               "up": "y"}), 422, "vertices", "taller than the body")
+
+
+def test_the_client_fits_and_rigs_with_fit(server_url, foreign):
+    v, f = foreign
+    with drape.Client(server_url) as client:
+        fitted = client.fit((v, f), body="male", units="cm")
+        rig = client.rig((v, f), body="male", fit=True)
+    assert isinstance(fitted, drape.client.FitResult) and fitted.report["units"] == "cm" and fitted.transform.shape == (4, 4)
+    assert rig.fit is not None and rig.fit.vertices.shape == (len(v), 3)
+    np.testing.assert_allclose(rig.fit.vertices, fitted.vertices, atol=1e-3)
