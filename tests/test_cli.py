@@ -22,6 +22,24 @@ def test_outfits_generate_writes_a_mesh(tmp_path):
     assert abs(len(v) - 1500) <= 150 and f.max() < len(v)
 
 
+def test_outfits_fit_puts_a_z_up_centimetre_garment_on_the_body(tmp_path):
+    from drape.geometry.mesh_io import save_mesh
+
+    made = tmp_path / "made.obj"
+    drape("outfits", "generate", "--type", "trousers", "--vertices", "500", "--seed", "2", "--body", "male",
+          "--out", str(made))
+    v, f = load_mesh(made)
+    foreign = tmp_path / "foreign.obj"
+    save_mesh(foreign, v @ np.array([[100.0, 0, 0], [0, 0, -100.0], [0, 100.0, 0]]).T, f)  # Z-up, cm
+    out, report = tmp_path / "fitted.obj", tmp_path / "fit.json"
+    text = drape("outfits", "fit", str(foreign), "--body", "neutral", "--out", str(out), "--report", str(report))
+    assert "units cm (inferred), up z (inferred)" in text, text
+    import json
+
+    rep = json.loads(report.read_text())["report"]
+    assert rep["inside_after"] <= 0.001 and len(load_mesh(out)[0]) == len(v)
+
+
 def test_motions_generate_and_render(tmp_path):
     motion = tmp_path / "m.npz"
     drape("motions", "generate", "--frames", "40", "--seed", "2", "--out", str(motion))
