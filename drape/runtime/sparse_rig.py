@@ -61,10 +61,11 @@ def _inverse3(m: np.ndarray) -> np.ndarray:
 
 
 def sparse_rig(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, influences: int,
-               poses: np.ndarray, keys: np.ndarray, block: int = 64) -> Rig:
+               poses: np.ndarray, keys: np.ndarray, block: int = 64, targets: np.ndarray | None = None) -> Rig:
     """The dense `rig` of an outfit (rest_vertices (N, 3) m, on a body with rest_joints (24, 3) m) with
     at most `influences` weights per vertex and its blend shapes (P, N, 3) refit over the fit frames:
-    poses (T, 24, 3) rad (e.g. `fit_poses()`), keys (T, P) their pose keys. -> Rig."""
+    poses (T, 24, 3) rad (e.g. `fit_poses()`), keys (T, P) their pose keys; targets (T, N, 3) m: what the
+    sparse rig is fit to at those poses (default: the dense rig's posed vertices). -> Rig."""
     weights = top_weights(rig.weights, influences)
     sparse = Rig(weights, rig.blend_shapes)
     keys32 = np.asarray(keys, dtype=np.float32)
@@ -74,7 +75,7 @@ def sparse_rig(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, inf
     w64 = weights.astype(np.float64)
     for s in range(0, T, block):  # the translation changes nothing here: none is applied
         p, k = poses[s:s + block], keys32[s:s + block]
-        dense = pose_outfit(rest_vertices, rig, k, rest_joints, p)
+        dense = pose_outfit(rest_vertices, rig, k, rest_joints, p) if targets is None else targets[s:s + block]
         moved = pose_outfit(rest_vertices, sparse, k, rest_joints, p)
         rot = forward_kinematics(p, rest_joints)[0][:, :, :3, :3]  # (t, K, 3, 3)
         blended = (w64 @ rot.transpose(1, 0, 2, 3).reshape(len(w64[0]), -1)).reshape(-1, len(p), 3, 3)
@@ -85,3 +86,4 @@ def sparse_rig(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, inf
     gram = keys64.T @ keys64 + RIDGE * T * np.eye(P)
     delta = np.linalg.solve(gram, rhs).reshape(P, -1, 3)
     return Rig(weights, (rig.blend_shapes + delta).astype(np.float32))
+
