@@ -12,6 +12,9 @@ for body in neutral female male; do
     --out "docs/render_${body}_walk.png"
 done
 $DRAPE render --body neutral --frames 0 --azimuth 0 --out docs/render_neutral_rest.png
+# a real garment made for no body of ours (../shared/data/external), fitted onto the neutral body
+$DRAPE outfits fit ../shared/data/external/ncsim_arcsim_tshirtw.obj --body neutral --out "$tmp/fitted.obj"
+$DRAPE render --body neutral --outfit "$tmp/fitted.obj" --frames 0 --out docs/fit_arcsim_tshirt.png
 rm -rf "$tmp"
 
 # a simulated sequence of the small dataset (builds it first if needed: make sim-dataset, ~13 min)
