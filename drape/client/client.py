@@ -48,6 +48,7 @@ class RigResult:
     rest_joints: np.ndarray
     diagnostics: dict = field(default_factory=dict)  # inside_share, distance_mm, bbox, warnings (sentences)
     fit: FitResult | None = None  # with rig(..., fit=True): the fitted mesh the rig belongs to
+    parts: list[dict] | None = None  # an uploaded OBJ's objects in file order: {"name", "start", "stop"} vertex ranges
 
 
 @dataclass(frozen=True)
@@ -155,7 +156,8 @@ def _rig_result(response: httpx.Response) -> RigResult:
     return RigResult(str(z["outfit_id"]), z["skinning_weights"], z["blend_shapes"],
                      [str(n) for n in z["joint_names"]], z["parents"], z["rest_joints"],
                      json.loads(str(z["diagnostics"])) if "diagnostics" in z else {},
-                     _fit_result(z, "fit_") if "fit_vertices" in z else None)
+                     _fit_result(z, "fit_") if "fit_vertices" in z else None,
+                     json.loads(str(z["parts"])) if "parts" in z else None)
 
 
 def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,

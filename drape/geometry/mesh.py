@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components as graph_components
+from scipy.spatial import cKDTree
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray, normalize: bool = True) -> np.ndarray:
@@ -53,6 +55,47 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, incidence: sp.csr_ma
         vn = (inc @ flat).reshape(N, -1, 3)
         vn = np.moveaxis(vn, 1, 0).reshape(lead + (N, 3))
     return vn / np.maximum(np.sqrt(np.einsum("...c,...c->...", vn, vn))[..., None], 1e-20)
+
+
+WELD_TOLERANCE_M = 1e-6  # vertices closer than this (per coordinate, in every frame) are one
+
+
+def coincident_groups(points: np.ndarray, tol: float = WELD_TOLERANCE_M) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices at one place: points (N, 3), or (N, 3T) for T frames side by side -> (first (M,) the index
+    of each group's first vertex, in order of first appearance; group (N,) each vertex's group). Two vertices
+    are together when every coordinate differs by at most `tol` (in every frame); groups are the connected
+    chains of such pairs. UV seams and hard edges duplicate vertices at one position: such a mesh is one
+    surface, not several."""
+    x = np.asarray(points, dtype=np.float64)
+    pairs = cKDTree(x[:, :3]).query_pairs(tol, p=np.inf, output_type="ndarray")
+    if len(pairs) and x.shape[1] > 3:
+        pairs = pairs[np.abs(x[pairs[:, 0]] - x[pairs[:, 1]]).max(axis=1) <= tol]
+    n = len(x)
+    if not len(pairs):
+        return np.arange(n), np.arange(n)
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = graph_components(graph, directed=False)
+    _, first, inverse = np.unique(label, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[inverse.ravel()]
+
+
+def weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge coincident vertices (`coincident_groups`): (N, 3), (F, 3) -> (welded vertices (M, 3), welded faces (F', 3) without
+    the faces that collapse, group (N,): vertex i of the input is welded vertex group[i], so that
+    `welded[group]` restores per-vertex arrays). With no coincident vertices it returns the input unchanged
+    (group = arange(N))."""
+    first, group = coincident_groups(vertices)
+    return np.asarray(vertices)[first], regroup_faces(faces, group), group
+
+
+def regroup_faces(faces: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """Faces (F, 3) re-indexed by `group` (N,) (see `weld`), without the faces that collapse -> (F', 3)."""
+    f = group[np.asarray(faces, dtype=np.int64)]
+    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+    return f[keep].astype(np.asarray(faces).dtype)
 
 
 def unique_edges(faces: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from drape.geometry.mesh import neighbour_table, vertex_normals
+from drape.geometry.mesh import neighbour_table, vertex_normals, weld
 from drape.geometry.skeleton import PARENTS, as_pose_array, forward_kinematics
 
 MODEL_DIR = Path(__file__).resolve().parents[1] / "assets" / "models" / "deepsd"
@@ -77,13 +77,16 @@ class DeePSDModel:
         self.num_keys = int(self.manifest["files"]["pose"]["outputs"][0]["shape"][-1])
 
     def rig(self, vertices: np.ndarray, faces: np.ndarray) -> Rig:
-        """Blend weights and pose-space blend shapes of an outfit in rest pose."""
-        w, d = self.sessions["outfit"].run(["weights", "blend_shapes"], network_inputs(vertices, faces))
-        return Rig(weights=w, blend_shapes=d)
+        """Blend weights and pose-space blend shapes of an outfit in rest pose. Coincident vertices (UV seams)
+        are welded for the network and get the same rig, so that seams cannot open."""
+        welded, welded_faces, group = weld(vertices, faces)
+        w, d = self.sessions["outfit"].run(["weights", "blend_shapes"], network_inputs(welded, welded_faces))
+        return Rig(weights=w[group], blend_shapes=d[:, group])
 
     def blend_shapes_data(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        """D_data alone (P, N, 3): the model without its physics branch Chi (for evaluation)."""
-        return self.sessions["outfit"].run(["blend_shapes_data"], network_inputs(vertices, faces))[0]
+        """D_data alone (P, N, 3): the model without its physics branch Chi (for evaluation); seams welded."""
+        welded, welded_faces, group = weld(vertices, faces)
+        return self.sessions["outfit"].run(["blend_shapes_data"], network_inputs(welded, welded_faces))[0][:, group]
 
     def pose_keys(self, poses: np.ndarray) -> np.ndarray:
         """(T, 24, 3) or (T, 72) axis-angle -> (T, P) pose keys."""

@@ -24,6 +24,7 @@ import numpy as np
 
 from drape.assets.body import load_body
 from drape.geometry.lbs import rest_space_offsets
+from drape.geometry.mesh import coincident_groups, regroup_faces
 from drape.geometry.refine import (
     EPS,
     MAX_ITERATIONS,
@@ -53,6 +54,7 @@ class RiggedOutfit:
     influences: int = 24  # skin weights per vertex at most (the served rigs: 4 or 8)
     diagnostics: dict | None = None  # where the mesh sits on the body at rest (drape.geometry.placement)
     fit: dict | None = None  # with rig's fit: the fitted mesh, transform and report (POST /v1/outfits/fit's answer)
+    parts: list[dict] | None = None  # the mesh file's named parts: [{"name", "start", "stop"}] vertex ranges
 
     @property
     def nbytes(self) -> int:
@@ -144,7 +146,12 @@ class RefinePool:
     def refine(self, frames: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray, translation: np.ndarray,
                settings: RefineSettings) -> np.ndarray:
         """frames (n, N, 3), faces (F, 3), poses (n, 24, 3) or (n, 72), translation (n, 3) -> refined (n, N, 3)
-        float32."""
+        float32. Vertices that coincide in every frame (UV seams; within 1 um) are refined as one and stay together."""
+        first, group = coincident_groups(np.ascontiguousarray(np.asarray(frames).transpose(1, 0, 2)).reshape(
+            frames.shape[1], -1))
+        if len(first) < frames.shape[1]:
+            return self.refine(frames[:, first], regroup_faces(faces, group), body, poses, translation,
+                               settings)[:, group]
         parts = min(self.workers, len(frames) // self.min_frames)
         # the body is posed here, for the whole chunk, in every case: posing in smaller batches would
         # change its vertices in the last float bit, and the refinement's discrete choices with them

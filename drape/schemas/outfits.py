@@ -112,6 +112,14 @@ class RigResponse(BaseModel):
     skeleton: Skeleton
     diagnostics: RigDiagnostics
     fit: FitResponse | None = Field(None, description="with fit: true, the fitted mesh the rig belongs to")
+    parts: list[MeshPart] | None = Field(None, description="an uploaded OBJ's objects (or groups) in the file's "
+                                         "order, as vertex ranges of the rig's arrays")
+
+
+class MeshPart(BaseModel):
+    name: str
+    start: int = Field(description="first vertex")
+    stop: int = Field(description="one past the last vertex")
 
 
 class MotionInput(BaseModel):

@@ -158,23 +158,30 @@ def _form_mesh(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarray, n
                                   max_faces=settings.max_faces)
 
 
+def _form_mesh_parts(parts: dict[str, Any], num_vertices: int) -> list[dict] | None:
+    mesh = parts["mesh"]
+    return uploads.mesh_parts(mesh.data, mesh.filename, num_vertices)
+
+
 def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
-                  ) -> tuple[Any, Any, str | None, Any, bool]:
-    """A rig request's body -> (vertices, faces, body preset or None, influences or None, fit), not yet checked."""
+                  ) -> tuple[Any, Any, str | None, Any, bool, list[dict] | None]:
+    """A rig request's body -> (vertices, faces, body preset or None, influences or None, fit, the mesh file's
+    named parts or None), not yet checked."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
         v, f = _form_mesh(parts, settings)
-        return v, f, _text(parts, "body"), _text(parts, "influences"), bool(_form_flag(parts, "fit"))
+        return (v, f, _text(parts, "body"), _text(parts, "influences"), bool(_form_flag(parts, "fit")),
+                _form_mesh_parts(parts, len(v)))
     if kind == "application/x-npz":
         z = npz_members(data, ("vertices", "faces", "body", "influences", "fit"), settings)
         if "vertices" not in z or "faces" not in z:
             raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
         return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), npz_text(z, "body"),
-                npz_scalar(z, "influences"), bool(npz_flag(z, "fit")))
+                npz_scalar(z, "influences"), bool(npz_flag(z, "fit")), None)
     doc = _document(data)
     _precheck_mesh(doc, settings)
     req = _model(RigRequest, doc)
-    return req.vertices, req.faces, req.body, req.influences, req.fit
+    return req.vertices, req.faces, req.body, req.influences, req.fit, None
 
 
 FIT_FIELDS = ("body", "units", "up", "pose")

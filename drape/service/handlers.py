@@ -205,15 +205,17 @@ def fit_answer(result: FitResult, faces: np.ndarray) -> dict:
 
 
 def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str | None,
-        influences: Any = None, fit_first: bool = False) -> RiggedOutfit:
+        influences: Any = None, fit_first: bool = False, parts: list[dict] | None = None) -> RiggedOutfit:
     """Rig an outfit (fitted onto the body first with fit_first); the answer carries its placement
-    diagnostics, and with fit_first the fit (RiggedOutfit.fit: vertices, faces, transform, report)."""
+    diagnostics, with fit_first the fit (RiggedOutfit.fit: vertices, faces, transform, report), and the
+    mesh file's named parts (vertex ranges) when it has several."""
     fitted = fit(settings, vertices, faces, body) if fit_first else None
     v, f = check_mesh(vertices if fitted is None else fitted.vertices, faces, settings)
     body_name = check_body(body)
     diagnostics = check_on_body(v, body_name)
     outfit = engine.rig(v, f, body_name, check_influences(influences))
-    return replace(outfit, diagnostics=diagnostics, fit=None if fitted is None else fit_answer(fitted, f))
+    return replace(outfit, diagnostics=diagnostics, fit=None if fitted is None else fit_answer(fitted, f),
+                   parts=parts)
 
 
 def check_refine(value: Any) -> RefineSettings | None:

@@ -73,8 +73,8 @@ async def rig_outfit(request: Request) -> Response:
     content_type = request.headers.get("content-type", "")
 
     def work() -> Response:
-        vertices, faces, body_name, influences, fit = decode.rig_arguments(kind, content_type, data, settings)
-        outfit = handlers.rig(engine, settings, vertices, faces, body_name, influences, fit_first=fit)
+        vertices, faces, body_name, influences, fit, parts = decode.rig_arguments(kind, content_type, data, settings)
+        outfit = handlers.rig(engine, settings, vertices, faces, body_name, influences, fit_first=fit, parts=parts)
         if answer == GLB:
             return Response(handlers.outfit_glb(engine, outfit), media_type=GLB)
         return _rig_answer(answer, outfit, settings)
@@ -90,8 +90,9 @@ def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Respon
     payload = _rig_payload(outfit)
     if answer == NPZ:
         fitted = {} if outfit.fit is None else _fit_members(outfit.fit, "fit_")
+        parts = {} if outfit.parts is None else {"parts": np.array(json.dumps(outfit.parts))}
         return Response(encode_npz({"outfit_id": np.array(outfit.outfit_id), **payload,
-                                    "diagnostics": np.array(json.dumps(outfit.diagnostics)), **fitted}),
+                                    "diagnostics": np.array(json.dumps(outfit.diagnostics)), **fitted, **parts}),
                         media_type=NPZ)
     numbers = payload["skinning_weights"].size + payload["blend_shapes"].size
     if numbers > settings.max_json_values:
@@ -106,6 +107,7 @@ def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Respon
                      "rest_joints": payload["rest_joints"].tolist()},
         "diagnostics": outfit.diagnostics,
         **({"fit": outfit.fit} if outfit.fit is not None else {}),
+        **({"parts": outfit.parts} if outfit.parts is not None else {}),
     })
 
 
