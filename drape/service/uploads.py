@@ -30,6 +30,9 @@ trimesh would allocate by is bounded first:
   does), and the face records' triangles (M * (k - 2)) are bounded; ASCII data may not have many
   more lines than records (trimesh parses every line), and its face rows' triangles are counted.
 
+`gltf_tree_and_reader` gives other readers of GLB / glTF uploads (a skinned body) the same checks
+of the container, buffers, bufferViews and accessors, and the accessors' data as numpy arrays.
+
 Errors (all naming the field "mesh"): `LimitExceeded` (413) when a declared count exceeds a limit,
 `MalformedInput` (400) for declarations inconsistent with each other or with the data, and for
 anything trimesh cannot read, `InvalidInput` (422) for a supported file using a feature drape does
@@ -45,6 +48,8 @@ import io
 import json
 import re
 import struct
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, NoReturn, cast
 
@@ -196,6 +201,13 @@ class _Accessor:
 
 def _checked_glb(data: bytes, max_vertices: int, max_faces: int) -> bytes:
     """A GLB upload -> the rewritten GLB handed to trimesh (geometry only)."""
+    json_chunk, bin_chunk = _glb_chunks(data)
+    tree = _parse_json(bytes(json_chunk))
+    return _rewrite(tree, _buffers(tree, bin_chunk, glb=True), max_vertices, max_faces)
+
+
+def _glb_chunks(data: bytes) -> tuple[memoryview, memoryview | None]:
+    """A GLB's header and chunks checked against the bytes sent -> (JSON chunk, BIN chunk or None)."""
     if len(data) < 20:
         _bad(f"{len(data)} bytes are too few for a GLB (a 12-byte header and a chunk)")
     magic, version, length = struct.unpack_from("<4sII", data)
@@ -230,8 +242,7 @@ def _checked_glb(data: bytes, max_vertices: int, max_faces: int) -> bytes:
     if len(json_chunk) > MAX_JSON_BYTES:
         raise LimitExceeded(f"the GLB's JSON chunk has {len(json_chunk)} bytes, over the limit of "
                             f"{MAX_JSON_BYTES}", FIELD)
-    tree = _parse_json(bytes(json_chunk))
-    return _rewrite(tree, _buffers(tree, bin_chunk, glb=True), max_vertices, max_faces)
+    return json_chunk, bin_chunk
 
 
 def _checked_gltf(data: bytes, max_vertices: int, max_faces: int) -> bytes:
@@ -499,6 +510,71 @@ def _dense(acc: _Accessor, views: list[_View], buffers: list[memoryview]) -> byt
     return rows.tobytes()
 
 
+_DTYPES = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+
+
+def gltf_tree_and_reader(data: bytes, suffix: str, *, field: str = FIELD
+                         ) -> tuple[dict[str, Any], Callable[[int], np.ndarray]]:
+    """A GLB (suffix ".glb") or .gltf (".gltf", buffers embedded) upload -> (JSON tree, read_accessor).
+
+    The structure is checked as `mesh_from_file` checks it (GLB header and chunks, the JSON's bounds,
+    every buffer, bufferView and accessor within the bytes present, refused extensions); nothing
+    else of the tree is (its meshes, nodes and skins are the caller's to check). read_accessor(i)
+    -> accessor i's elements as a new array of its component type (int8 .. uint32, float32;
+    `normalized` not applied): (count,) for SCALAR, (count, n) for VECn, (count, n, n) for MATn
+    indexed [element, row, column]. An index out of range, an accessor with no bufferView, or a
+    MAT2 / MAT3 of 1- or 2-byte components is refused. Errors are those of `mesh_from_file`,
+    naming `field`.
+    """
+    with _reported_as(field, suffix):
+        if suffix == ".glb":
+            json_chunk, bin_chunk = _glb_chunks(data)
+            tree = _parse_json(bytes(json_chunk))
+            buffers = _buffers(tree, bin_chunk, glb=True)
+        elif suffix == ".gltf":
+            tree = _parse_json(data)
+            buffers = _buffers(tree, None, glb=False)
+        else:
+            raise InvalidInput(f"the file must be a .glb or a .gltf, got {_short(suffix)}", FIELD)
+        _check_required_extensions(tree)
+        views = _views(tree, buffers)
+        accessors = _accessors(tree, views)
+
+    def read_accessor(index: int) -> np.ndarray:
+        with _reported_as(field, suffix):
+            acc = accessors[_index(index, len(accessors), "an accessor index")]
+            width = _TYPE_WIDTH[acc.kind]
+            if acc.view is None:
+                _bad(f"accessors[{index}] has no bufferView, so no data behind its {acc.count} "
+                     "elements")
+            if acc.kind in ("MAT2", "MAT3") and _COMPONENT_BYTES[acc.component] < 4:
+                raise InvalidInput(f"accessors[{index}]: {acc.kind} of {acc.component} components "
+                                   "(padded columns) is not supported", FIELD)
+            values = np.frombuffer(bytearray(_dense(acc, views, buffers)), _DTYPES[acc.component])
+            if acc.kind == "SCALAR":
+                return values
+            if acc.kind.startswith("VEC"):
+                return values.reshape(acc.count, width)
+            n = int(acc.kind[3])
+            return np.ascontiguousarray(values.reshape(acc.count, n, n).transpose(0, 2, 1))
+
+    return tree, read_accessor
+
+
+@contextmanager
+def _reported_as(field: str, suffix: str) -> Iterator[None]:
+    """Domain errors raised inside re-raised naming `field`; anything else as a broken file."""
+    try:
+        yield
+    except DrapeError as exc:
+        if exc.field == field:
+            raise
+        raise type(exc)(str(exc), field) from exc
+    except Exception as exc:  # a check tripping on a broken file reads as the broken file
+        raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: "
+                             f"{str(exc)[:200]})", field) from exc
+
+
 def _node(node: dict[str, Any], index: int, mesh_map: dict[int, int]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if isinstance(node.get("name"), str):
@@ -520,15 +596,19 @@ def _node(node: dict[str, Any], index: int, mesh_map: dict[int, int]) -> dict[st
     return out
 
 
-def _rewrite(tree: dict[str, Any], buffers: list[memoryview], max_vertices: int,
-             max_faces: int) -> bytes:
-    """Check the declarations, then build a GLB of the placed geometry alone."""
+def _check_required_extensions(tree: dict[str, Any]) -> None:
     required = tree.get("extensionsRequired", [])
     if isinstance(required, list):
         for name in required:
             if name in _REFUSED_EXTENSIONS:
                 raise InvalidInput(f"the file requires {name}: {_REFUSED_EXTENSIONS[name]} is not "
                                    "supported", FIELD)
+
+
+def _rewrite(tree: dict[str, Any], buffers: list[memoryview], max_vertices: int,
+             max_faces: int) -> bytes:
+    """Check the declarations, then build a GLB of the placed geometry alone."""
+    _check_required_extensions(tree)
     views = _views(tree, buffers)
     accessors = _accessors(tree, views)
     meshes = _meshes(tree, accessors)
