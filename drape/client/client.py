@@ -14,7 +14,7 @@ import httpx
 import numpy as np
 
 from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, FrameReader, decode_npz, encode_npz
-from drape.schemas.catalog import BodyList, Health, MotionList
+from drape.schemas.catalog import BodyList, BodyRegistered, Health, MotionList
 from drape.schemas.garments import GarmentList
 from drape.schemas.models import ModelList
 
@@ -148,6 +148,33 @@ def _fit_request(outfit: OutfitLike, body: str, units: str | None, up: str | Non
 def _fit_answer(response: httpx.Response) -> FitResult:
     _raise_for(response)
     return _fit_result(decode_npz(response.content))
+
+
+BodyLike = Any  # path to a .glb / .gltf / .npz, the file's bytes, or a mapping of the body's arrays
+
+
+def _body_request(body: BodyLike, joint_map: Mapping[str, str] | None, rest_pose: Any) -> dict:
+    """httpx arguments registering a body: a multipart form with `body_file` (+ joint_map, rest_pose as JSON)."""
+    if isinstance(body, str | os.PathLike):
+        path = Path(body)
+        name, data = path.name, path.read_bytes()
+    elif isinstance(body, bytes | bytearray):
+        name, data = ("body.glb" if bytes(body[:4]) == b"glTF" else "body.npz"), bytes(body)
+    else:
+        name, data = "body.npz", encode_npz({k: np.asarray(v) for k, v in body.items()})
+    fields = {"joint_map": json.dumps(dict(joint_map)) if joint_map is not None else None,
+              "rest_pose": json.dumps(np.asarray(rest_pose, float).tolist()) if rest_pose is not None else None}
+    return {"files": {"body_file": (name, data)}, "data": {k: v for k, v in fields.items() if v is not None}}
+
+
+def _registered(response: httpx.Response) -> BodyRegistered:
+    _raise_for(response)
+    return BodyRegistered.model_validate(response.json())
+
+
+def _body_arrays(response: httpx.Response) -> dict[str, np.ndarray]:
+    _raise_for(response)
+    return decode_npz(response.content)
 
 
 def _rig_result(response: httpx.Response) -> RigResult:
@@ -325,6 +352,22 @@ class Client(_Base):
         up axis ("y", "z"; None: inferred), the pose it was made in ("t", "a" or (24, 3) radians)."""
         return _fit_answer(self._http.post("/v1/outfits/fit", headers={"Accept": NPZ},
                                            **_fit_request(outfit, body, units, up, pose)))
+
+    def register_body(self, body: BodyLike, *, joint_map: Mapping[str, str] | None = None,
+                      rest_pose: np.ndarray | None = None) -> BodyRegistered:
+        """Register your own body: a skinned GLB / glTF whose 24 joints carry SMPL's names (or `joint_map`'s,
+        file name -> SMPL name), or an npz / mapping of vertices (V, 3) m, faces (F, 3), weights (V, 24),
+        joints (24, 3) m. rest_pose (24, 3) radians: the pose it is given in, if not a T-pose. Use the
+        answer's body_id as `body=` anywhere."""
+        return _registered(self._http.post("/v1/bodies", **_body_request(body, joint_map, rest_pose)))
+
+    def body(self, name: str) -> dict[str, np.ndarray]:
+        """A body's arrays (preset or body_id): vertices, faces, weights, joints, parents, joint_names."""
+        return _body_arrays(self._http.get(f"/v1/bodies/{quote(name, safe='')}", headers={"Accept": NPZ}))
+
+    def delete_body(self, name: str) -> None:
+        """Forget a registered body."""
+        _raise_for(self._http.delete(f"/v1/bodies/{quote(name, safe='')}"))
 
     def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
         """The animate request's httpx arguments (an npz body)."""
@@ -518,6 +561,19 @@ class AsyncClient(_Base):
         """See Client.fit."""
         return _fit_answer(await self._http.post("/v1/outfits/fit", headers={"Accept": NPZ},
                                                  **_fit_request(outfit, body, units, up, pose)))
+
+    async def register_body(self, body: BodyLike, *, joint_map: Mapping[str, str] | None = None,
+                            rest_pose: np.ndarray | None = None) -> BodyRegistered:
+        """See Client.register_body."""
+        return _registered(await self._http.post("/v1/bodies", **_body_request(body, joint_map, rest_pose)))
+
+    async def body(self, name: str) -> dict[str, np.ndarray]:
+        """See Client.body."""
+        return _body_arrays(await self._http.get(f"/v1/bodies/{quote(name, safe='')}", headers={"Accept": NPZ}))
+
+    async def delete_body(self, name: str) -> None:
+        """See Client.delete_body."""
+        _raise_for(await self._http.delete(f"/v1/bodies/{quote(name, safe='')}"))
 
     async def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
         arrays, needs_rig = self._prepare(outfit, outfit_id)

@@ -68,3 +68,33 @@ def rest_space_offsets(offsets: np.ndarray, weights: np.ndarray, rotations: np.n
     blended = np.einsum("nk,kij->nij", np.asarray(weights, np.float64), np.asarray(rotations, np.float64))
     d = np.linalg.solve(blended, np.asarray(offsets, np.float64)[..., None])[..., 0]
     return d.astype(np.float32)
+
+
+def unpose_body(
+    vertices: np.ndarray,
+    weights: np.ndarray,
+    joints: np.ndarray,
+    pose: np.ndarray,
+    parents: np.ndarray = PARENTS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A body given in `pose` -> the same body in its rest (T-) pose, by inverting its own skinning.
+
+    vertices: (V, 3) metres, as posed; weights: (V, K) rows summing to 1; joints: (K, 3) metres, as posed;
+    pose: (K, 3) axis-angle radians, each joint's local rotation away from the rest pose; parents: (K,),
+    every parent lower than its child. Returns (rest vertices (V, 3), rest joints (K, 3)) float64 metres,
+    such that `pose_mesh(rest vertices, weights, rest joints, pose[None])` gives `vertices` back.
+    Bone vectors keep their lengths: rest_k = rest_p + R_p^T (posed_k - posed_p), with R_p the parent's
+    accumulated rotation (the pose is taken about the root joint, so the root does not move).
+    """
+    pose = np.asarray(pose, dtype=np.float64).reshape(1, -1, 3)
+    posed = np.asarray(joints, dtype=np.float64)
+    zero = np.zeros_like(posed)
+    world_rot = forward_kinematics(pose, zero, parents)[0][0, :, :3, :3]  # (K, 3, 3) accumulated rotations
+    rest = np.empty_like(posed)
+    for k in range(len(posed)):
+        p = int(parents[k])
+        rest[k] = posed[k] if p < 0 else rest[p] + world_rot[p].T @ (posed[k] - posed[p])
+    transforms = forward_kinematics(pose, rest, parents)[0][0]  # (K, 4, 4) rest -> posed
+    blended = np.einsum("vk,kij->vij", np.asarray(weights, dtype=np.float64), transforms)
+    homo = np.concatenate([np.asarray(vertices, dtype=np.float64), np.ones((len(vertices), 1))], axis=1)
+    return np.linalg.solve(blended, homo[..., None])[:, :3, 0], rest

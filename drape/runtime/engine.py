@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.assets.body import load_body
+from drape.assets.body import is_registered, load_body
 from drape.geometry.lbs import rest_space_offsets
 from drape.geometry.mesh import coincident_groups, regroup_faces
 from drape.geometry.refine import (
@@ -76,9 +76,22 @@ class RefineSettings:
 
 
 @lru_cache(maxsize=8)
-def body_surface(body: str) -> BodySurface:
+def body_surface(body: str, faces: bytes | None = None, num_vertices: int = 0) -> BodySurface:
+    """The body's collision surface, built once per process. A worker process does not know the user
+    bodies registered in the serving process: it is given their faces ((F, 3) int32 as bytes) and vertex
+    count instead (a user body's name is a hash of its content, so the name keys the cache safely)."""
+    if faces is None:
+        b = load_body(body)
+        return BodySurface(b.faces, len(b.vertices))
+    return BodySurface(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices)
+
+
+def _surface_arguments(body: str) -> tuple[str, bytes | None, int]:
+    """What a worker needs to build `body`'s surface: presets by name, user bodies by their faces too."""
+    if not is_registered(body):
+        return body, None, 0
     b = load_body(body)
-    return BodySurface(b.faces, len(b.vertices))
+    return body, np.ascontiguousarray(b.faces, dtype=np.int32).tobytes(), len(b.vertices)
 
 
 def posed_body(body: str, poses: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -86,9 +99,9 @@ def posed_body(body: str, poses: np.ndarray, translation: np.ndarray) -> np.ndar
     return load_body(body).pose(poses, translation).astype(np.float64)
 
 
-def refine_against(frames: np.ndarray, body: str, body_vertices: np.ndarray, refiner: Refiner) -> np.ndarray:
-    """Refine garment frames (n, N, 3) against posed body vertices (n, M, 3) of `body`: (n, N, 3) float32."""
-    surface = body_surface(body)
+def refine_against(frames: np.ndarray, surface: BodySurface, body_vertices: np.ndarray, refiner: Refiner) -> np.ndarray:
+    """Refine garment frames (n, N, 3) against posed body vertices (n, M, 3) of the body whose surface is
+    given: (n, N, 3) float32."""
     report = RefineReport()
     return np.stack([refiner.refine_frame(f, b, surface, report) for f, b in zip(frames, body_vertices, strict=True)]
                     ).astype(np.float32)
@@ -100,10 +113,10 @@ def cached_refiner(settings: RefineSettings, faces: bytes, num_vertices: int) ->
     return settings.refiner(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices)
 
 
-def _refine_in_worker(frames: np.ndarray, faces: bytes, body: str, body_vertices: np.ndarray,
+def _refine_in_worker(frames: np.ndarray, faces: bytes, body: tuple[str, bytes | None, int], body_vertices: np.ndarray,
                       settings: RefineSettings) -> np.ndarray:
-    """`refine_against` in a worker process: (n, N, 3) float32."""
-    return refine_against(frames, body, body_vertices, cached_refiner(settings, faces, frames.shape[1]))
+    """`refine_against` in a worker process (body: `_surface_arguments`): (n, N, 3) float32."""
+    return refine_against(frames, body_surface(*body), body_vertices, cached_refiner(settings, faces, frames.shape[1]))
 
 
 def _exit_with(server_pid: int, period_s: float = 0.5) -> None:
@@ -161,11 +174,12 @@ class RefinePool:
             pool = self.start()
             split = np.array_split(np.arange(len(frames)), parts)
             try:
-                futures = [pool.submit(_refine_in_worker, frames[i], f, body, vertices[i], settings) for i in split]
+                surface = _surface_arguments(body)
+                futures = [pool.submit(_refine_in_worker, frames[i], f, surface, vertices[i], settings) for i in split]
                 return np.concatenate([fut.result() for fut in futures])
             except BrokenProcessPool:
                 self.close()
-        return refine_against(frames, body, vertices, cached_refiner(settings, f, frames.shape[1]))
+        return refine_against(frames, body_surface(body), vertices, cached_refiner(settings, f, frames.shape[1]))
 
     def start(self) -> Executor:
         """Start the worker processes now if they are not running (each loads the geometry code and the

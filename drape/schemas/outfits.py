@@ -35,7 +35,7 @@ class FitRequest(Mesh):
 
     model_config = ConfigDict(json_schema_extra={"examples": [{**EXAMPLE_MESH, "body": "neutral", "units": "m"}]})
 
-    body: str = Field("neutral", description="body preset to fit the garment onto (GET /v1/bodies)")
+    body: str = Field("neutral", description="body to fit the garment onto: a preset (GET /v1/bodies) or a body_id (POST /v1/bodies)")
     units: Literal["m", "cm", "mm"] | None = Field(None, description="the mesh's units (default: inferred from "
                                                    "its size, and said so in the report)")
     up: Literal["y", "z"] | None = Field(None, description="the mesh's up axis (default: inferred: a garment is "
@@ -75,7 +75,7 @@ class RigRequest(Mesh):
 
     model_config = ConfigDict(json_schema_extra={"examples": [{**EXAMPLE_MESH, "body": "neutral"}]})
 
-    body: str = Field("neutral", description="body preset the outfit is dressed on (GET /v1/bodies)")
+    body: str = Field("neutral", description="body the outfit is dressed on: a preset (GET /v1/bodies) or a body_id (POST /v1/bodies)")
     influences: Literal[4, 8] = Field(4, description=INFLUENCES_HELP)
     fit: bool = Field(False, description=FIT_HELP)
 

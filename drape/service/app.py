@@ -11,8 +11,10 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.openapi.utils import get_openapi
 
 from drape import __version__
+from drape.runtime.body_store import BodyStore
 from drape.runtime.engine import Engine
 from drape.runtime.intrinsic import garment_names
+from drape.schemas.catalog import BodyMesh, BodyRegistered
 from drape.schemas.garments import (
     EncodeFields,
     EncodeRequest,
@@ -36,10 +38,11 @@ from drape.schemas.outfits import (
 )
 from drape.service import catalog, problems
 from drape.service.admission import Admission
+from drape.service.bodies import stored_body
 from drape.service.http import require_api_key
 from drape.service.metrics import CountRequests, Metrics
+from drape.service.routers import bodies, garments, health, models, outfits, viewer
 from drape.service.routers import catalog as catalog_router
-from drape.service.routers import garments, health, models, outfits, viewer
 from drape.service.settings import Settings
 
 
@@ -57,6 +60,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                             intrinsic_dir=settings.intrinsic_dir)
             engine.warm_up()
             app.state.engine = engine
+            app.state.bodies = BodyStore(settings.max_bodies, settings.max_body_store_bytes, settings.body_dir,
+                                         check=lambda arrays, name: stored_body(arrays, name, settings))
 
         await run_in_threadpool(start)
         app.state.admission = Admission(settings.max_active, settings.max_queue, settings.queue_timeout_s,
@@ -64,6 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.ready = True
         yield
         app.state.ready = False
+        app.state.bodies.close()
         await run_in_threadpool(app.state.engine.close)
 
     app = FastAPI(
@@ -85,7 +91,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(viewer.router)  # the page and its files; the page calls /v1 with the key typed into it
     auth = [Depends(require_api_key)]
-    for router in (catalog_router.router, models.router, outfits.router, outfits.refine_router, garments.router):
+    for router in (catalog_router.router, bodies.router, models.router, outfits.router, outfits.refine_router, garments.router):
         app.include_router(router, dependencies=auth)
 
     def openapi() -> dict:
@@ -95,7 +101,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         comps = schema.setdefault("components", {}).setdefault("schemas", {})
         for model in (RigRequest, RigResponse, FitRequest, FitResponse, AnimateRequest, AnimateResponse, RefineRequest, Problem,
                       GarmentTemplate, EncodeRequest, EncodeFields, EncodeResponse, KeyframeAnimateRequest,
-                      KeyframeFields, SampleRequest, SampleFields, SampleResponse):
+                      KeyframeFields, SampleRequest, SampleFields, SampleResponse, BodyMesh, BodyRegistered):
             js = model.model_json_schema(ref_template="#/components/schemas/{model}")
             comps.update(js.pop("$defs", {}))
             comps[model.__name__] = js

@@ -4,30 +4,30 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from drape.assets.body import list_bodies, load_body
+from drape.assets.body import Body, list_bodies, load_body
 from drape.assets.motion import list_clips, load_clip
 from drape.schemas.catalog import BodyInfo, BodyList, MotionInfo, MotionList
 
 
+def body_info(body: Body, proxy: Body | None = None, preset: bool = True) -> BodyInfo:
+    """A body's catalogue entry (proxy: its collision proxy; a user body is its own)."""
+    return BodyInfo(
+        name=body.name,
+        preset=preset,
+        num_vertices=len(body.vertices),
+        num_faces=len(body.faces),
+        proxy_vertices=len((proxy or body).vertices),
+        height=float(body.vertices[:, 1].max() - body.vertices[:, 1].min()),
+        joint_names=list(body.joint_names),
+        parents=[int(p) for p in body.parents],
+        rest_joints=body.joints.astype(float).tolist(),
+    )
+
+
 @lru_cache(maxsize=1)
 def bodies() -> BodyList:
-    out = []
-    for name in list_bodies():
-        b = load_body(name)
-        proxy = load_body(name, proxy=True)
-        out.append(
-            BodyInfo(
-                name=name,
-                num_vertices=len(b.vertices),
-                num_faces=len(b.faces),
-                proxy_vertices=len(proxy.vertices),
-                height=float(b.vertices[:, 1].max() - b.vertices[:, 1].min()),
-                joint_names=list(b.joint_names),
-                parents=[int(p) for p in b.parents],
-                rest_joints=b.joints.astype(float).tolist(),
-            )
-        )
-    return BodyList(bodies=out)
+    """The presets' entries."""
+    return BodyList(bodies=[body_info(load_body(name), load_body(name, proxy=True)) for name in list_bodies()])
 
 
 @lru_cache(maxsize=1)

@@ -40,6 +40,14 @@ class LimitExceeded(DrapeError):
     """Larger than a configured limit; the detail names the limit."""
 
 
+class Conflict(DrapeError):
+    """The request conflicts with what the resource is (e.g. deleting a preset body)."""
+
+
+class StoreIsFull(DrapeError):
+    """A bounded store (user bodies) holds its maximum: delete something first."""
+
+
 class UnsupportedMediaType(DrapeError):
     """A request body in a format the route does not take."""
 

@@ -8,11 +8,12 @@ from typing import Any
 
 import numpy as np
 
-from drape.assets.body import list_bodies, load_body
+from drape.assets.body import is_registered, list_bodies, load_body
 from drape.assets.motion import list_clips, load_clip
 from drape.geometry.fitting import UNITS, FitError, FitResult, fit_garment, infer_units
 from drape.geometry.placement import FAR_M, body_distance, placement
 from drape.geometry.queries import MeshDistance
+from drape.runtime.body_store import PREFIX as USER_BODY_PREFIX
 from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
 from drape.runtime.sparse_rig import INFLUENCES
 from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb
@@ -65,10 +66,14 @@ def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "",
 
 
 def check_body(name: str | None, field: str = "body") -> str:
+    """A preset's name or a registered user body's id (default: neutral); unknown ids are a 404."""
     name = name or "neutral"
-    if name not in list_bodies():
-        raise InvalidInput(f"unknown body preset {quoted(name)}; presets: {', '.join(list_bodies())}", field)
-    return name
+    if name in list_bodies() or is_registered(name):
+        return name
+    if name.startswith(USER_BODY_PREFIX):
+        raise NotFound(f"unknown body {quoted(name, 60)}: register it first (POST /v1/bodies)", field)
+    raise InvalidInput(f"unknown body preset {quoted(name)}; presets: {', '.join(list_bodies())}, or a body_id "
+                       "from POST /v1/bodies", field)
 
 
 @dataclass(frozen=True)

@@ -28,9 +28,11 @@ MAPPING: dict[type[errors.DrapeError], tuple[int, str, str]] = {
     errors.NotFound: (404, "not-found", "Not found"),
     errors.NotAcceptable: (406, "not-acceptable", "No acceptable answer format"),
     errors.RequestTimeout: (408, "request-timeout", "The request body came too slowly"),
+    errors.Conflict: (409, "conflict", "Conflict"),
     errors.LimitExceeded: (413, "limit-exceeded", "Request exceeds a limit"),
     errors.UnsupportedMediaType: (415, "unsupported-media-type", "Unsupported request format"),
     errors.InvalidInput: (422, "invalid-input", "Invalid input"),
+    errors.StoreIsFull: (507, "store-full", "Store full"),
     errors.Overloaded: (503, "overloaded", "Busy: retry later"),
 }
 

@@ -40,6 +40,11 @@ class Settings(BaseSettings):
     timeout_keep_alive_s: int = 5
     shutdown_grace_s: int = 20  # SIGTERM: in-flight requests get this long, then are cut (below a container's 30 s)
     outfit_cache_bytes: int = 512 * 2**20
+    # user bodies (POST /v1/bodies): how many and how many bytes of arrays are kept; kept across restarts
+    # only in body_dir (DRAPE_BODY_DIR), one npz per body
+    max_bodies: int = 16
+    max_body_store_bytes: int = 256 * 2**20
+    body_dir: Path | None = None
     stream_chunk_frames: int = 32
     refine_workers: int = 2  # processes a chunk's refinement is split over (1: in the serving process)
     api_key: str | None = None

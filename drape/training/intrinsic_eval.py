@@ -136,10 +136,10 @@ def _deepsd_poser(garment: IntrinsicGarment, deepsd_dir: Path | None):  # noqa: 
 
 
 def _refined(garment: IntrinsicGarment, frames: np.ndarray, poses: np.ndarray, trans: np.ndarray) -> np.ndarray:
-    from drape.runtime.engine import RefineSettings, posed_body, refine_against
+    from drape.runtime.engine import RefineSettings, body_surface, posed_body, refine_against
 
     refiner = RefineSettings().refiner(garment.faces, len(garment.template_vertices))
-    return refine_against(frames, garment.body, posed_body(garment.body, poses, trans), refiner)
+    return refine_against(frames, body_surface(garment.body), posed_body(garment.body, poses, trans), refiner)
 
 
 def evaluate(dataset: str | Path, template: str, model_dir: str | Path | None = None,

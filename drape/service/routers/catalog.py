@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 
 from drape.schemas.catalog import BodyList, MotionList
 from drape.service import catalog
@@ -11,9 +11,12 @@ router = APIRouter(prefix="/v1", tags=["catalog"])
 
 
 @router.get("/bodies", response_model=BodyList)
-def list_bodies() -> BodyList:
-    """Body presets with their 24-joint skeleton (SMPL order) and mesh sizes."""
-    return catalog.bodies()
+def list_bodies(request: Request) -> BodyList:
+    """Body presets, then the user bodies registered (POST /v1/bodies), with their 24-joint skeleton (SMPL
+    order) and mesh sizes."""
+    store = request.app.state.bodies
+    users = [catalog.body_info(b, preset=False) for b in (store.get(n) for n in store.names()) if b is not None]
+    return BodyList(bodies=[*catalog.bodies().bodies, *users])
 
 
 @router.get("/motions", response_model=MotionList)

@@ -1,0 +1,258 @@
+"""Bring your own body (issue 20, item 5): POST /v1/bodies registers a GLB or npz body; its body_id rigs,
+fits, animates and refines like a preset (refinement in the worker processes included), GET answers its
+arrays, DELETE forgets it; bad bodies answer 4xx problems naming the field; the store is bounded and survives
+a restart only with DRAPE_BODY_DIR.
+
+The uploaded body is the neutral preset's collision proxy (1.2k vertices, the neutral skeleton): small enough
+for the test limits, and different from every preset's full mesh, so a wrong body would show."""
+
+import io
+import json
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from svc_env import problem
+
+import drape
+from drape.assets.body import load_body
+from drape.assets.outfits import generate_outfit
+from drape.geometry.fitting import a_pose
+from drape.geometry.lbs import pose_mesh
+from drape.geometry.refine import BodySurface
+from drape.geometry.skeleton import forward_kinematics
+from drape.runtime.engine import RefineSettings, refine_against
+from drape.service.app import create_app
+
+NPZ = "application/x-npz"
+
+
+def npz(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+@pytest.fixture(scope="module")
+def proxy():
+    return load_body("neutral", proxy=True)
+
+
+@pytest.fixture(scope="module")
+def shirt():
+    o = generate_outfit("tshirt", vertices=400, seed=5, body="neutral")
+    return o.vertices, o.faces
+
+
+@pytest.fixture
+def registered(http, proxy):
+    """The proxy registered as an npz request body; deleted after the test."""
+    r = http.post("/v1/bodies", content=npz(vertices=proxy.vertices, faces=proxy.faces, weights=proxy.weights,
+                                            joints=proxy.joints), headers={"Content-Type": NPZ})
+    assert r.status_code == 201, r.text[:300]
+    body_id = r.json()["body_id"]
+    yield body_id
+    http.delete(f"/v1/bodies/{body_id}")
+
+
+def test_an_npz_body_registers_lists_and_answers_its_arrays(http, registered, proxy):
+    assert registered.startswith("body-")
+    listed = {b["name"]: b for b in http.get("/v1/bodies").json()["bodies"]}
+    assert listed[registered]["preset"] is False and listed["neutral"]["preset"] is True
+    assert listed[registered]["num_vertices"] == len(proxy.vertices)
+    doc = http.get(f"/v1/bodies/{registered}").json()
+    np.testing.assert_allclose(doc["vertices"], proxy.vertices, atol=1e-6)
+    np.testing.assert_allclose(doc["weights"], proxy.weights, atol=1e-6)
+    assert doc["faces"] == proxy.faces.tolist() and doc["joint_names"] == list(proxy.joint_names)
+    z = np.load(io.BytesIO(http.get(f"/v1/bodies/{registered}", headers={"Accept": NPZ}).content))
+    np.testing.assert_allclose(z["joints"], proxy.joints, atol=1e-6)
+    # a preset's mesh too; the same upload again gives the same id
+    assert len(http.get("/v1/bodies/male", headers={"Accept": NPZ}).content) > 100_000
+    again = http.post("/v1/bodies", files={"body_file": ("b.npz", npz(vertices=proxy.vertices, faces=proxy.faces,
+                                                                       weights=proxy.weights, joints=proxy.joints))})
+    assert again.status_code == 201 and again.json()["body_id"] == registered
+
+
+def test_a_user_body_rigs_fits_animates_and_refines(http, registered, proxy, shirt):
+    v, f = shirt
+    r = http.post("/v1/outfits/rig", json={"vertices": v.tolist(), "faces": f.tolist(), "body": registered})
+    assert r.status_code == 200, r.text[:300]
+    np.testing.assert_allclose(r.json()["skeleton"]["rest_joints"], proxy.joints, atol=1e-6)
+    fit = http.post("/v1/outfits/fit", json={"vertices": v.tolist(), "faces": f.tolist(), "body": registered})
+    assert fit.status_code == 200 and fit.json()["report"]["inside_after"] <= 0.001, fit.text[:300]
+    a = http.post("/v1/outfits/animate", json={"outfit_id": r.json()["outfit_id"], "motion": {"clip": "walk"},
+                                               "refine": True}, headers={"Accept": NPZ})
+    assert a.status_code == 200, a.text[:300]
+    assert np.isfinite(np.load(io.BytesIO(a.content))["vertices"]).all()
+    # /v1/refine on the user body (frames split over the worker processes) = the library against that body
+    poses = np.zeros((4, 24, 3))
+    poses[:, 16, 2] = poses[:, 17, 2] = np.linspace(-0.2, -0.9, 4)  # arms down into the shirt's sleeves
+    rigid = np.zeros((len(v), 24))
+    rigid[:, 9] = 1.0  # the shirt follows the chest alone: the lowered arms go through its sleeves
+    frames = pose_mesh(v, rigid, proxy.joints, poses)
+    req = {"vertices": frames.tolist(), "faces": f.tolist(), "motion": {"poses": poses.reshape(4, 72).tolist()},
+           "body": registered}
+    out = http.post("/v1/refine", json=req, headers={"Accept": NPZ})
+    assert out.status_code == 200, out.text[:300]
+    got = np.load(io.BytesIO(out.content))["vertices"]
+    settings = RefineSettings()
+    expected = refine_against(frames, BodySurface(proxy.faces, len(proxy.vertices)), proxy.pose(poses).astype(
+        np.float64), settings.refiner(f, len(v)))
+    np.testing.assert_allclose(got, expected, atol=1e-5)
+    on_neutral = http.post("/v1/refine", json={**req, "body": "neutral"}, headers={"Accept": NPZ})
+    assert np.abs(np.load(io.BytesIO(on_neutral.content))["vertices"] - got).max() > 1e-4  # another body
+
+
+def test_deleting_forgets_the_body_and_presets_stay(http, registered, shirt):
+    v, f = shirt
+    assert http.delete(f"/v1/bodies/{registered}").status_code == 204
+    problem(http.post("/v1/outfits/rig", json={"vertices": v.tolist(), "faces": f.tolist(), "body": registered}),
+            404, "body", "POST /v1/bodies")
+    problem(http.get(f"/v1/bodies/{registered}"), 404, "name")
+    problem(http.delete(f"/v1/bodies/{registered}"), 404, "name")
+    problem(http.delete("/v1/bodies/neutral"), 409, "preset")
+
+
+def test_an_a_pose_body_needs_its_rest_pose_and_is_un_posed_with_it(http, proxy):
+    pose = a_pose()
+    posed = pose_mesh(proxy.vertices, proxy.weights, proxy.joints, pose[None])[0]
+    joints = forward_kinematics(pose[None], proxy.joints, proxy.parents)[1][0]
+    arrays = npz(vertices=posed, faces=proxy.faces, weights=proxy.weights, joints=joints)
+    problem(http.post("/v1/bodies", files={"body_file": ("a.npz", arrays)}), 422, "T-pose", "rest_pose")
+    r = http.post("/v1/bodies", files={"body_file": ("a.npz", arrays)},
+                  data={"rest_pose": json.dumps(pose.tolist())})
+    assert r.status_code == 201, r.text[:300]
+    z = np.load(io.BytesIO(http.get(f"/v1/bodies/{r.json()['body_id']}", headers={"Accept": NPZ}).content))
+    np.testing.assert_allclose(z["vertices"], proxy.vertices, atol=1e-4)
+    np.testing.assert_allclose(z["joints"], proxy.joints, atol=1e-5)
+    http.delete(f"/v1/bodies/{r.json()['body_id']}")
+
+
+def test_joint_names_in_another_order_are_reordered(http, proxy):
+    order = np.random.default_rng(0).permutation(24)
+    r = http.post("/v1/bodies", content=npz(vertices=proxy.vertices, faces=proxy.faces,
+                                            weights=proxy.weights[:, order], joints=proxy.joints[order],
+                                            joint_names=np.array(proxy.joint_names)[order]),
+                  headers={"Content-Type": NPZ})
+    assert r.status_code == 201, r.text[:300]
+    z = np.load(io.BytesIO(http.get(f"/v1/bodies/{r.json()['body_id']}", headers={"Accept": NPZ}).content))
+    np.testing.assert_allclose(z["joints"], proxy.joints, atol=1e-6)
+    http.delete(f"/v1/bodies/{r.json()['body_id']}")
+
+
+def _bad(proxy, **change):
+    arrays = {"vertices": proxy.vertices, "faces": proxy.faces, "weights": proxy.weights, "joints": proxy.joints}
+    arrays.update(change)
+    return npz(**arrays)
+
+
+@pytest.mark.parametrize(("change", "status", "words"), [
+    ("weights52", 422, ("weights", "24 joints", "52")),
+    ("joints52", 422, ("joints", "24 joints")),
+    ("weights_half", 422, ("weights", "do not sum to 1", "0.5")),
+    ("nan", 422, ("vertices", "NaN")),
+    ("centimetres", 422, ("vertices", "metres", "centimetres")),
+    ("z_up", 422, ("joints", "+Y up")),
+    ("facing_back", 422, ("joints", "face +Z")),
+    ("parents", 422, ("parents", "SMPL")),
+    ("missing", 422, ("lacks", "weights")),
+    ("faces_out", 422, ("faces", "indices")),
+])
+def test_bad_bodies_answer_4xx_naming_the_field(http, proxy, change, status, words):
+    rot_z_up = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    flip = np.diag([-1.0, 1.0, -1.0])
+    w52 = np.concatenate([proxy.weights, np.zeros((len(proxy.weights), 28))], axis=1)
+    data = {
+        "weights52": lambda: _bad(proxy, weights=w52),
+        "joints52": lambda: _bad(proxy, joints=np.zeros((52, 3))),
+        "weights_half": lambda: _bad(proxy, weights=proxy.weights * np.where(np.arange(len(proxy.weights)) < 9, 0.5,
+                                                                             1.0)[:, None]),
+        "nan": lambda: _bad(proxy, vertices=np.where(np.arange(len(proxy.vertices))[:, None] == 3, np.nan,
+                                                     proxy.vertices)),
+        "centimetres": lambda: _bad(proxy, vertices=proxy.vertices * 100, joints=proxy.joints * 100),
+        "z_up": lambda: _bad(proxy, vertices=proxy.vertices @ rot_z_up.T, joints=proxy.joints @ rot_z_up.T),
+        "facing_back": lambda: _bad(proxy, vertices=proxy.vertices @ flip, joints=proxy.joints @ flip),
+        "parents": lambda: _bad(proxy, parents=np.r_[-1, np.zeros(23, int)]),
+        "missing": lambda: npz(vertices=proxy.vertices, faces=proxy.faces),
+        "faces_out": lambda: _bad(proxy, faces=proxy.faces + len(proxy.vertices)),
+    }[change]()
+    p = problem(http.post("/v1/bodies", content=data, headers={"Content-Type": NPZ}), status, *words)
+    assert len(p["detail"]) < 400
+
+
+def test_huge_and_wrong_uploads_answer_4xx(http, settings, proxy):
+    problem(http.post("/v1/bodies", content=b"\0" * (settings.max_body_bytes + 1),
+                      headers={"Content-Type": NPZ}), 413)
+    problem(http.post("/v1/bodies", files={"body_file": ("b.obj", b"v 0 0 0\n")}), 422, "body_file", "GLB")
+    problem(http.post("/v1/bodies", json={"vertices": []}), 415, "multipart")
+    problem(http.post("/v1/bodies", files={"body_file": ("b.npz", _bad(proxy))}, data={"joint_map": "{"}), 422,
+            "joint_map")
+    problem(http.post("/v1/bodies", files={"mesh": ("b.npz", _bad(proxy))}), 422, "body_file")
+
+
+def test_the_store_is_bounded_and_kept_only_in_body_dir(settings, proxy, tmp_path):
+    one = settings.model_copy(update={"max_bodies": 1, "body_dir": tmp_path, "refine_workers": 1})
+    shifted = _bad(proxy, vertices=proxy.vertices + [0, 0.01, 0], joints=proxy.joints + [0, 0.01, 0])
+    with TestClient(create_app(one)) as http:
+        first = http.post("/v1/bodies", content=_bad(proxy), headers={"Content-Type": NPZ})
+        assert first.status_code == 201
+        problem(http.post("/v1/bodies", content=shifted, headers={"Content-Type": NPZ}), 507, "DELETE")
+    assert [p.name for p in tmp_path.glob("*.npz")] == [f"{first.json()['body_id']}.npz"]
+    with TestClient(create_app(one)) as http:  # a restart with the same DRAPE_BODY_DIR keeps it
+        assert http.get(f"/v1/bodies/{first.json()['body_id']}").status_code == 200
+        assert http.delete(f"/v1/bodies/{first.json()['body_id']}").status_code == 204
+    assert not list(tmp_path.glob("*.npz"))
+    without = settings.model_copy(update={"refine_workers": 1})
+    with TestClient(create_app(without)) as http:
+        assert http.post("/v1/bodies", content=_bad(proxy), headers={"Content-Type": NPZ}).status_code == 201
+    with TestClient(create_app(without)) as http:  # no DRAPE_BODY_DIR: gone after a restart
+        problem(http.get(f"/v1/bodies/{first.json()['body_id']}"), 404)
+
+
+def test_the_client_registers_reads_and_deletes_a_body(server_url, proxy, shirt, tmp_path):
+    path = tmp_path / "me.npz"
+    path.write_bytes(_bad(proxy))
+    with drape.Client(server_url) as client:
+        reg = client.register_body(path)
+        assert reg.body_id.startswith("body-") and reg.num_vertices == len(proxy.vertices)
+        assert client.register_body({"vertices": proxy.vertices, "faces": proxy.faces, "weights": proxy.weights,
+                                     "joints": proxy.joints}).body_id == reg.body_id
+        np.testing.assert_allclose(client.body(reg.body_id)["vertices"], proxy.vertices, atol=1e-6)
+        rig = client.rig(shirt, body=reg.body_id)
+        np.testing.assert_allclose(rig.rest_joints, proxy.joints, atol=1e-6)
+        frames = client.animate(outfit_id=rig.outfit_id, motion="walk", refine=True)
+        assert np.isfinite(frames).all() and frames.shape[1] == len(shirt[0])
+        client.delete_body(reg.body_id)
+        with pytest.raises(drape.DrapeAPIError) as err:
+            client.rig(shirt, body=reg.body_id)
+        assert err.value.status == 404
+
+
+def _glb(body, names) -> bytes:
+    from drape.schemas.gltf import Skeleton, SkinnedMesh, skinned_glb
+
+    return skinned_glb(Skeleton(tuple(names), body.parents, body.joints),
+                       [SkinnedMesh("body", body.vertices, body.faces, body.weights)])
+
+
+def test_a_glb_body_registers_with_smpl_or_mapped_joint_names(http, proxy, shirt):
+    fbx = [f"m_avg_{n[0].upper()}_{n.split('_', 1)[1].capitalize()}" if n.startswith(("left_", "right_"))
+           else f"m_avg_{n.capitalize()}" for n in proxy.joint_names]
+    r = http.post("/v1/bodies", files={"body_file": ("me.glb", _glb(proxy, fbx))})
+    assert r.status_code == 201, r.text[:300]
+    z = np.load(io.BytesIO(http.get(f"/v1/bodies/{r.json()['body_id']}", headers={"Accept": NPZ}).content))
+    np.testing.assert_allclose(z["vertices"], proxy.vertices, atol=1e-5)
+    np.testing.assert_allclose(z["joints"], proxy.joints, atol=1e-5)
+    np.testing.assert_allclose(z["weights"], proxy.weights, atol=1e-4)
+    v, f = shirt
+    rig = http.post("/v1/outfits/rig", json={"vertices": v.tolist(), "faces": f.tolist(),
+                                             "body": r.json()["body_id"]})
+    assert rig.status_code == 200, rig.text[:300]
+    # other names: refused without a joint_map (naming the missing joints), accepted with one
+    bones = [f"bone{i}" for i in range(24)]
+    problem(http.post("/v1/bodies", files={"body_file": ("me.glb", _glb(proxy, bones))}), 422, "body_file",
+            "joint_map", "pelvis")
+    mapped = http.post("/v1/bodies", files={"body_file": ("me.glb", _glb(proxy, bones))},
+                       data={"joint_map": json.dumps(dict(zip(bones, proxy.joint_names, strict=True)))})
+    assert mapped.status_code == 201 and mapped.json()["body_id"] == r.json()["body_id"], mapped.text[:300]
+    http.delete(f"/v1/bodies/{r.json()['body_id']}")
