@@ -21,7 +21,7 @@ from drape.schemas.models import ModelList
 OutfitLike = Any  # path | (vertices, faces) | object with .vertices/.faces
 Format = Literal["array", "glb", "pc2"]  # frames as one (T, N, 3) array, or the file bytes of an engine format
 _FILE_TYPES = {"glb": "model/gltf-binary", "pc2": "application/x-pc2"}
-MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps
+MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps | Path of a BVH / AMASS npz
 # a keyframe: {"frame": f, "vertices": (N, 3)} or {"frame": f, "latent": (Z,)}, or a (frame, array) pair whose
 # array is vertices (N, 3) (2-D) or a latent (Z,) (1-D)
 KeyframeLike = Mapping[str, Any] | tuple[int, Any]
@@ -185,6 +185,18 @@ def _rig_result(response: httpx.Response) -> RigResult:
                      json.loads(str(z["diagnostics"])) if "diagnostics" in z else {},
                      _fit_result(z, "fit_") if "fit_vertices" in z else None,
                      json.loads(str(z["parts"])) if "parts" in z else None)
+
+
+def _animate_request(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
+                     refine: bool) -> dict:
+    """The animate request's httpx arguments: an npz body; with a motion file (a path: BVH or AMASS npz), a
+    multipart form with the file as `motion_file` (the server retargets it onto the outfit's body, 30 fps)."""
+    if isinstance(motion, os.PathLike):
+        path = Path(motion)
+        fields = {"outfit_id": outfit_id, "refine": str(bool(refine)).lower(), "body": body}
+        return {"files": {"motion_file": (path.name, path.read_bytes())},
+                "data": {k: v for k, v in fields.items() if v is not None}, "headers": {}}
+    return {"content": _animate_npz(outfit_id, arrays, motion, body, refine), "headers": {"Content-Type": NPZ}}
 
 
 def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
@@ -372,9 +384,9 @@ class Client(_Base):
     def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
         """The animate request's httpx arguments (an npz body)."""
         arrays, needs_rig = self._prepare(outfit, outfit_id)
-        if needs_rig:
-            outfit_id, body = self.rig(outfit, body=body or "neutral").outfit_id, None
-        return {"content": _animate_npz(outfit_id, arrays, motion, body, refine), "headers": {"Content-Type": NPZ}}
+        if needs_rig or (arrays is not None and isinstance(motion, os.PathLike)):
+            outfit_id, body, arrays = self.rig(outfit, body=body or "neutral").outfit_id, None, None
+        return _animate_request(outfit_id, arrays, motion, body, refine)
 
     @overload
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
@@ -577,9 +589,9 @@ class AsyncClient(_Base):
 
     async def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
         arrays, needs_rig = self._prepare(outfit, outfit_id)
-        if needs_rig:
-            outfit_id, body = (await self.rig(outfit, body=body or "neutral")).outfit_id, None
-        return {"content": _animate_npz(outfit_id, arrays, motion, body, refine), "headers": {"Content-Type": NPZ}}
+        if needs_rig or (arrays is not None and isinstance(motion, os.PathLike)):
+            outfit_id, body, arrays = (await self.rig(outfit, body=body or "neutral")).outfit_id, None, None
+        return _animate_request(outfit_id, arrays, motion, body, refine)
 
     @overload
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,

@@ -23,6 +23,7 @@ from drape.geometry.refine import BodySurface
 from drape.geometry.skeleton import forward_kinematics
 from drape.runtime.engine import RefineSettings, refine_against
 from drape.service.app import create_app
+from tests.cmu_bvh import cmu_bvh
 
 NPZ = "application/x-npz"
 
@@ -256,3 +257,17 @@ def test_a_glb_body_registers_with_smpl_or_mapped_joint_names(http, proxy, shirt
                        data={"joint_map": json.dumps(dict(zip(bones, proxy.joint_names, strict=True)))})
     assert mapped.status_code == 201 and mapped.json()["body_id"] == r.json()["body_id"], mapped.text[:300]
     http.delete(f"/v1/bodies/{r.json()['body_id']}")
+
+
+def test_the_client_animates_a_user_body_with_a_mocap_file(server_url, proxy, shirt, tmp_path):
+    """A BVH path as the motion: uploaded as motion_file, retargeted by the server onto the outfit's body."""
+    path = tmp_path / "walk.bvh"
+    path.write_bytes(cmu_bvh(frames=20))
+    with drape.Client(server_url) as client:
+        me = client.register_body(_bad(proxy)).body_id
+        rig = client.rig(shirt, body=me)
+        frames = client.animate(outfit_id=rig.outfit_id, motion=path, refine=True)
+        assert frames.shape[1:] == (len(shirt[0]), 3) and len(frames) >= 1 and np.isfinite(frames).all()
+        again = client.animate(outfit=shirt, motion=path, body=me)  # an in-memory outfit is rigged first
+        assert again.shape == frames.shape
+        client.delete_body(me)
