@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: serve test test-slow sim-dataset intrinsic-data intrinsic-data-long check-blender lint typecheck clean
+.PHONY: serve test test-slow deepsd-model sim-dataset intrinsic-data intrinsic-data-long check-blender lint typecheck clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -31,6 +31,15 @@ test: $(VENV)/.dev-installed
 
 test-slow: $(VENV)/.dev-installed
 	$(BIN)/pytest -m slow
+
+# DeePSD from scratch in one command (drape/training/configs/deepsd_wide.json: generated outfits, procedural
+# motions, the DeepMimic clips and 31 real CMU clips of ../shared/data/mocap; the checkpoint chosen on the
+# validation split), exported into the package; then `drape eval deepsd --write` measures it once
+DEEPSD_CONFIG ?= drape/training/configs/deepsd_wide.json
+DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_wide
+deepsd-model: $(VENV)/.dev-installed
+	$(BIN)/drape train deepsd --config $(DEEPSD_CONFIG) --checkpoints $(DEEPSD_CHECKPOINTS)
+	$(BIN)/drape export deepsd --checkpoints $(DEEPSD_CHECKPOINTS) --out drape/assets/models/deepsd
 
 # the small ground-truth dataset of the simulation issue: a knee-length skirt x 8 parameter sets x 3 clips x 90 frames
 SIM_DIR ?= data/sim/skirt

@@ -229,6 +229,10 @@ def _train_deepsd(args: argparse.Namespace) -> None:
 
     config = load_config(args.config)
     _, _, summary = train(config, args.checkpoints)
+    if config.get("validation"):  # the checkpoint `drape export deepsd` exports is chosen on the validation split
+        from drape.training.deepsd_validation import choose_checkpoint
+
+        summary["validation"] = choose_checkpoint(config, args.checkpoints)
     out = Path(args.checkpoints) / "summary.json"
     out.write_text(json.dumps({"config_file": str(args.config), **summary}, indent=2) + "\n")
     print(json.dumps(summary, indent=2))

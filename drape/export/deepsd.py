@@ -80,13 +80,20 @@ def _json_default(o: object) -> object:
 
 
 def _latest_run(ckpt_dir: str | Path) -> tuple[dict, dict] | None:
-    """The latest checkpoint's state and its record: config, file, steps done, training seconds."""
-    found = sorted(Path(ckpt_dir).glob("step_*.pt"))
+    """The run's chosen checkpoint (`best.pt`, chosen on the validation split by
+    drape.training.deepsd_validation, when present; else the latest) and its record: config, file, steps done,
+    training seconds, and the validation figures when a checkpoint was chosen on them."""
+    ckpt_dir = Path(ckpt_dir)
+    found = sorted(ckpt_dir.glob("step_*.pt"))
     if not found:
         return None
-    state = torch.load(found[-1], weights_only=True)
-    return state, {"config": json.loads(state["config"]), "file": found[-1].name,
-                   "steps_done": state["done"].tolist(), "train_seconds": round(float(state["elapsed"]), 1)}
+    chosen = ckpt_dir / "best.pt" if (ckpt_dir / "best.pt").exists() else found[-1]
+    state = torch.load(chosen, weights_only=True)
+    record = {"config": json.loads(state["config"]), "file": chosen.name, "steps_done": state["done"].tolist(),
+              "train_seconds": round(float(state["elapsed"]), 1)}
+    if chosen.name == "best.pt" and (ckpt_dir / "validation.json").exists():
+        record["validation"] = json.loads((ckpt_dir / "validation.json").read_text())
+    return state, record
 
 
 def load_checkpoint(ckpt_dir: str | Path) -> tuple[OutfitNet, PoseNet, dict]:

@@ -118,14 +118,36 @@ class TrainOutfit:
         self.rest_distance = self.collider.signed_distance(self.rest[None], rest)[0]  # (N,) m
 
 
+def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:
+    """(T, 24, 3) float32 poses of the real clip `directory/name.bvh`, imported onto the neutral body at
+    `fps` (drape.assets.motion.import_motion), cached under data/deepsd/mocap/ (git-ignored)."""
+    from drape.assets.motion import import_motion
+
+    cache = CACHE.parent / "mocap" / f"{name}_{fps:g}.npz"
+    if cache.exists():
+        with np.load(cache, allow_pickle=False) as z:
+            return z["poses"]
+    path = Path(directory) / f"{name}.bvh"
+    if not path.exists():
+        raise FileNotFoundError(f"the config's mocap clip {path} is missing (../shared/data/mocap holds them)")
+    poses = import_motion(path.read_bytes(), load_body("neutral"), fps=fps, name=name).motion.poses
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(cache, poses=poses)
+    return poses
+
+
 def pose_pool(cfg: dict) -> np.ndarray:
-    """(P, 24, 3) float32 training poses: procedural motions + non-held-out clips, root zeroed."""
+    """(P, 24, 3) float32 training poses: procedural motions + non-held-out clips + the config's real
+    mocap clips (`mocap`: {"dir", "fps", "train": [names]}, if any), root zeroed."""
     poses = []
     for i in range(cfg["procedural_motions"]):
         poses.append(generate_motion(cfg["procedural_frames"], seed=cfg["seed"] + 500 + i).poses)
     for name in list_clips():
         if name not in cfg["heldout_clips"]:
             poses.append(load_clip(name).poses)
+    mocap: dict = cfg.get("mocap") or {}
+    for name in mocap.get("train", []):
+        poses.append(mocap_poses(mocap["dir"], name, mocap["fps"]))
     pool = np.concatenate(poses).astype(np.float32)
     pool[:, 0] = 0.0
     return pool

@@ -1,0 +1,145 @@
+"""Choosing a DeePSD run's checkpoint on a validation split, never on the table `drape eval deepsd` reports.
+
+The split (a config's `validation`): the evaluation's outfit types with other seeds (`outfit_seed` + i, on
+the config's bodies in turn), posed along motions no training or evaluation uses: procedural motions of
+`procedural_seeds` and real CMU clips (`clips`, imported from the config's mocap folder onto each body at its
+fps). Each candidate checkpoint is exported to ONNX and measured as it would be served (the
+`influences`-influence rig of drape.runtime.sparse_rig): the share of vertices inside the posed body (exact
+closest-triangle signed distance; %) on `frames_per_clip` frames of each motion, and the mean edge-length
+error against the template (mm). Score: inside % + edge error mm (1% inside weighs as 1 mm of edge error);
+the lowest wins. The shipped model and the nearest-body-weights baseline are measured in the same run, for
+comparison only. Runs on numpy + ONNX Runtime (torch only to load and export checkpoints).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from drape.assets.body import Body, load_body
+from drape.assets.motion import Motion, import_motion
+from drape.assets.procedural import generate_motion
+from drape.geometry.lbs import pose_mesh
+from drape.geometry.mesh import vertex_normals
+from drape.geometry.metrics import edge_length_error_mm
+from drape.geometry.queries import MeshDistance, nearest_vertex_weights
+from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, pose_outfit
+from drape.runtime.sparse_rig import fit_poses, sparse_rig
+from drape.training.deepsd_data import OutfitSpec, load_outfit
+
+
+def validation_specs(cfg: dict) -> list[OutfitSpec]:
+    v, bodies = cfg["validation"], cfg["bodies"]
+    return [OutfitSpec(t, cfg["eval_vertices"], v["outfit_seed"] + i, bodies[i % len(bodies)])
+            for i, t in enumerate(cfg["eval_outfits"])]
+
+
+@lru_cache(maxsize=64)
+def _clip(directory: str, name: str, body: str, fps: float) -> Motion:
+    return import_motion((Path(directory) / f"{name}.bvh").read_bytes(), load_body(body), fps=fps, name=name).motion
+
+
+def validation_motions(cfg: dict, body: str) -> list[Motion]:
+    """The validation motions on `body`: procedural ones, then the real clips."""
+    v = cfg["validation"]
+    out = [generate_motion(v["procedural_frames"], seed=s, body=body) for s in v["procedural_seeds"]]
+    mocap = cfg["mocap"]
+    return out + [_clip(str(mocap["dir"]), c, body, float(mocap["fps"])) for c in v["clips"]]
+
+
+Poser = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (poses (T, 24, 3), trans (T, 3)) -> (T, N, 3)
+
+
+def _measure(cfg: dict, rig: Callable[[np.ndarray, np.ndarray, Body], Poser], log: Callable[[str], object]) -> dict:
+    """Every validation outfit rigged by `rig(vertices, faces, body)`, posed along the validation motions."""
+    v = cfg["validation"]
+    per_outfit = {}
+    for spec in validation_specs(cfg):
+        verts, faces = load_outfit(spec)
+        body = load_body(spec.body)
+        pose = rig(verts, faces, body)
+        inside, edge = [], []
+        for motion in validation_motions(cfg, spec.body):
+            frames = np.linspace(0, motion.num_frames - 1, v["frames_per_clip"]).round().astype(int)
+            poses, trans = motion.poses[frames].astype(np.float64), motion.trans[frames].astype(np.float64)
+            posed = pose(poses, trans)
+            for g, b in zip(posed, body.pose(poses, trans), strict=True):
+                b = b.astype(np.float64)
+                dist = MeshDistance(b, body.faces, vertex_normals(b, body.faces))
+                inside.append(float(np.mean(dist.signed_distance(g.astype(np.float64)) < 0)))
+            edge.append(edge_length_error_mm(posed, verts, faces))
+        per_outfit[spec.key] = {"inside_triangle_pct": 100 * float(np.mean(inside)),
+                                "edge_error_mm": float(np.mean(edge))}
+    inside_pct = float(np.mean([o["inside_triangle_pct"] for o in per_outfit.values()]))
+    edge_mm = float(np.mean([o["edge_error_mm"] for o in per_outfit.values()]))
+    log(f"validation: {inside_pct:.2f}% inside, {edge_mm:.2f} mm edge error")
+    return {"score": inside_pct + edge_mm, "inside_triangle_pct": inside_pct, "edge_error_mm": edge_mm,
+            "outfits": per_outfit}
+
+
+def validate(cfg: dict, model_dir: str | Path, log: Callable[[str], object] = print) -> dict:
+    """The model in `model_dir`, as served (its sparse rig), on the validation split: {"score",
+    "inside_triangle_pct", "edge_error_mm", "outfits": {key: {...}}}."""
+    model = DeePSDModel(model_dir)
+    poses_fit = fit_poses()
+    keys_fit = model.pose_keys(poses_fit)
+    influences = cfg["validation"]["influences"]
+
+    def rig(verts: np.ndarray, faces: np.ndarray, body: Body) -> Poser:
+        r = sparse_rig(verts, model.rig(verts, faces), body.joints, influences, poses_fit, keys_fit)
+        return lambda poses, trans: pose_outfit(verts, r, model.pose_keys(poses), body.joints, poses, trans)
+
+    return _measure(cfg, rig, log)
+
+
+def validate_baseline(cfg: dict, log: Callable[[str], object] = print) -> dict:
+    """What a user would otherwise do, on the validation split: LBS with the nearest body vertex's weights."""
+    def rig(verts: np.ndarray, faces: np.ndarray, body: Body) -> Poser:
+        w = nearest_vertex_weights(verts, body.vertices, body.weights)
+        return lambda poses, trans: pose_mesh(verts, w, body.joints, poses, trans)
+
+    return _measure(cfg, rig, log)
+
+
+def choose_checkpoint(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print) -> dict:
+    """Validate the checkpoints at the config's `validation.steps` (summed steps of every phase), copy the
+    best to `ckpt_dir/best.pt` (what `drape export deepsd` exports when present) and write every figure to
+    `ckpt_dir/validation.json`. Returns that record."""
+    import torch
+
+    from drape.export.deepsd import export_deepsd, write_manifest
+    from drape.models.deepsd import OutfitNet, PoseNet
+
+    ckpt_dir = Path(ckpt_dir)
+    record: dict = {"rule": "lowest inside % + edge error mm, served rig, validation split", "candidates": {}}
+    for step in cfg["validation"]["steps"]:
+        path = ckpt_dir / f"step_{int(step):07d}.pt"
+        if not path.exists():
+            raise FileNotFoundError(f"validation.steps names {step}, but {path} does not exist (checkpoints are "
+                                    f"saved every checkpoint_every steps of a phase and at each phase's end)")
+        state = torch.load(path, weights_only=True)
+        outfit, pose = OutfitNet(), PoseNet()
+        outfit.load_state_dict(state["outfit"])
+        pose.load_state_dict(state["pose"])
+        with tempfile.TemporaryDirectory() as tmp:
+            export_deepsd(outfit, pose, tmp)
+            write_manifest(tmp, version="candidate", config={}, evaluation=None, trained=True)
+            log(f"{path.name}:")
+            record["candidates"][path.name] = validate(cfg, tmp, log)
+    log("the shipped model, for comparison:")
+    shipped = json.loads((MODEL_DIR / "manifest.json").read_text())["version"]
+    record["shipped"] = {"version": shipped, **validate(cfg, MODEL_DIR, log)}
+    log("the nearest-body-weights baseline:")
+    record["baseline"] = validate_baseline(cfg, log)
+    best = min(record["candidates"], key=lambda k: record["candidates"][k]["score"])
+    record["chosen"] = best
+    shutil.copyfile(ckpt_dir / best, ckpt_dir / "best.pt")
+    (ckpt_dir / "validation.json").write_text(json.dumps(record, indent=2) + "\n")
+    log(f"chosen on validation: {best}")
+    return record

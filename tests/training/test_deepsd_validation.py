@@ -1,0 +1,56 @@
+"""A DeePSD run with real mocap in its pose pool and its checkpoint chosen on the validation split: a few
+steps on tiny outfits, two candidate checkpoints, the lower validation score wins and is what export takes."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from drape.export.deepsd import export_deepsd_from_checkpoints
+from drape.training import deepsd_data
+from drape.training.deepsd import load_config, train
+from drape.training.deepsd_validation import choose_checkpoint, validation_specs
+
+MOCAP = Path("..") / "shared" / "data" / "mocap"
+pytestmark = pytest.mark.skipif(not (MOCAP / "05_01_walk.bvh").exists(), reason="needs ../shared/data/mocap")
+
+
+@pytest.fixture
+def cfg(tmp_path, monkeypatch):
+    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
+    c = load_config(Path("drape/training/configs/deepsd_wide.json"))
+    c.update(train_outfits=2, train_vertices=[300, 420], procedural_motions=1, procedural_frames=30,
+             steps={"prior": 4, "physics": 4, "chi": 4}, checkpoint_every=4, eval_outfits=["tshirt"],
+             eval_vertices=300, mocap={**c["mocap"], "train": ["05_01_walk"]},
+             validation={**c["validation"], "clips": ["06_01_walk"], "procedural_seeds": [7001],
+                         "procedural_frames": 30, "frames_per_clip": 2, "steps": [8, 12]})
+    return c
+
+
+def test_real_mocap_widens_the_pose_pool(cfg):
+    without = deepsd_data.pose_pool({**cfg, "mocap": None})
+    pool = deepsd_data.pose_pool(cfg)
+    walk = deepsd_data.mocap_poses(MOCAP, "05_01_walk", 30.0)
+    assert len(pool) == len(without) + len(walk) and np.allclose(pool[len(without):, 1:], walk[:, 1:])
+    assert not {s.seed for s in validation_specs(cfg)} & {s.seed for s in deepsd_data.train_specs(cfg)}
+    assert not set(cfg["validation"]["clips"]) & set(load_config(Path(
+        "drape/training/configs/deepsd_wide.json"))["mocap"]["train"])
+
+
+def test_the_checkpoint_is_chosen_on_validation_and_exported(cfg, tmp_path):
+    train(cfg, tmp_path / "ckpt", log=lambda *_: None)
+    record = choose_checkpoint(cfg, tmp_path / "ckpt", log=lambda *_: None)
+    scores = {k: v["score"] for k, v in record["candidates"].items()}
+    assert set(scores) == {"step_0000008.pt", "step_0000012.pt"}
+    assert record["chosen"] == min(scores, key=scores.get)
+    assert {"shipped", "baseline"} <= set(record) and record["baseline"]["score"] > 0
+    chosen = torch.load(tmp_path / "ckpt" / record["chosen"], weights_only=True)
+    best = torch.load(tmp_path / "ckpt" / "best.pt", weights_only=True)
+    assert all(torch.equal(a, b) for a, b in zip(chosen["outfit"].values(), best["outfit"].values(), strict=True))
+    export_deepsd_from_checkpoints(tmp_path / "ckpt", tmp_path / "model")
+    manifest = json.loads((tmp_path / "model" / "manifest.json").read_text())
+    taken = manifest["training"]["config"]["_checkpoint"]
+    assert taken["file"] == "best.pt" and taken["validation"]["chosen"] == record["chosen"]
+    assert taken["steps_done"] == chosen["done"].tolist()
