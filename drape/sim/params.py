@@ -17,7 +17,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class SimParams(BaseModel):
@@ -71,3 +71,64 @@ def sample_params(n: int, seed: int = 0, base: SimParams | None = None) -> list[
             values[name] = math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo))) if log else lo + u * (hi - lo)
         out.append(SimParams(**values))
     return out
+
+
+CLOTH_RADIUS = 0.001  # m, a cloth flex's collision radius (the inner layer's is set from its thickness)
+MIN_INNER_RADIUS = 0.0005  # m, the least collision radius the inner layer of two gets
+# the outer cloth's own contact thickness at the default margin (radius + margin) plus the inner's least
+# (its least radius + margin): the smallest H_in the defaults allow (drape.sim.layers says how H_in is realised)
+MIN_INNER_THICKNESS = round(CLOTH_RADIUS + MIN_INNER_RADIUS + 2 * 0.001, 9)
+
+
+class LayerParams(SimParams):
+    """A parameter set for two layers: the shared intrinsic parameters plus the inner garment's thickness.
+
+    inner_thickness (H_in): the distance the outer cloth's mid-surface keeps from the inner's where they
+    touch (m); MGN (Shi et al. 2025) conditions the outer garment on it. How the simulation realises it:
+    drape.sim.layers.
+    """
+
+    inner_thickness: float = Field(default=0.006, ge=MIN_INNER_THICKNESS, le=0.03,
+                                   description="inner garment thickness H_in: outer-to-inner mid-surface gap, m")
+
+    @model_validator(mode="after")
+    def _room_for_the_inner_layer(self) -> LayerParams:
+        least = CLOTH_RADIUS + MIN_INNER_RADIUS + 2 * self.contact_margin
+        if self.inner_thickness < least:
+            raise ValueError(f"inner_thickness {self.inner_thickness} m is below {least:.4g} m: the outer cloth's "
+                             "radius + margin, plus the inner's least radius + margin (contact_margin each)")
+        return self
+
+    @property
+    def inner_radius(self) -> float:
+        """The inner flex's collision radius that makes the outer-to-inner rest gap inner_thickness, m."""
+        return self.inner_thickness - CLOTH_RADIUS - 2 * self.contact_margin
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> LayerParams:
+        return cls.model_validate_json(Path(path).read_text())
+
+
+def thickness_values(n: int, low: float, high: float, held_out: int, seed: int = 0) -> list[float]:
+    """n inner thicknesses in [low, high], one per equal bin; the last `held_out` (the held-out parameter
+    sets of `dataset.splits`) get bins spread over the interior, so no training value shares their bin.
+
+    Training values fill the other bins in a seeded order; each value is uniform within its bin.
+    """
+    if n < 1 or not 0 <= held_out < n:
+        raise ValueError(f"need n >= 1 and 0 <= held_out < n, got n={n}, held_out={held_out}")
+    if not MIN_INNER_THICKNESS <= low <= high:
+        raise ValueError(f"thickness range must satisfy {MIN_INNER_THICKNESS} <= low <= high, got {low}, {high}")
+    rng = np.random.default_rng([seed, 22])
+    test_bins = [int(round(x)) for x in np.linspace(0, n - 1, held_out + 2)[1:-1]] if held_out else []
+    train_bins = [b for b in range(n) if b not in test_bins]
+    order = list(rng.permutation(train_bins)) + test_bins
+    width = (high - low) / n
+    return [low + (b + float(rng.random())) * width for b in order]
+
+
+def sample_layer_params(n: int, seed: int = 0, thickness: tuple[float, float] = (0.004, 0.012),
+                        held_out: int = 2, base: SimParams | None = None) -> list[LayerParams]:
+    """n two-layer parameter sets: `sample_params(n, seed)` plus `thickness_values` for H_in."""
+    h = thickness_values(n, thickness[0], thickness[1], held_out, seed)
+    return [LayerParams(**p.model_dump(), inner_thickness=t) for p, t in zip(sample_params(n, seed, base), h, strict=True)]

@@ -82,3 +82,142 @@ def sequence_stats(
         "mean_height_m": float((vertices[..., 1] - trans[:, None, 1]).mean()),
     }
     return stats
+
+
+# -- two layers ---------------------------------------------------------------------------------------------
+
+# outer vertices are judged inside the inner layer only within this distance of it: farther away, where an open,
+# folding, self-intersecting inner sheet has no well-defined inside, the side flips between frames at constant
+# distance (measured: jacket vertices under the arm 3-6 cm from a t-shirt's armpit fold); an outer layer that
+# went through the inner sits between it and the body, within the inner's clearance of the body
+INSIDE_BAND = 0.02
+
+LAYER_KEYS = ("penetration_p99_m", "penetration_max_m", "inside_share", "strain_mean", "strain_p99", "strain_max",
+              "mean_height_m")
+
+
+def _pseudo_normals(vertices: np.ndarray, faces: np.ndarray, edge_key: np.ndarray, edge_index: np.ndarray,
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Face unit normals (F, 3), edge normals (E, 3: the sum of the adjacent faces'), angle-weighted vertex
+    normals (N, 3): the normals whose side test is exact at a closest point in a face, on an edge, at a vertex
+    (Baerentzen and Aanaes 2005). edge_index (F, 3): the edge opposite each corner, into edge_key."""
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-20)
+    en = np.zeros((len(edge_key), 3))
+    for j in range(3):
+        np.add.at(en, edge_index[:, j], fn)
+    vn = np.zeros_like(vertices)
+    for j in range(3):
+        a = tri[:, (j + 1) % 3] - tri[:, j]
+        b = tri[:, (j + 2) % 3] - tri[:, j]
+        cos = np.einsum("fc,fc->f", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-20)
+        np.add.at(vn, faces[:, j], np.arccos(np.clip(cos, -1.0, 1.0))[:, None] * fn)
+    return fn, en, vn
+
+
+def outer_inner_distance(outer: np.ndarray, inner: np.ndarray, inner_faces: np.ndarray,
+                         reach: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance of each outer vertex to the inner layer, frame by frame.
+
+    outer (T, No, 3), inner (T, Ni, 3) -> (sd (T, No) m, covered (T, No) bool). sd: exact distance to the
+    closest point of the inner mesh, negative when the outer vertex is behind the inner layer (inside it),
+    the side taken from the pseudo-normal at the closest point (the face's normal inside a face, the two
+    faces' on an edge, the angle-weighted vertex normal at a vertex: exact, where an interpolated vertex normal
+    flips sign at creases for points centimetres away). covered: the closest point is not on the inner's
+    boundary (hems, cuffs, necklines, an open front): an outer vertex past the inner's edge (a jacket's sleeve
+    below a t-shirt's) sees that edge as its closest point, where no side is defined, so only covered vertices
+    are judged. Points farther than `reach` are not judged either (MeshDistance is exact within it).
+    """
+    F = np.asarray(inner_faces, dtype=np.int64)
+    n = int(inner.shape[1])
+    # edge opposite corner j of each face, as a key into the unique edges
+    a_, b_ = F[:, [1, 2, 0]], F[:, [2, 0, 1]]
+    keys = np.minimum(a_, b_) * n + np.maximum(a_, b_)  # (F, 3)
+    edge_key, edge_index, counts = np.unique(keys.ravel(), return_inverse=True, return_counts=True)
+    edge_index = edge_index.reshape(F.shape)
+    boundary_edge = counts == 1
+    boundary_vertex = np.zeros(n, dtype=bool)
+    boundary_vertex[(edge_key[boundary_edge] // n)] = True
+    boundary_vertex[(edge_key[boundary_edge] % n)] = True
+    sd = np.empty(outer.shape[:2])
+    covered = np.empty(outer.shape[:2], dtype=bool)
+    eps = 1e-9
+    for t in range(len(outer)):
+        v = np.asarray(inner[t], dtype=np.float64)
+        fn, en, vn = _pseudo_normals(v, F, edge_key, edge_index)
+        md = MeshDistance(v, F, exact_within=reach)
+        x = np.asarray(outer[t], dtype=np.float64)
+        face, bary = md.project(x)
+        zero = bary < eps
+        nz = zero.sum(axis=1)
+        cp = np.einsum("pk,pkc->pc", bary, v[F[face]])
+        diff = x - cp
+        dist = np.linalg.norm(diff, axis=1)
+        edge = edge_index[face, zero.argmax(axis=1)]  # the edge opposite the zero corner (nz == 1)
+        corner = F[face, bary.argmax(axis=1)]  # the vertex (nz == 2)
+        nrm = np.where((nz == 0)[:, None], fn[face], np.where((nz == 1)[:, None], en[edge], vn[corner]))
+        sd[t] = np.where(np.einsum("pc,pc->p", diff, nrm) < 0, -dist, dist)
+        on_boundary = ((nz == 1) & boundary_edge[edge]) | ((nz >= 2) & boundary_vertex[corner])
+        covered[t] = ~on_boundary & (dist <= reach)
+    return sd, covered
+
+
+def layer_stats(
+    inner: np.ndarray, inner_rest: np.ndarray, inner_faces: np.ndarray,
+    outer: np.ndarray, outer_rest: np.ndarray, outer_faces: np.ndarray,
+    body: Body, poses: np.ndarray, trans: np.ndarray,
+) -> dict:
+    """Quality statistics of a two-layer sequence (JSON-ready floats).
+
+    Each layer's single-garment statistics (`sequence_stats`) with an `inner_` / `outer_` prefix, plus
+    outer-through-inner, as body penetration is measured: depth = how far an outer vertex is behind the
+    inner layer (`outer_inner_distance`, judged within INSIDE_BAND of it), 0 elsewhere;
+    `outer_in_inner_share` (vertex-frames with depth > 0, over all outer vertex-frames: MGN's L-Coll),
+    `outer_in_inner_p99_m` (99th percentile depth over all outer vertex-frames), `outer_in_inner_max_m`;
+    `outer_covered_share` (outer vertex-frames over the inner at all) and the outer-to-inner distance over
+    covered vertex-frames (`outer_inner_gap_p10_m`, `_median_m`).
+    """
+    finite = bool(np.isfinite(inner).all() and np.isfinite(outer).all())
+    stats: dict = {"finite": finite, "frames": int(len(inner)), "inner_vertices": int(inner.shape[1]),
+                   "outer_vertices": int(outer.shape[1])}
+    layer_keys = ("outer_in_inner_share", "outer_in_inner_p99_m", "outer_in_inner_max_m", "outer_covered_share",
+                  "outer_inner_gap_p10_m", "outer_inner_gap_median_m")
+    if not finite:
+        return stats | {f"{p}_{k}": float("inf") for p in ("inner", "outer") for k in LAYER_KEYS} | {
+            k: float("inf") for k in layer_keys}
+    for prefix, v, rest, f in (("inner", inner, inner_rest, inner_faces), ("outer", outer, outer_rest, outer_faces)):
+        one = sequence_stats(v, rest, f, body, poses, trans)
+        stats |= {f"{prefix}_{k}": one[k] for k in LAYER_KEYS}
+    sd, covered = outer_inner_distance(outer, inner, inner_faces)
+    depth = np.where(covered & (sd < 0) & (sd >= -INSIDE_BAND), -sd, 0.0)
+    gap = sd[covered]
+    stats |= {
+        "outer_in_inner_share": float((depth > 0).mean()),
+        "outer_in_inner_p99_m": float(np.percentile(depth, 99)),
+        "outer_in_inner_max_m": float(depth.max()),
+        "outer_covered_share": float(covered.mean()),
+        "outer_inner_gap_p10_m": float(np.percentile(gap, 10)) if len(gap) else float("nan"),
+        "outer_inner_gap_median_m": float(np.median(gap)) if len(gap) else float("nan"),
+    }
+    return stats
+
+
+class LayerGate(QualityGate):
+    """The single-garment limits on each layer, plus outer-through-inner limits (see docs/sim.md)."""
+
+    max_outer_in_inner_share: float = Field(default=0.02, ge=0, description="share of outer vertex-frames inside the inner layer")
+    max_outer_in_inner_p99: float = Field(default=0.005, ge=0, description="99th percentile depth inside the inner layer, m")
+
+    def failures(self, stats: dict) -> list[str]:
+        if not stats["finite"]:
+            return ["non-finite vertex positions"]
+        out = []
+        for prefix in ("inner", "outer"):
+            one = {"finite": True} | {k: stats[f"{prefix}_{k}"] for k in LAYER_KEYS}
+            out += [f"{prefix}_{why}" for why in super().failures(one)]
+        for key, limit in (("outer_in_inner_share", self.max_outer_in_inner_share),
+                           ("outer_in_inner_p99_m", self.max_outer_in_inner_p99)):
+            if stats[key] > limit:
+                out.append(f"{key} = {stats[key]:.4g} > {limit:.4g}")
+        return out

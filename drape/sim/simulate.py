@@ -46,7 +46,7 @@ from drape.geometry.rotations import (
 )
 from drape.geometry.skeleton import forward_kinematics
 from drape.sim.collider import Hull, fit_hulls, garment_bones
-from drape.sim.params import SimParams
+from drape.sim.params import CLOTH_RADIUS, SimParams
 from drape.sim.quality import sequence_stats
 
 
@@ -89,9 +89,41 @@ def top_boundary(vertices: np.ndarray, faces: np.ndarray, band: float = 0.02) ->
     return b[vertices[b, 1] >= vertices[b, 1].max() - band].astype(np.int64)
 
 
-def scene_xml(vertices: np.ndarray, faces: np.ndarray, hulls: list[Hull], params: SimParams, fps: float) -> str:
-    """MJCF of the cloth (in rest pose) and one kinematic body per bone carrying its hulls."""
-    area = float(vertex_areas(vertices, faces).sum())
+@dataclass(frozen=True)
+class Cloth:
+    """One flex in the scene: rest-pose vertices (N, 3) m on the body, faces (F, 3), and how it collides.
+
+    radius: the flex elements' collision radius (m); margin: its contact margin (None: the parameter set's
+    `contact_margin`). MuJoCo 4 adds the margins of the two sides of a contact and measures the distance
+    between the radius-thickened surfaces, so two cloths' mid-surfaces rest about r1 + r2 + m1 + m2 apart
+    and a cloth's mid-surface rests r + m off the body. contype / conaffinity: MuJoCo's collision bitmasks
+    (the body hulls are contype 1, conaffinity 0).
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    radius: float = CLOTH_RADIUS
+    margin: float | None = None
+    contype: int = 0
+    conaffinity: int = 1
+
+
+def _flex_xml(c: Cloth, start: np.ndarray, p: SimParams) -> str:
+    margin = p.contact_margin if c.margin is None else c.margin
+    area = float(vertex_areas(start, c.faces).sum())
+    return f"""
+    <flexcomp name="{c.name}" type="direct" dim="2" dof="full" radius="{c.radius:.8g}" mass="{p.density * area:.8g}"
+              point="{_fmt(start)}" element="{' '.join(map(str, np.asarray(c.faces).ravel()))}">
+      <elasticity young="{p.young:.8g}" poisson="{p.poisson:.8g}" thickness="{p.thickness:.8g}"
+                  damping="{p.damping:.8g}" elastic2d="both"/>
+      <contact contype="{c.contype}" conaffinity="{c.conaffinity}" condim="3" solref="{p.contact_timeconst:.8g} 1"
+               solimp="0.95 0.99 0.001" margin="{margin:.8g}" friction="{p.friction:.8g}" selfcollide="none"/>
+    </flexcomp>"""
+
+
+def scene_xml(cloths: list[tuple[Cloth, np.ndarray]], hulls: list[Hull], params: SimParams, fps: float) -> str:
+    """MJCF of the cloths (each with its start positions (N, 3)) and one kinematic body per bone carrying its hulls."""
     assets = "".join(f'<mesh name="h{i}" vertex="{_fmt(h.vertices)}"/>' for i, h in enumerate(hulls))
     bones = sorted({h.bone for h in hulls})
     bodies = "".join(
@@ -102,19 +134,13 @@ def scene_xml(vertices: np.ndarray, faces: np.ndarray, hulls: list[Hull], params
         for k in bones
     )
     p = params
+    flexes = "".join(_flex_xml(c, start, p) for c, start in cloths)
     return f"""<mujoco model="drape-cloth">
   <compiler autolimits="true"/>
   <option timestep="{1.0 / (fps * p.substeps):.8g}" integrator="discrete" solver="CG"
           iterations="{p.iterations}" gravity="0 {-p.gravity:.8g} 0"/>
   <asset>{assets}</asset>
-  <worldbody>{bodies}
-    <flexcomp name="cloth" type="direct" dim="2" dof="full" radius="0.001" mass="{p.density * area:.8g}"
-              point="{_fmt(vertices)}" element="{' '.join(map(str, np.asarray(faces).ravel()))}">
-      <elasticity young="{p.young:.8g}" poisson="{p.poisson:.8g}" thickness="{p.thickness:.8g}"
-                  damping="{p.damping:.8g}" elastic2d="both"/>
-      <contact contype="0" conaffinity="1" condim="3" solref="{p.contact_timeconst:.8g} 1" solimp="0.95 0.99 0.001"
-               margin="{p.contact_margin:.8g}" friction="{p.friction:.8g}" selfcollide="none"/>
-    </flexcomp>
+  <worldbody>{bodies}{flexes}
   </worldbody>
 </mujoco>"""
 
@@ -147,6 +173,121 @@ def settle_motion(motion: Motion, frames: int, blend: int, hold: int) -> tuple[n
     return np.concatenate([pre_p, poses]), np.concatenate([pre_t, trans])
 
 
+@dataclass
+class ClothRun:
+    """What `simulate_cloths` returns: vertices per cloth (T, N_c, 3) float32, the motion frames' poses
+    (T, 24, 3) and trans (T, 3) float32, wall time and the number of settle frames before them."""
+
+    vertices: list[np.ndarray]
+    poses: np.ndarray
+    trans: np.ndarray
+    seconds: float
+    settle_frames: int
+
+
+def simulate_cloths(
+    cloths: list[Cloth],
+    body: Body,
+    motion: Motion,
+    params: SimParams,
+    frames: int | None = None,
+    settle_blend: int = 15,
+    settle_hold: int = 15,
+    pin_top: bool = True,
+    hulls: list[Hull] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> ClothRun:
+    """Simulate one or more cloths (each in rest pose on `body`) together along `motion`.
+
+    The shared engine of `simulate` (one garment) and `drape.sim.layers.simulate_layers` (two): each
+    cloth is its own flex, with its own pinned top boundary, air drag and collision settings.
+    """
+    import mujoco
+
+    T = motion.num_frames if frames is None else int(frames)
+    if not 1 <= T <= motion.num_frames:
+        raise ValueError(f"frames must be in [1, {motion.num_frames}] for clip {motion.name!r}, got {T}")
+    rest = [np.asarray(c.vertices, dtype=np.float64) for c in cloths]
+    if hulls is None:
+        hulls = fit_hulls(body, garment_bones(body, np.concatenate(rest).astype(np.float32), reach=0.2))
+    all_p, all_t = settle_motion(motion, T, settle_blend, settle_hold)
+    S = len(all_p) - T
+    tr, pos, quat = _bone_frames(body, all_p, all_t)
+
+    t_start = time.perf_counter()
+    # the cloth starts in rest pose under the body's first horizontal position (the settle frames' translation)
+    starts = [V0 + all_t[0] for V0 in rest]
+    model = mujoco.MjModel.from_xml_string(scene_xml(list(zip(cloths, starts, strict=True)), hulls, params,
+                                                     motion.fps))
+    data = mujoco.MjData(model)
+    bones = sorted({h.bone for h in hulls})
+    bone_body = np.array([model.body(f"bone{k}").id for k in bones])
+    bone_q = (model.jnt_qposadr[model.body_jntadr[bone_body]][:, None] + np.arange(7)).ravel()
+    bone_d = (model.jnt_dofadr[model.body_jntadr[bone_body]][:, None] + np.arange(6)).ravel()
+    # body-frame angular velocity from frame f - 1 to f: q_f = q_{f-1} * exp(w dt)
+    rel = quaternion_multiply(quat[:-1] * np.array([1, -1, -1, -1]), quat[1:])
+    omega = quaternion_to_axis_angle(rel) * motion.fps  # (S + T - 1, 24, 3)
+    vel = np.diff(pos, axis=0) * motion.fps
+
+    dof3_all, drag_all = [], []
+    pin_q_all, pin_d_all, pin_rest_all, pin_xyz_all = [], [], [], []
+    heavy = []
+    for c, V0, start in zip(cloths, rest, starts, strict=True):
+        vbody = np.array([model.body(f"{c.name}_{i}").id for i in range(len(V0))])
+        dof = model.jnt_dofadr[model.body_jntadr[vbody]]  # 3 slide DOFs (x, y, z) per vertex, consecutive
+        qadr = model.jnt_qposadr[model.body_jntadr[vbody]]
+        dof3_all.append((dof[:, None] + np.arange(3)).ravel())
+        drag_all.append(np.repeat(params.air_drag * vertex_areas(V0, c.faces), 3))
+        pinned = top_boundary(V0, c.faces) if pin_top else np.zeros(0, dtype=np.int64)
+        if len(pinned):
+            pin_w = nearest_vertex_weights(V0[pinned], body.vertices, body.weights)
+            pin_xyz_all.append(linear_blend_skinning(V0[pinned], pin_w, tr).astype(np.float64))  # (S + T, P, 3)
+            pin_q_all.append((qadr[pinned][:, None] + np.arange(3)).ravel())
+            pin_d_all.append((dof[pinned][:, None] + np.arange(3)).ravel())
+            pin_rest_all.append(start[pinned].ravel())
+            heavy.append(vbody[pinned])
+    dof3, drag = np.concatenate(dof3_all), np.concatenate(drag_all)
+    pinning = bool(pin_q_all)
+    if pinning:
+        pin_xyz = np.concatenate(pin_xyz_all, axis=1)
+        pin_q, pin_d, pin_rest = np.concatenate(pin_q_all), np.concatenate(pin_d_all), np.concatenate(pin_rest_all)
+        # kinematic pins: positions and velocities are written every substep, but within a step the
+        # solver still moves them under the garment's weight; a heavy vertex barely moves (a light one
+        # sags by ~ tension / mass * dt^2, centimetres, stretching the first row of edges)
+        model.body_mass[np.concatenate(heavy)] *= 1e4
+        mujoco.mj_setConst(model, data)
+
+    def place(f: int, a: float) -> None:
+        """Move bones (and pinned vertices) to fraction a of the way from frame f - 1 to f."""
+        q = (1 - a) * quat[f - 1, bones] + a * quat[f, bones]
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        x = (1 - a) * pos[f - 1, bones] + a * pos[f, bones]
+        data.qpos[bone_q] = np.concatenate([x, q], axis=1).ravel()
+        data.qvel[bone_d] = np.concatenate([vel[f - 1, bones], omega[f - 1, bones]], axis=1).ravel()
+        if pinning:
+            x = (1 - a) * pin_xyz[f - 1] + a * pin_xyz[f]
+            data.qpos[pin_q] = x.ravel() - pin_rest
+            data.qvel[pin_d] = ((pin_xyz[f] - pin_xyz[f - 1]) * motion.fps).ravel()
+
+    data.qpos[bone_q] = np.concatenate([pos[0, bones], quat[0, bones]], axis=1).ravel()
+    mujoco.mj_forward(model, data)
+    adr = model.flex_vertadr
+    outs = [np.empty((T, len(V0), 3), dtype=np.float32) for V0 in rest]
+    total = len(all_p) - 1
+    for f in range(1, len(all_p)):
+        for s in range(params.substeps):
+            place(f, (s + 1) / params.substeps)
+            data.qfrc_applied[dof3] = -drag * data.qvel[dof3]
+            mujoco.mj_step(model, data)
+        if f >= S:
+            for k, out in enumerate(outs):
+                out[f - S] = data.flexvert_xpos[adr[k]:adr[k] + out.shape[1]]
+        if progress is not None:
+            progress(f, total)
+    seconds = time.perf_counter() - t_start
+    return ClothRun(outs, motion.poses[:T].astype(np.float32), motion.trans[:T].astype(np.float32), seconds, S)
+
+
 def simulate(
     garment_vertices: np.ndarray,
     faces: np.ndarray,
@@ -167,81 +308,13 @@ def simulate(
     Returns a SimResult with vertices (frames, N, 3) float32 and quality stats.
     `progress(done, total)` is called after every frame, settle frames included.
     """
-    import mujoco
-
     params = params or SimParams()
     V0 = np.asarray(garment_vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
-    T = motion.num_frames if frames is None else int(frames)
-    if not 1 <= T <= motion.num_frames:
-        raise ValueError(f"frames must be in [1, {motion.num_frames}] for clip {motion.name!r}, got {T}")
-    if hulls is None:
-        hulls = fit_hulls(body, garment_bones(body, V0.astype(np.float32), reach=0.2))
-    all_p, all_t = settle_motion(motion, T, settle_blend, settle_hold)
-    S = len(all_p) - T
-    tr, pos, quat = _bone_frames(body, all_p, all_t)
-
-    t_start = time.perf_counter()
-    # the cloth starts in rest pose under the body's first horizontal position (the settle frames' translation)
-    start = V0 + all_t[0]
-    model = mujoco.MjModel.from_xml_string(scene_xml(start, F, hulls, params, motion.fps))
-    data = mujoco.MjData(model)
-    bones = sorted({h.bone for h in hulls})
-    bone_body = np.array([model.body(f"bone{k}").id for k in bones])
-    bone_q = (model.jnt_qposadr[model.body_jntadr[bone_body]][:, None] + np.arange(7)).ravel()
-    bone_d = (model.jnt_dofadr[model.body_jntadr[bone_body]][:, None] + np.arange(6)).ravel()
-    # body-frame angular velocity from frame f - 1 to f: q_f = q_{f-1} * exp(w dt)
-    rel = quaternion_multiply(quat[:-1] * np.array([1, -1, -1, -1]), quat[1:])
-    omega = quaternion_to_axis_angle(rel) * motion.fps  # (S + T - 1, 24, 3)
-    vel = np.diff(pos, axis=0) * motion.fps
-    vbody = np.array([model.body(f"cloth_{i}").id for i in range(len(V0))])
-    dof = model.jnt_dofadr[model.body_jntadr[vbody]]  # 3 slide DOFs (x, y, z) per vertex, consecutive
-    qadr = model.jnt_qposadr[model.body_jntadr[vbody]]
-    dof3 = (dof[:, None] + np.arange(3)).ravel()
-    drag = np.repeat(params.air_drag * vertex_areas(V0, F), 3)
-
-    pinned = top_boundary(V0, F) if pin_top else np.zeros(0, dtype=np.int64)
-    if len(pinned):
-        pin_w = nearest_vertex_weights(V0[pinned], body.vertices, body.weights)
-        pin_xyz = linear_blend_skinning(V0[pinned], pin_w, tr).astype(np.float64)  # (S + T, P, 3)
-        pin_q = (qadr[pinned][:, None] + np.arange(3)).ravel()
-        pin_d = (dof[pinned][:, None] + np.arange(3)).ravel()
-        pin_rest = start[pinned].ravel()
-        # kinematic pins: positions and velocities are written every substep, but within a step the
-        # solver still moves them under the garment's weight; a heavy vertex barely moves (a light one
-        # sags by ~ tension / mass * dt^2, centimetres, stretching the first row of edges)
-        model.body_mass[vbody[pinned]] *= 1e4
-        mujoco.mj_setConst(model, data)
-
-    def place(f: int, a: float) -> None:
-        """Move bones (and pinned vertices) to fraction a of the way from frame f - 1 to f."""
-        q = (1 - a) * quat[f - 1, bones] + a * quat[f, bones]
-        q /= np.linalg.norm(q, axis=1, keepdims=True)
-        x = (1 - a) * pos[f - 1, bones] + a * pos[f, bones]
-        data.qpos[bone_q] = np.concatenate([x, q], axis=1).ravel()
-        data.qvel[bone_d] = np.concatenate([vel[f - 1, bones], omega[f - 1, bones]], axis=1).ravel()
-        if len(pinned):
-            x = (1 - a) * pin_xyz[f - 1] + a * pin_xyz[f]
-            data.qpos[pin_q] = x.ravel() - pin_rest
-            data.qvel[pin_d] = ((pin_xyz[f] - pin_xyz[f - 1]) * motion.fps).ravel()
-
-    data.qpos[bone_q] = np.concatenate([pos[0, bones], quat[0, bones]], axis=1).ravel()
-    mujoco.mj_forward(model, data)
-    out = np.empty((T, len(V0), 3), dtype=np.float32)
-    total = len(all_p) - 1
-    for f in range(1, len(all_p)):
-        for s in range(params.substeps):
-            place(f, (s + 1) / params.substeps)
-            data.qfrc_applied[dof3] = -drag * data.qvel[dof3]
-            mujoco.mj_step(model, data)
-        if f >= S:
-            out[f - S] = data.flexvert_xpos
-        if progress is not None:
-            progress(f, total)
-    seconds = time.perf_counter() - t_start
-    poses = motion.poses[:T].astype(np.float32)
-    trans = motion.trans[:T].astype(np.float32)
-    stats = sequence_stats(out, V0.astype(np.float32), F, body, poses, trans)
-    stats["seconds"] = round(seconds, 3)
-    stats["seconds_per_frame"] = round(seconds / (T + S), 4)
-    return SimResult(out, poses, trans, params, stats, seconds, S)
+    run = simulate_cloths([Cloth("cloth", V0, F)], body, motion, params, frames, settle_blend, settle_hold,
+                          pin_top, hulls, progress)
+    out, T, S = run.vertices[0], len(run.poses), run.settle_frames
+    stats = sequence_stats(out, V0.astype(np.float32), F, body, run.poses, run.trans)
+    stats["seconds"] = round(run.seconds, 3)
+    stats["seconds_per_frame"] = round(run.seconds / (T + S), 4)
+    return SimResult(out, run.poses, run.trans, params, stats, run.seconds, S)

@@ -1,0 +1,110 @@
+"""Two layers (drape.sim.layers): a small t-shirt under a small open jacket, a few walk frames."""
+
+from functools import cache
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.geometry.queries import MeshDistance, winding_number
+from drape.sim.layers import simulate_layers, split_outfit
+from drape.sim.params import LayerParams, sample_layer_params, thickness_values
+from drape.sim.quality import LayerGate, layer_stats, outer_inner_distance
+
+FRAMES = 8
+
+
+@cache
+def _outfit():
+    return split_outfit("tshirt,jacket", 600, seed=0)
+
+
+@cache
+def _run(thickness: float):
+    (vi, fi), (vo, fo) = _outfit()
+    return simulate_layers(vi, fi, vo, fo, load_body("neutral"), load_clip("walk"),
+                           LayerParams(inner_thickness=thickness), frames=FRAMES, settle_blend=6, settle_hold=6)
+
+
+def test_split_outfit_gives_two_meshes_the_outer_around_the_inner():
+    (vi, fi), (vo, fo) = _outfit()
+    assert fi.max() == len(vi) - 1 and fo.max() == len(vo) - 1 and len(vi) > 100 and len(vo) > 100
+    sd, covered = outer_inner_distance(vo[None], vi[None], fi)
+    assert covered.mean() > 0.2 and not (covered & (sd < 0)).any()  # at rest nothing of the jacket is inside
+    with pytest.raises(ValueError, match="swap"):
+        split_outfit("jacket,tshirt", 600)
+
+
+def test_outer_stays_outside_the_inner_while_both_move():
+    r = _run(0.006)
+    (vi, _), (vo, _) = _outfit()
+    assert r.inner_vertices.shape == (FRAMES, len(vi), 3) and r.outer_vertices.shape == (FRAMES, len(vo), 3)
+    assert r.inner_vertices.dtype == np.float32 and r.poses.shape == (FRAMES, 24, 3)
+    for layer in (r.inner_vertices, r.outer_vertices):
+        assert np.isfinite(layer).all()
+        assert np.linalg.norm(layer[-1] - layer[0], axis=1).mean() > 0.1  # walking forward, both layers along
+    s = r.stats
+    print({k: round(v, 4) for k, v in s.items() if isinstance(v, float)})
+    assert s["outer_covered_share"] > 0.3  # the jacket lies over the t-shirt ...
+    assert s["outer_in_inner_share"] < 0.02  # ... and stays outside it
+    assert s["outer_in_inner_p99_m"] <= 0.005
+    assert s["outer_strain_mean"] < 0.05 and s["inner_strain_mean"] < 0.05
+
+
+def test_a_thicker_inner_layer_keeps_the_outer_farther_off():
+    thin, thick = _run(0.004).stats, _run(0.010).stats
+    print(f"outer-inner gap p10: {1000 * thin['outer_inner_gap_p10_m']:.1f} mm at H_in 4 mm, "
+          f"{1000 * thick['outer_inner_gap_p10_m']:.1f} mm at H_in 10 mm")
+    # where the jacket rests on the t-shirt it keeps about H_in from it
+    assert 0.002 < thin["outer_inner_gap_p10_m"] < 0.007
+    assert thick["outer_inner_gap_p10_m"] > thin["outer_inner_gap_p10_m"] + 0.004
+
+
+def test_the_gate_flags_an_outer_layer_pushed_inside_the_inner():
+    r = _run(0.006)
+    (vi, fi), (vo, fo) = _outfit()
+    pushed = np.empty_like(r.outer_vertices)
+    for t in range(FRAMES):  # every outer vertex moved to 6 mm behind its closest inner point
+        cp, n, _ = MeshDistance(r.inner_vertices[t], fi).closest(r.outer_vertices[t])
+        pushed[t] = cp - 0.006 * n
+    body = load_body("neutral")
+    bad = layer_stats(r.inner_vertices, vi, fi, pushed, vo, fo, body, r.poses, r.trans)
+    print({k: round(v, 4) for k, v in bad.items() if k.startswith("outer_in")})
+    assert bad["outer_in_inner_share"] > 0.3 and bad["outer_in_inner_p99_m"] > 0.005
+    reasons = LayerGate().failures(bad)
+    assert any(w.startswith("outer_in_inner_share") for w in reasons)
+    assert not any(w.startswith("outer_in_inner") for w in LayerGate().failures(r.stats))
+
+
+def test_outer_inner_distance_sign_is_exact_and_skips_the_boundary():
+    import trimesh
+
+    m = trimesh.creation.icosphere(2, radius=0.2)
+    v, f = np.asarray(m.vertices), np.asarray(m.faces)
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(3000, 3))
+    p = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0.12, 0.28, 3000)[:, None]
+    sd, covered = outer_inner_distance(p[None], v[None], f)
+    assert covered.all()
+    assert np.array_equal(sd[0] < 0, winding_number(p, v, f) > 0.5)
+    # an open cap: points whose closest point is on its rim are not judged
+    cap = f[v[f].mean(axis=1)[:, 1] > 0.1]
+    sd, covered = outer_inner_distance(p[None], v[None], cap)
+    assert 0.05 < covered.mean() < 0.5
+    assert not (covered & (p[None, :, 1] < 0.05)).any()
+
+
+def test_layer_params_and_held_out_thickness_bins():
+    assert LayerParams(inner_thickness=0.006).inner_radius == pytest.approx(0.006 - 0.001 - 2 * 0.001)
+    with pytest.raises(ValidationError, match="inner_thickness"):
+        LayerParams(inner_thickness=0.004, contact_margin=0.002)  # no room left for the inner layer
+    h = thickness_values(10, 0.004, 0.012, held_out=2, seed=3)
+    bins = [int((x - 0.004) // 0.0008) for x in h]
+    assert sorted(bins) == list(range(10))  # one value per bin
+    assert not set(bins[-2:]) & set(bins[:-2]) and 0 not in bins[-2:] and 9 not in bins[-2:]
+    ps = sample_layer_params(10, seed=3, thickness=(0.004, 0.012), held_out=2)
+    assert [p.inner_thickness for p in ps] == h
+    assert LayerParams.model_validate_json(ps[0].to_json()) == ps[0]
+
