@@ -192,15 +192,25 @@ def _render_sim(args: argparse.Namespace) -> None:
     with np.load(args.sim, allow_pickle=False) as z:
         seq = {k: z[k] for k in z.files}
     body = load_body(str(seq["body"]))
-    T = len(seq["vertices"])
+    layered = "inner_vertices" in seq  # a two-layer sequence (drape sim run --outer)
+    T = len(seq["inner_vertices" if layered else "vertices"])
     frames = _frames_arg(args.frames, T) if args.frames else [int(f) for f in np.linspace(0, T - 1, 6)]
     posed = body.pose(seq["poses"][frames], seq["trans"][frames])
-    layers = [Layer(posed, body.faces, (0.86, 0.74, 0.62)),
-              Layer(seq["vertices"][frames], seq["faces"], (0.25, 0.45, 0.8))]
+    if layered:
+        if args.keyframes:
+            raise SystemExit("--keyframes needs a single-garment sequence")
+        layers = [Layer(posed, body.faces, (0.86, 0.74, 0.62)),
+                  Layer(seq["inner_vertices"][frames], seq["inner_faces"], (0.85, 0.45, 0.2)),
+                  Layer(seq["outer_vertices"][frames], seq["outer_faces"], (0.25, 0.45, 0.8))]
+    else:
+        layers = [Layer(posed, body.faces, (0.86, 0.74, 0.62)),
+                  Layer(seq["vertices"][frames], seq["faces"], (0.25, 0.45, 0.8))]
     params = json.loads(str(seq["params"]))
     caption = (f"MuJoCo simulation: {seq['garment']} on {body.name}, clip {seq['motion']}; "
                f"young {params['young']:.3g} Pa, density {params['density']:.3g} kg/m2, "
                f"thickness {1000 * params['thickness']:.2g} mm")
+    if layered:
+        caption += f"; inner (orange) thickness H_in {1000 * params['inner_thickness']:.3g} mm, outer blue"
     titles = [f"frame {f}" for f in frames]
     if args.keyframes:
         from drape.render import view_matrix
@@ -334,12 +344,12 @@ def _sim_run(args: argparse.Namespace) -> None:
 
     from drape.assets.body import load_body
     from drape.geometry.mesh_io import load_mesh
-    from drape.sim.dataset import save_sequence
-    from drape.sim.params import SimParams
-    from drape.sim.quality import QualityGate
+    from drape.sim.dataset import save_layer_sequence, save_sequence
+    from drape.sim.params import LayerParams, SimParams
+    from drape.sim.quality import LayerGate, QualityGate
     from drape.sim.simulate import simulate
 
-    params = SimParams.from_file(args.params) if args.params else SimParams()
+    given = json.loads(Path(args.params).read_text()) if args.params else {}
     verts, faces = load_mesh(args.garment)
     motion = _motion_arg(args.clip)
     from tqdm import tqdm
@@ -349,27 +359,58 @@ def _sim_run(args: argparse.Namespace) -> None:
             bar.total = total
             bar.update(done - bar.n)
 
-        r = simulate(verts, faces, load_body(args.body), motion, params, frames=args.frames, progress=progress)
-    failures = QualityGate().failures(r.stats)
-    save_sequence(args.out, vertices=r.vertices, faces=faces, poses=r.poses, trans=r.trans, fps=motion.fps,
-                  params=params, stats=r.stats, garment=Path(args.garment).stem, body=args.body,
-                  motion=motion.name)
-    print(json.dumps(r.stats, indent=1))
+        if args.outer:
+            from drape.sim.layers import simulate_layers
+
+            lp = LayerParams(**given | ({"inner_thickness": args.thickness} if args.thickness is not None else {}))
+            outer_v, outer_f = load_mesh(args.outer)
+            lr = simulate_layers(verts, faces, outer_v, outer_f, load_body(args.body), motion, lp,
+                                 frames=args.frames, progress=progress)
+            stats, frames_done, spf = lr.stats, len(lr.poses), lr.seconds_per_frame
+            failures = LayerGate().failures(stats)
+            save_layer_sequence(args.out, inner_vertices=lr.inner_vertices, inner_faces=faces,
+                                outer_vertices=lr.outer_vertices, outer_faces=outer_f, poses=lr.poses,
+                                trans=lr.trans, fps=motion.fps, params=lp, stats=stats,
+                                inner_garment=Path(args.garment).stem, outer_garment=Path(args.outer).stem,
+                                body=args.body, motion=motion.name)
+        else:
+            if args.thickness is not None:
+                raise SystemExit("--thickness is the inner garment's thickness: it needs --outer")
+            params = SimParams(**given)
+            r = simulate(verts, faces, load_body(args.body), motion, params, frames=args.frames, progress=progress)
+            stats, frames_done, spf = r.stats, len(r.vertices), r.seconds_per_frame
+            failures = QualityGate().failures(stats)
+            save_sequence(args.out, vertices=r.vertices, faces=faces, poses=r.poses, trans=r.trans, fps=motion.fps,
+                          params=params, stats=stats, garment=Path(args.garment).stem, body=args.body,
+                          motion=motion.name)
+    print(json.dumps(stats, indent=1))
     if failures:
         print(f"{args.out}: FAILS the quality gate: {'; '.join(failures)}", file=sys.stderr)
         raise SystemExit(1)
-    print(f"{args.out}: {r.vertices.shape[0]} frames, {r.seconds_per_frame:.3f} s per simulated frame")
+    print(f"{args.out}: {frames_done} frames, {spf:.3f} s per simulated frame")
 
 
 def _sim_dataset(args: argparse.Namespace) -> None:
     from drape.geometry.mesh_io import load_mesh
     from drape.sim.dataset import build_dataset
-    from drape.sim.params import sample_params
+    from drape.sim.params import SimParams, sample_layer_params, sample_params
 
-    garments = {Path(g).stem: load_mesh(g) for g in args.garment}
+    params: list[SimParams]
+    garments: dict[str, tuple[np.ndarray, ...]]
+    if args.outer:
+        if len(args.outer) != len(args.garment):
+            raise SystemExit("--outer takes one outer mesh per --garment (the inner), in the same order")
+        garments = {f"{Path(g).stem}+{Path(o).stem}": (*load_mesh(g), *load_mesh(o))
+                    for g, o in zip(args.garment, args.outer, strict=True)}
+        low, high = (float(x) for x in args.thickness.split(","))
+        params = list(sample_layer_params(args.params, seed=args.seed, thickness=(low, high),
+                                          held_out=args.holdout_params))
+    else:
+        garments = {Path(g).stem: load_mesh(g) for g in args.garment}
+        params = sample_params(args.params, seed=args.seed)
     motions = [_motion_arg(m) for m in args.motions.split(",")]
     manifest = build_dataset(
-        args.out, garments, sample_params(args.params, seed=args.seed), motions, args.frames, body=args.body,
+        args.out, garments, params, motions, args.frames, body=args.body,
         holdout_params=args.holdout_params, holdout_motions=args.holdout_motions, workers=args.workers,
         ray_address=args.ray, only_splits=tuple(args.splits.split(",")) if args.splits else None,
     )
@@ -513,10 +554,17 @@ def build_parser() -> argparse.ArgumentParser:
     sr.add_argument("--clip", required=True, help="embedded clip name or a motion npz")
     sr.add_argument("--frames", type=int, default=None, help="motion frames to simulate (default: all)")
     sr.add_argument("--params", help="intrinsic parameters JSON (default: drape.sim.params.SimParams())")
+    sr.add_argument("--outer", help="an outer garment mesh around --garment (then the inner): two layers together")
+    sr.add_argument("--thickness", type=float, default=None,
+                    help="with --outer: the inner garment's thickness H_in, m (the outer-to-inner gap; default 0.006)")
     sr.add_argument("--out", required=True)
     sr.set_defaults(func=_sim_run)
     sd = sim.add_parser("dataset", help="garments x sampled parameter sets x motions -> npz per sequence + manifest")
-    sd.add_argument("--garment", required=True, nargs="+", help="garment mesh file(s)")
+    sd.add_argument("--garment", required=True, nargs="+", help="garment mesh file(s) (the inner ones with --outer)")
+    sd.add_argument("--outer", nargs="+", help="two layers: one outer garment mesh per --garment, same order")
+    sd.add_argument("--thickness", default="0.004,0.012",
+                    help="with --outer: LOW,HIGH range of the sampled inner thickness H_in, m (held-out parameter "
+                         "sets get their own bins of it)")
     sd.add_argument("--params", type=int, default=8, help="number of parameter sets to sample")
     sd.add_argument("--seed", type=int, default=0, help="seed of the parameter sampler")
     sd.add_argument("--motions", required=True, help="comma list of clip names or motion npz files")

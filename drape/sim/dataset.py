@@ -10,6 +10,11 @@ Item npz arrays: vertices (T, N, 3) float32 m (same frame as the body),
 faces (F, 3) int32, poses (T, 24, 3) float32 rad, trans (T, 3) float32 m,
 fps (), params (JSON string), stats (JSON string), garment / body / motion names.
 
+Two-layer datasets (a garment given as inner + outer meshes, drape.sim.layers): instead of vertices and
+faces, inner_vertices (T, Ni, 3), inner_faces (Fi, 3), outer_vertices (T, No, 3), outer_faces (Fo, 3), plus
+inner_thickness () float32 m (also in params, a LayerParams JSON) and inner_garment / outer_garment names;
+the garment name is "<inner>+<outer>"; stats are `quality.layer_stats` and the gate a `quality.LayerGate`.
+
 Splits follow Wang et al. 2019: a share of the parameter sets and of the motions
 is held out, and no parameter set or motion is shared between `train` and
 `test`. The mixed items are kept as `test_motions` (seen parameters, unseen
@@ -29,17 +34,18 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from drape.assets.body import load_body
 from drape.assets.motion import Motion
-from drape.sim.params import SimParams
-from drape.sim.quality import QualityGate
+from drape.sim.params import LayerParams, SimParams
+from drape.sim.quality import LayerGate, QualityGate
 
 
 @dataclass(frozen=True)
@@ -55,6 +61,8 @@ class Item:
     params: SimParams
     motion: Motion
     frames: int
+    outer_vertices: np.ndarray | None = None  # two layers: `vertices`/`faces` are the inner garment's
+    outer_faces: np.ndarray | None = None
 
 
 def item_key(garment: str, params_index: int, motion: str) -> str:
@@ -63,6 +71,14 @@ def item_key(garment: str, params_index: int, motion: str) -> str:
 
 def run_item(item: Item) -> dict:
     """Simulate one item (in a worker): the arrays and stats to write. Pure function of the item."""
+    if item.outer_vertices is not None:
+        from drape.sim.layers import simulate_layers
+
+        assert item.outer_faces is not None and isinstance(item.params, LayerParams)
+        lr = simulate_layers(item.vertices, item.faces, item.outer_vertices, item.outer_faces, load_body(item.body),
+                             item.motion, item.params, frames=item.frames)
+        return {"key": item.key, "inner_vertices": lr.inner_vertices, "outer_vertices": lr.outer_vertices,
+                "poses": lr.poses, "trans": lr.trans, "stats": lr.stats}
     from drape.sim.simulate import simulate
 
     r = simulate(item.vertices, item.faces, load_body(item.body), item.motion, item.params, frames=item.frames)
@@ -80,27 +96,67 @@ def save_sequence(
     fps: float, params: SimParams, stats: dict, garment: str, body: str, motion: str,
 ) -> Path:
     """Write one simulated sequence (the item npz layout above) atomically: temporary file, then rename."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(
-        tmp,
+    return _save_npz(
+        path,
         vertices=np.asarray(vertices, dtype=np.float32),
         faces=np.asarray(faces, dtype=np.int32),
-        poses=np.asarray(poses, dtype=np.float32),
-        trans=np.asarray(trans, dtype=np.float32),
-        fps=np.float32(fps),
-        params=np.array(params.to_json()),
-        stats=np.array(json.dumps(stats, sort_keys=True)),
-        garment=np.array(garment),
-        body=np.array(body),
-        motion=np.array(motion),
+        **_common(poses, trans, fps, params, stats, garment, body, motion),
     )
+
+
+def save_layer_sequence(
+    path: str | Path, *, inner_vertices: np.ndarray, inner_faces: np.ndarray, outer_vertices: np.ndarray,
+    outer_faces: np.ndarray, poses: np.ndarray, trans: np.ndarray, fps: float, params: LayerParams, stats: dict,
+    inner_garment: str, outer_garment: str, body: str, motion: str,
+) -> Path:
+    """Write one two-layer sequence (the two-layer item layout above) atomically."""
+    return _save_npz(
+        path,
+        inner_vertices=np.asarray(inner_vertices, dtype=np.float32),
+        inner_faces=np.asarray(inner_faces, dtype=np.int32),
+        outer_vertices=np.asarray(outer_vertices, dtype=np.float32),
+        outer_faces=np.asarray(outer_faces, dtype=np.int32),
+        inner_thickness=np.array(params.inner_thickness, dtype=np.float32),
+        inner_garment=np.array(inner_garment),
+        outer_garment=np.array(outer_garment),
+        **_common(poses, trans, fps, params, stats, f"{inner_garment}+{outer_garment}", body, motion),
+    )
+
+
+def _common(poses: np.ndarray, trans: np.ndarray, fps: float, params: SimParams, stats: dict, garment: str,
+            body: str, motion: str) -> dict[str, np.ndarray]:
+    return {
+        "poses": np.asarray(poses, dtype=np.float32),
+        "trans": np.asarray(trans, dtype=np.float32),
+        "fps": np.array(fps, dtype=np.float32),
+        "params": np.array(params.to_json()),
+        "stats": np.array(json.dumps(stats, sort_keys=True)),
+        "garment": np.array(garment),
+        "body": np.array(body),
+        "motion": np.array(motion),
+    }
+
+
+def _save_npz(path: str | Path, **arrays: Any) -> Path:
+    """np.savez_compressed to a temporary name, then rename: a killed run leaves no half-written file."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, **arrays)
     os.replace(tmp, path)
     return path
 
 
 def write_item(path: Path, item: Item, result: dict) -> None:
     """Write one accepted item (its stats without the wall-clock fields, so reruns write the same bytes)."""
+    if item.outer_vertices is not None:
+        assert item.outer_faces is not None and isinstance(item.params, LayerParams)
+        inner_name, outer_name = item.garment.split("+", 1)
+        save_layer_sequence(path, inner_vertices=result["inner_vertices"], inner_faces=item.faces,
+                            outer_vertices=result["outer_vertices"], outer_faces=item.outer_faces,
+                            poses=result["poses"], trans=result["trans"], fps=item.motion.fps, params=item.params,
+                            stats=_stable_stats(result["stats"]), inner_garment=inner_name,
+                            outer_garment=outer_name, body=item.body, motion=item.motion.name)
+        return
     save_sequence(path, vertices=result["vertices"], faces=item.faces, poses=result["poses"],
                   trans=result["trans"], fps=item.motion.fps, params=item.params,
                   stats=_stable_stats(result["stats"]), garment=item.garment, body=item.body,
@@ -168,8 +224,8 @@ def _ray_results(todo: list[Item], address: str) -> Iterator[dict]:
 
 def build_dataset(
     out: str | Path,
-    garments: dict[str, tuple[np.ndarray, np.ndarray]],
-    params: list[SimParams],
+    garments: Mapping[str, tuple[np.ndarray, ...]],
+    params: Sequence[SimParams],
     motions: list[Motion],
     frames: int,
     body: str = "neutral",
@@ -183,14 +239,17 @@ def build_dataset(
 ) -> dict:
     """Simulate every (garment, parameter set, motion) not yet finished under `out`; return the manifest.
 
-    garments: name -> (rest vertices (N, 3) m on `body`, faces (F, 3)). only_splits: simulate only the
-    items of these splits ("train", "test", "test_params", "test_motions"), e.g. ("test",) for a set of
-    long held-out sequences that shares the parameter sampler (same --params and --seed) with a dataset.
+    garments: name -> (rest vertices (N, 3) m on `body`, faces (F, 3)); or, for two layers, "inner+outer" ->
+    (inner vertices, inner faces, outer vertices, outer faces) with `LayerParams` (the default gate is then a
+    `LayerGate`). only_splits: simulate only the items of these splits ("train", "test", "test_params",
+    "test_motions"), e.g. ("test",) for a set of long held-out sequences that shares the parameter sampler
+    (same --params and --seed) with a dataset.
     """
+    layered = _check_layered(garments, params)
     out = Path(out)
     (out / "items").mkdir(parents=True, exist_ok=True)
     (out / "rejected").mkdir(exist_ok=True)
-    gate = gate or QualityGate()
+    gate = gate or (LayerGate() if layered else QualityGate())
     for m in motions:
         if m.num_frames < frames:
             raise ValueError(f"motion {m.name!r} has {m.num_frames} frames, fewer than frames={frames}")
@@ -199,8 +258,9 @@ def build_dataset(
         raise ValueError("motion names must be unique")
     s = splits(len(params), names, holdout_params, holdout_motions)
     items = [
-        Item(item_key(g, i, m.name), g, np.asarray(v, np.float32), np.asarray(f, np.int32), body, i, p, m, frames)
-        for g, (v, f) in garments.items() for i, p in enumerate(params) for m in motions
+        Item(item_key(g, i, m.name), g, np.asarray(mesh[0], np.float32), np.asarray(mesh[1], np.int32), body, i, p,
+             m, frames, *((np.asarray(mesh[2], np.float32), np.asarray(mesh[3], np.int32)) if layered else ()))
+        for g, mesh in garments.items() for i, p in enumerate(params) for m in motions
     ]
     if only_splits is not None:
         items = [it for it in items if split_of(it.params_index, it.motion.name, s) in only_splits]
@@ -244,13 +304,28 @@ def build_dataset(
     return manifest
 
 
+def _check_layered(garments: Mapping[str, tuple[np.ndarray, ...]], params: Sequence[SimParams]) -> bool:
+    """True for a two-layer dataset (every garment four arrays, named inner+outer, LayerParams); else single."""
+    sizes = {len(mesh) for mesh in garments.values()}
+    if sizes not in ({2}, {4}):
+        raise ValueError("garments must all be (vertices, faces) or all (inner v, inner f, outer v, outer f)")
+    if sizes == {2}:
+        return False
+    for g in garments:
+        if "+" not in g:
+            raise ValueError(f"a two-layer garment is named 'inner+outer', got {g!r}")
+    if not all(isinstance(p, LayerParams) for p in params):
+        raise ValueError("two-layer garments need LayerParams (drape.sim.params.sample_layer_params)")
+    return True
+
+
 def _load_timings(out: Path) -> dict:
     p = out / "timings.json"
     return json.loads(p.read_text()) if p.exists() else {}
 
 
-def _manifest(out: Path, items: list[Item], params: list[SimParams], s: dict, gate: QualityGate,
-              frames: int, body: str, garments: dict, timings: dict) -> dict:
+def _manifest(out: Path, items: list[Item], params: Sequence[SimParams], s: dict, gate: QualityGate,
+              frames: int, body: str, garments: Mapping[str, tuple[np.ndarray, ...]], timings: dict) -> dict:
     entries, rejected = [], []
     for it in items:
         npz = out / "items" / f"{it.key}.npz"
@@ -268,7 +343,8 @@ def _manifest(out: Path, items: list[Item], params: list[SimParams], s: dict, ga
         "format": "drape-sim-dataset/1",
         "body": body,
         "frames": frames,
-        "garments": {g: {"vertices": int(len(v)), "faces": int(len(f))} for g, (v, f) in garments.items()},
+        "garments": {g: _mesh_sizes(mesh) for g, mesh in garments.items()},
+        "layers": any(len(mesh) == 4 for mesh in garments.values()),
         "params": [p.model_dump() for p in params],
         "motions": list(dict.fromkeys(it.motion.name for it in items)),
         "splits": s,
@@ -279,8 +355,21 @@ def _manifest(out: Path, items: list[Item], params: list[SimParams], s: dict, ga
     }
 
 
+def _mesh_sizes(mesh: tuple[np.ndarray, ...]) -> dict:
+    if len(mesh) == 4:
+        return {"inner_vertices": int(len(mesh[0])), "inner_faces": int(len(mesh[1])),
+                "outer_vertices": int(len(mesh[2])), "outer_faces": int(len(mesh[3]))}
+    return {"vertices": int(len(mesh[0])), "faces": int(len(mesh[1]))}
+
+
+SUMMARY_KEYS = ("penetration_p99_m", "penetration_max_m", "strain_mean", "strain_p99", "strain_max")
+LAYER_SUMMARY_KEYS = (*(f"{p}_{k}" for p in ("inner", "outer") for k in SUMMARY_KEYS),
+                      "outer_in_inner_share", "outer_in_inner_p99_m", "outer_in_inner_max_m", "outer_inner_gap_p10_m")
+
+
 def summarize(entries: list[dict]) -> dict:
-    """Dataset-level quality: penetration and strain percentiles over the accepted items."""
+    """Dataset-level quality: penetration and strain percentiles over the accepted items (per layer, plus
+    outer-through-inner, for two-layer items)."""
     if not entries:
         return {"items": 0}
     st = [e["stats"] for e in entries]
@@ -290,12 +379,6 @@ def summarize(entries: list[dict]) -> dict:
         return {"min": float(vals.min()), "median": float(np.median(vals)), "max": float(vals.max())}
 
     spf = [e["seconds_per_frame"] for e in entries if "seconds_per_frame" in e]
-    return {
-        "items": len(entries),
-        "penetration_p99_m": pct("penetration_p99_m"),
-        "penetration_max_m": pct("penetration_max_m"),
-        "strain_mean": pct("strain_mean"),
-        "strain_p99": pct("strain_p99"),
-        "strain_max": pct("strain_max"),
-        "seconds_per_frame_median": float(np.median(spf)) if spf else None,
-    }
+    keys = LAYER_SUMMARY_KEYS if "inner_vertices" in st[0] else SUMMARY_KEYS
+    return {"items": len(entries), **{k: pct(k) for k in keys},
+            "seconds_per_frame_median": float(np.median(spf)) if spf else None}

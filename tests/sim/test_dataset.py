@@ -9,7 +9,7 @@ from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
 from drape.sim.dataset import build_dataset
 from drape.sim.params import sample_params
-from drape.sim.quality import QualityGate
+from drape.sim.quality import LayerGate, QualityGate
 
 FRAMES = 3
 
@@ -97,3 +97,43 @@ def test_only_splits_simulates_just_those_items(tmp_path):
     assert m["last_run"]["simulated"] == 1  # 2 parameter sets x 2 motions, one held out of each
     assert [e["split"] for e in m["items"]] + [r.get("split", "test") for r in m["rejected"]] == ["test"]
     assert _build(tmp_path, workers=1, only_splits=("test",))["last_run"]["simulated"] == 0
+
+
+def _layer_build(out, **kw):
+    from drape.sim.layers import split_outfit
+    from drape.sim.params import sample_layer_params
+
+    (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 400, seed=1)
+    params = sample_layer_params(3, seed=4, thickness=(0.004, 0.01), held_out=1)
+    # a coarse 400-vertex outfit in two frames: the body limits are loosened (not what is tested here)
+    kw.setdefault("gate", LayerGate(max_penetration_p99=0.05, max_penetration=0.1, max_mean_strain=0.5,
+                                    max_strain_p99=2.0))
+    return build_dataset(out, {"tshirt+jacket": (vi, fi, vo, fo)}, params, [load_clip("walk"), load_clip("run")],
+                         2, holdout_params=1, holdout_motions=1, progress=False, workers=1, **kw)
+
+
+def test_layer_dataset_items_splits_and_resume(tmp_path):
+    m = _layer_build(tmp_path)
+    assert m["layers"] and m["last_run"]["simulated"] == 6
+    assert len(m["items"]) == 6 and not m["rejected"]
+    assert set(m["gate"]) >= {"max_outer_in_inner_share", "max_outer_in_inner_p99"}
+    # the held-out parameter set's thickness lies in a bin of its own, between training values
+    h = [p["inner_thickness"] for p in m["params"]]
+    assert m["splits"]["test_params"] == [2] and min(h[:2]) < h[2] < max(h[:2])
+    for e in m["items"]:
+        with np.load(tmp_path / e["file"], allow_pickle=False) as z:
+            assert z["inner_vertices"].shape[::2] == (2, 3) and z["outer_vertices"].shape[::2] == (2, 3)
+            assert z["inner_faces"].max() < z["inner_vertices"].shape[1]
+            assert z["outer_faces"].max() < z["outer_vertices"].shape[1]
+            assert float(z["inner_thickness"]) == pytest.approx(m["params"][e["params"]]["inner_thickness"])
+            assert str(z["inner_garment"]) == "tshirt" and str(z["outer_garment"]) == "jacket"
+            assert "outer_in_inner_share" in json.loads(str(z["stats"]))
+    assert m["summary"]["outer_in_inner_share"]["max"] < 0.02
+    before = _arrays(tmp_path)
+    assert _layer_build(tmp_path)["last_run"]["simulated"] == 0
+    victim = sorted((tmp_path / "items").glob("*.npz"))[0]
+    victim.unlink()
+    (tmp_path / "items" / (victim.name + ".tmp.npz")).write_bytes(b"partial")
+    assert _layer_build(tmp_path)["last_run"]["simulated"] == 1
+    _same(before, _arrays(tmp_path))
+

@@ -108,3 +108,35 @@ def test_layer_params_and_held_out_thickness_bins():
     assert [p.inner_thickness for p in ps] == h
     assert LayerParams.model_validate_json(ps[0].to_json()) == ps[0]
 
+
+def test_sim_run_outer_writes_the_two_layer_contract_and_renders(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from drape.geometry.mesh_io import save_mesh
+
+    def drape(*args):
+        r = subprocess.run([sys.executable, "-m", "drape.cli", *args], capture_output=True, text=True)
+        assert r.returncode in (0, 1), r.stderr  # 1: the sequence fails the quality gate (reported, still written)
+        return r
+
+    (vi, fi), (vo, fo) = _outfit()
+    inner, outer, seq, png = tmp_path / "tshirt.obj", tmp_path / "jacket.obj", tmp_path / "seq.npz", tmp_path / "s.png"
+    save_mesh(inner, vi, fi)
+    save_mesh(outer, vo, fo)
+    drape("sim", "run", "--garment", str(inner), "--outer", str(outer), "--thickness", "0.008", "--clip", "walk",
+          "--frames", "3", "--out", str(seq))
+    with np.load(seq, allow_pickle=False) as z:
+        assert z["inner_vertices"].shape == (3, len(vi), 3) and z["outer_vertices"].shape == (3, len(vo), 3)
+        assert np.array_equal(z["inner_faces"], fi) and np.array_equal(z["outer_faces"], fo)
+        assert z["poses"].shape == (3, 24, 3) and z["trans"].shape == (3, 3)
+        assert float(z["inner_thickness"]) == pytest.approx(0.008)
+        assert LayerParams.model_validate_json(str(z["params"])).inner_thickness == pytest.approx(0.008)
+        assert str(z["garment"]) == "tshirt+jacket"
+        assert "outer_in_inner_share" in json.loads(str(z["stats"]))
+    drape("render", "--sim", str(seq), "--out", str(png))
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    r = drape("sim", "run", "--garment", str(inner), "--thickness", "0.008", "--clip", "walk", "--frames", "1",
+              "--out", str(tmp_path / "x.npz"))
+    assert r.returncode == 1 and "--outer" in r.stderr
