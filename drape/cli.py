@@ -422,6 +422,18 @@ def _sim_dataset(args: argparse.Namespace) -> None:
     print(json.dumps(summ, indent=1))
 
 
+def _sim_outfit(args: argparse.Namespace) -> None:
+    from drape.geometry.mesh_io import save_mesh
+    from drape.sim.layers import split_outfit
+
+    (vi, fi), (vo, fo) = split_outfit(args.type, args.vertices, seed=args.seed, body=args.body,
+                                      looseness=args.looseness, length=args.length)
+    inner_name, outer_name = (t.strip() for t in args.type.split(","))
+    out = Path(args.out)
+    for name, v, f in ((inner_name, vi, fi), (outer_name, vo, fo)):
+        print(f"{save_mesh(out / f'{name}.obj', v, f)}: {len(v)} vertices, {len(f)} faces")
+
+
 def _sim_sweep(args: argparse.Namespace) -> None:
     from drape.sim.sweep import run_sweep
 
@@ -577,6 +589,16 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--ray", metavar="ADDRESS", default=None, help="run the items as tasks on this Ray cluster")
     sd.add_argument("--out", required=True)
     sd.set_defaults(func=_sim_dataset)
+    so = sim.add_parser("outfit", help="two layers' rest meshes: INNER,OUTER generated as one layered outfit, "
+                                       "written as OUT/<inner>.obj and OUT/<outer>.obj")
+    so.add_argument("--type", required=True, help="inner,outer garment types, e.g. tshirt,jacket")
+    so.add_argument("--vertices", type=int, default=4000, help="target vertex count of the two together")
+    so.add_argument("--seed", type=int, default=0)
+    so.add_argument("--body", default="neutral")
+    so.add_argument("--looseness", type=float, default=None, help="0 (tight) .. 1 (loose); random if omitted")
+    so.add_argument("--length", type=float, default=None, help="0 (short) .. 1 (long); random if omitted")
+    so.add_argument("--out", required=True, help="folder for the two OBJ files")
+    so.set_defaults(func=_sim_outfit)
     sw = sim.add_parser("sweep", help="vary one parameter at a time from the base (Wang 2019 Sec. 3.6)")
     sw.add_argument("--out", default="docs/sim_sweep.json")
     sw.add_argument("--workers", type=int, default=None)

@@ -114,17 +114,17 @@ def test_sim_run_outer_writes_the_two_layer_contract_and_renders(tmp_path):
     import subprocess
     import sys
 
-    from drape.geometry.mesh_io import save_mesh
+    from drape.geometry.mesh_io import load_mesh
 
     def drape(*args):
         r = subprocess.run([sys.executable, "-m", "drape.cli", *args], capture_output=True, text=True)
         assert r.returncode in (0, 1), r.stderr  # 1: the sequence fails the quality gate (reported, still written)
         return r
 
-    (vi, fi), (vo, fo) = _outfit()
+    drape("sim", "outfit", "--type", "tshirt,jacket", "--vertices", "600", "--seed", "0", "--out", str(tmp_path))
     inner, outer, seq, png = tmp_path / "tshirt.obj", tmp_path / "jacket.obj", tmp_path / "seq.npz", tmp_path / "s.png"
-    save_mesh(inner, vi, fi)
-    save_mesh(outer, vo, fo)
+    (vi, fi), (vo, fo) = load_mesh(inner), load_mesh(outer)
+    assert np.allclose(vi, _outfit()[0][0], atol=1e-6) and np.array_equal(fo, _outfit()[1][1])  # OBJ text
     drape("sim", "run", "--garment", str(inner), "--outer", str(outer), "--thickness", "0.008", "--clip", "walk",
           "--frames", "3", "--out", str(seq))
     with np.load(seq, allow_pickle=False) as z:
