@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: serve test test-slow deepsd-model sim-dataset intrinsic-data intrinsic-data-long check-blender lint typecheck clean
+.PHONY: serve test test-slow deepsd-model sim-dataset intrinsic-data intrinsic-data-long layers-data check-blender lint typecheck clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -86,6 +86,41 @@ intrinsic-data-long: $(VENV)/.dev-installed
 	cd $(INTRINSIC_LONG_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \
 		--motions motions/proc1.npz,motions/cmu_05_12_dance.npz,motions/cmu_05_18_dance.npz \
 		--frames 300 --holdout-params 4 --holdout-motions 2 --splits test --workers $(WORKERS) --out .
+
+# two-layer ground truth (issue 22; docs/sim.md "Two layers"): an inner and an outer garment simulated together
+# on the neutral body, for two combinations: a t-shirt under an open jacket and a tank top under a long sleeve.
+# Per combination: LAYERS_PARAMS sampled parameter sets (the last LAYERS_HOLDOUT_PARAMS held out, with inner
+# thickness H_in bins of their own in LAYERS_THICKNESS) x 5 seeded procedural motions (training) + the DeepMimic
+# walk and dance_a and, when $(MOCAP) exists, the CMU clips LAYERS_CMU (all held out) x LAYERS_FRAMES frames.
+# ~1.1-1.4 s per simulated frame per core at ~4.1k vertices (docs/sim.md): 16 x 9 x 121 frames x 2 combinations
+# is ~12 core-hours. Resumable (rerun to continue; train items first), WORKERS=N processes, e.g.
+#   mkdir -p data/layers && nohup make layers-data WORKERS=2 > data/layers/log.txt 2>&1 &
+LAYERS_DIR ?= data/layers
+LAYERS_PARAMS ?= 16
+LAYERS_HOLDOUT_PARAMS ?= 3
+LAYERS_THICKNESS ?= 0.004,0.012
+LAYERS_FRAMES ?= 90
+LAYERS_VERTICES ?= 4000
+LAYERS_COMBOS ?= tshirt,jacket tanktop,longsleeve
+LAYERS_CMU := $(if $(wildcard $(MOCAP)/05_12_dance.bvh),05_12_dance 06_01_walk,)
+LAYERS_PROC := proc1 proc2 proc3 proc4 proc5
+LAYERS_MOTIONS = $(subst $(space),$(comma),$(strip $(patsubst %,../motions/%.npz,$(LAYERS_PROC)) walk dance_a \
+	$(patsubst %,../motions/cmu_%.npz,$(LAYERS_CMU))))
+layers-data: $(VENV)/.dev-installed
+	mkdir -p $(LAYERS_DIR)/motions
+	for s in 1 2 3 4 5; do test -f $(LAYERS_DIR)/motions/proc$$s.npz || \
+		$(BIN)/drape motions generate --frames 120 --seed $$s --fps 30 --out $(LAYERS_DIR)/motions/proc$$s.npz; done
+	for c in $(LAYERS_CMU); do test -f $(LAYERS_DIR)/motions/cmu_$$c.npz || \
+		$(BIN)/drape motions import $(MOCAP)/$$c.bvh --fps 30 --out $(LAYERS_DIR)/motions/cmu_$$c.npz; done
+	for combo in $(LAYERS_COMBOS); do \
+		inner=$${combo%,*}; outer=$${combo#*,}; dir=$(LAYERS_DIR)/$${inner}_$${outer}; \
+		test -f $$dir/$$inner.obj -a -f $$dir/$$outer.obj || \
+			$(BIN)/drape sim outfit --type $$combo --vertices $(LAYERS_VERTICES) --seed 0 --out $$dir || exit 1; \
+		(cd $$dir && $(CURDIR)/$(BIN)/drape sim dataset --garment $$inner.obj --outer $$outer.obj \
+			--params $(LAYERS_PARAMS) --seed 22 --thickness $(LAYERS_THICKNESS) --motions $(LAYERS_MOTIONS) \
+			--frames $(LAYERS_FRAMES) --holdout-params $(LAYERS_HOLDOUT_PARAMS) \
+			--holdout-motions $(words walk dance_a $(LAYERS_CMU)) --workers $(WORKERS) --out .) || exit 1; \
+	done
 
 # Blender (bpy, ~400 MB wheel, needs numpy < 2) lives in its own venv, installed once (stamp file);
 # check-blender imports drape's GLB and PC2 answers into Blender and compares the evaluated meshes
