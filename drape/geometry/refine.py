@@ -64,6 +64,11 @@ from drape.geometry.queries import closest_point_on_triangles
 EPS = 0.003  # metres kept from the body surface
 MAX_ITERATIONS = 3  # fast-path iterations before the progressive pass
 RELIEF_ITERATIONS = 10  # rounds of the stretch relief pass (0: none)
+STRETCH_RATIO = 1.5  # with a rest shape: the edge-limit pass's cap, times the rest length
+STRETCH_ITERATIONS = 15  # rounds of the edge-limit pass
+VERIFY_K = 0  # nearest body vertices whose faces the last check looks at (0: no check; 8 in bench/refine_edges)
+VERIFY_ROUNDS = 4  # rounds of the last check's projection
+VERIFY_WITHIN = 0.03  # metres: vertices the refinement's own query finds closer than this are checked
 
 
 def body_tree(body: np.ndarray) -> cKDTree:
@@ -95,18 +100,20 @@ class BodySurface:
         return vertex_normals(body, self.faces, self.incidence)
 
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
-              tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              tree: cKDTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """points (P, 3) -> (signed distance (P,), closest point (P, 3), unit normal there (P, 3)).
 
         Points farther than `far` from every body vertex and on the outer side of the normals of
         all k nearest ones are outside: they keep the nearest vertex as their closest point. The
-        others get the exact closest point on the faces around their k nearest body vertices.
+        others get the exact closest point on the faces around their k nearest body vertices
+        (k: this surface's `k` unless given).
         """
         if len(points) == 0:
             return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
         tree = tree or body_tree(body)
+        k = k or self.k
         # both cores only for a whole large garment: below ~10k points the threads cost more than they save
-        dist, near = tree.query(points, k=self.k, workers=-1 if len(points) >= 10_000 else 1)
+        dist, near = tree.query(points, k=k, workers=-1 if len(points) >= 10_000 else 1)
         # `take` rather than fancy indexing: it gathers rows several times faster
         around, around_n = body.take(near, axis=0), normals.take(near, axis=0)  # (P, k, 3)
         cp, n = around[:, 0], around_n[:, 0]
@@ -152,6 +159,7 @@ class RefineReport:
     max_displacement: list[float] = field(default_factory=list)
     progressive: list[bool] = field(default_factory=list)
     relieved: list[int] = field(default_factory=list)  # vertices the stretch relief pass worked on
+    verified: list[int] = field(default_factory=list)  # vertices the last check found inside and put out
 
 
 class Refiner:
@@ -160,17 +168,28 @@ class Refiner:
     def __init__(self, faces: np.ndarray, num_vertices: int, eps: float = EPS, weight: float = 1e3,
                  mu: float = 0.5, rings: int = 2, max_iterations: int = MAX_ITERATIONS, tear: float | None = 0.02,
                  relief_threshold: float = 0.005, relief_iterations: int = RELIEF_ITERATIONS,
-                 relief_query_every: int = 5):
+                 relief_query_every: int = 5, rest: np.ndarray | None = None, stretch_ratio: float = STRETCH_RATIO,
+                 stretch_iterations: int = STRETCH_ITERATIONS, stretch_query_every: int = 5, stretch_omega: float = 1.5,
+                 verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
         self.eps, self.weight, self.mu, self.rings, self.max_iterations = eps, weight, mu, rings, max_iterations
         self.tear = tear
         self.relief_threshold, self.relief_iterations = relief_threshold, relief_iterations
         self.relief_query_every = relief_query_every
+        self.stretch_ratio, self.stretch_iterations = stretch_ratio, stretch_iterations
+        self.stretch_query_every, self.stretch_omega = stretch_query_every, stretch_omega
+        self.verify_k, self.verify_within = verify_k, verify_within
         lap = uniform_laplacian(self.faces, num_vertices)
         self.system = (lap.T @ lap + mu * sp.identity(num_vertices)).tocsr()  # L^T L + mu I, fixed
         self.adjacency = adjacency_matrix(self.faces, num_vertices).tocsr()
         self.edges = unique_edges(self.faces)  # (E, 2)
+        self.rest_length = None  # (E,) the template's edge lengths, m, when `rest` is given
+        if rest is not None:
+            r = np.asarray(rest, dtype=np.float64)
+            if r.shape != (num_vertices, 3):
+                raise ValueError(f"rest must be ({num_vertices}, 3), got {r.shape}")
+            self.rest_length = np.linalg.norm(r[self.edges[:, 0]] - r[self.edges[:, 1]], axis=1)
 
     def _patch_stretch(self, v: np.ndarray, inside: np.ndarray, targets: np.ndarray,
                        patch: np.ndarray, num_patches: int) -> np.ndarray:
@@ -351,6 +370,152 @@ class Refiner:
         sd[verts[moving]] = s
         return out, int(np.count_nonzero(~worse))
 
+    def _limit_stretch(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, closest: np.ndarray,
+                       closest_normal: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                       tree: cKDTree) -> tuple[np.ndarray, int]:
+        """Edge-length limits solved together with the collisions (needs `rest`): v0, v (N, 3) input and
+        refined garment -> (garment (N, 3), vertices worked on).
+
+        Each edge's cap is max(stretch_ratio x its rest length, its input length): an edge the input already
+        stretched past the ratio is not made longer, and one the input compressed (a fold) may unfold. On the
+        vertices of the edges over their cap grown by `rings` rings, `stretch_iterations` Jacobi rounds:
+        every edge over its cap is shortened to it (a held end takes no share; each vertex's corrections
+        averaged and scaled by `stretch_omega`), then whatever went inside is put back out, as in the relief
+        pass (its last closest point's tangent plane; closest point + eps every `stretch_query_every`
+        rounds and in the last). The collisions win at the end: a vertex still inside after two more
+        projections goes back to its refined position. sd, closest, closest_normal: as in `_relieve` (sd
+        updated in place).
+        """
+        e0, e1 = self.edges[:, 0], self.edges[:, 1]
+        cap_all = np.maximum(self.stretch_ratio * self.rest_length, np.linalg.norm(v0[e0] - v0[e1], axis=1))
+        over = np.linalg.norm(v[e0] - v[e1], axis=1) > cap_all * (1 + 1e-6)
+        if self.stretch_iterations == 0 or not over.any():
+            return v, 0
+        free = np.zeros(self.n, dtype=bool)
+        free[e0[over]] = free[e1[over]] = True
+        for _ in range(self.rings):
+            free |= (self.adjacency @ free.astype(np.float32)) > 0
+        touching = free[e0] | free[e1]  # edges to held vertices pull too
+        ea, eb, cap = e0[touching], e1[touching], cap_all[touching]
+        verts = np.unique(np.concatenate([ea, eb]))
+        a, b = np.searchsorted(verts, ea), np.searchsorted(verts, eb)
+        m, k = len(verts), len(ea)
+        moving = np.nonzero(free[verts])[0]
+        fa, fb = free[ea].astype(np.float64), free[eb].astype(np.float64)
+        wa, wb = fa / (fa + fb), fb / (fa + fb)  # shares of an edge's correction; a held end takes none
+        rows, cols = np.concatenate([a, b]), np.tile(np.arange(k), 2)
+        # (moving, edges): each moving vertex's signed shares of its edges' corrections, and its edge count
+        share = sp.csr_matrix((np.concatenate([-wa, wb]), (rows, cols)), shape=(m, k))[moving]
+        incident = sp.csr_matrix((np.ones(2 * k), (rows, cols)), shape=(m, k))[moving]
+        x = v[verts].copy()
+        xm = x[moving]
+        cp, nn = closest[verts[moving]], closest_normal[verts[moving]]
+        for it in range(self.stretch_iterations):
+            x[moving] = xm
+            d = x[a] - x[b]
+            dl = np.sqrt(np.einsum("ec,ec->e", d, d))
+            excess = np.maximum(dl - cap, 0.0)
+            corr = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
+            count = np.maximum(incident @ (excess > 0).astype(np.float64), 1.0)
+            xm = xm + (self.stretch_omega / count)[:, None] * (share @ corr)
+            if (it + 1) % self.stretch_query_every == 0 or it == self.stretch_iterations - 1:
+                s, cp, nn = surface.query(body, normals, xm, tree)
+                inside = s < 0
+                xm[inside] = cp[inside] + self.eps * nn[inside]
+            else:  # between queries a vertex is held on the outer side of its last closest point's tangent plane
+                s = np.einsum("pc,pc->p", xm - cp, nn)
+                inside = s < 0
+                xm[inside] += (self.eps - s[inside])[:, None] * nn[inside]
+            s[inside] = self.eps
+        # a point placed off one part's surface can land inside another: project once more what was just
+        # projected; what is still inside keeps its refined position
+        check = np.nonzero(inside)[0]
+        q, c, cn = surface.query(body, normals, xm[check], tree)
+        s[check] = q
+        check, c, cn = check[q < 0], c[q < 0], cn[q < 0]
+        xm[check] = c + self.eps * cn
+        q = surface.query(body, normals, xm[check], tree)[0]
+        back = check[q < 0]
+        xm[back] = v[verts[moving[back]]]
+        s[back] = sd[verts[moving[back]]]
+        s[check[q >= 0]] = q[q >= 0]
+        out = v.copy()
+        out[verts[moving]] = xm
+        sd[verts[moving]] = s
+        return out, len(moving)
+
+    def _put_out(self, x: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                 tree: cKDTree) -> tuple[np.ndarray, np.ndarray]:
+        """Points x (P, 3) -> (placed (P, 3), signed distance (P,) there, by the `verify_k` query).
+
+        Each inside point goes to its closest point + eps; one that lands inside another part (a crease)
+        moves along the bisector of the two parts' normals until it is eps outside both tangent planes,
+        for up to VERIFY_ROUNDS rounds."""
+        out = x.copy()
+        sd, c, nn = surface.query(body, normals, out, tree, k=self.verify_k)
+        todo = np.nonzero(sd < 0)[0]
+        c, nn = c[todo], nn[todo]
+        out[todo] = c + self.eps * nn
+        for _ in range(VERIFY_ROUNDS):
+            if len(todo) == 0:
+                break
+            q, c2, n2 = surface.query(body, normals, out[todo], tree, k=self.verify_k)
+            sd[todo] = q
+            keep = q < 0
+            todo, p, c, nn, c2, n2 = todo[keep], out[todo[keep]], c[keep], nn[keep], c2[keep], n2[keep]
+            d = nn + n2
+            d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+            need = [(self.eps - np.einsum("pc,pc->p", p - ci, ni)) / np.maximum(np.einsum("pc,pc->p", d, ni), 0.1)
+                    for ci, ni in ((c, nn), (c2, n2))]
+            out[todo] = p + np.maximum(np.maximum(need[0], need[1]), 0.0)[:, None] * d
+            c, nn = c2, n2
+        if len(todo):  # the last round's moves, not checked: count them as inside
+            sd[todo] = np.minimum(sd[todo], -1e-9)
+        return out, sd
+
+    def _verify(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, surface: BodySurface, body: np.ndarray,
+                normals: np.ndarray, tree: cKDTree) -> tuple[np.ndarray, int]:
+        """The last check: v0, v (N, 3) input and refined garment -> (garment (N, 3), vertices it put out).
+
+        Where the body overlaps itself (the armpit, the thighs) the faces around a point's `surface.k` nearest
+        body vertices can all belong to the part it is not inside, and the point reads as outside. The
+        vertices the refinement's query found within `verify_within` of the body (sd (N,), updated in place)
+        are queried again over the faces around their `verify_k` nearest body vertices. Each one inside is
+        put out (`_put_out`) from two starts: where it is, and its neighbours' mean plus its own offset from
+        them in the input (their side of the body: straight out of an arm can be its far side). Of the two,
+        the one outside whose longest edge to its neighbours is shorter is the target of one smooth step of
+        the refinement (`_solve`: the neighbours come along); twice. What is still inside counts as inside
+        in the report.
+        """
+        if not self.verify_k:
+            return v, 0
+        put = 0
+        for _ in range(2):
+            near = np.nonzero(sd < self.verify_within)[0]
+            s = surface.query(body, normals, v[near], tree, k=self.verify_k)[0]
+            sd[near] = s
+            bad = near[s < 0]
+            if len(bad) == 0:
+                break
+            adj = self.adjacency[bad]  # (B, N) the bad vertices' neighbours
+            deg = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)[:, None]
+            anchored = (adj @ v) / deg + v0[bad] - (adj @ v0) / deg
+            rows, cols = adj.nonzero()
+            best, best_out, best_len = v[bad].copy(), np.zeros(len(bad), dtype=bool), np.full(len(bad), np.inf)
+            for start in (v[bad], anchored):
+                x, q = self._put_out(start, surface, body, normals, tree)
+                longest = np.zeros(len(bad))
+                np.maximum.at(longest, rows, np.linalg.norm(x[rows] - v[cols], axis=1))
+                take = (q >= 0) & (longest < best_len)
+                best[take], best_out[take], best_len[take] = x[take], True, longest[take]
+            if not best_out.any():
+                break
+            # the smooth step of the refinement carries the neighbours along: no single edge spans the move
+            v, region = self._solve(v, bad[best_out], best[best_out])
+            sd[region] = surface.query(body, normals, v[region], tree, k=self.verify_k)[0]
+            put += int(np.count_nonzero(best_out))
+        return v, put
+
     def refine_frame(self, garment: np.ndarray, body: np.ndarray, surface: BodySurface,
                      report: RefineReport) -> np.ndarray:
         """garment (N, 3), body (M, 3) -> refined garment (N, 3) float64; appends to `report`."""
@@ -397,13 +562,18 @@ class Refiner:
                 inside = np.nonzero(sd < 0)[0]
                 v = step(v, inside, aim(inside))
                 it += 1
-        v, relieved = self._relieve(v0, v, sd, cp, n, surface, body, normals, tree)
+        if self.rest_length is None:
+            v, relieved = self._relieve(v0, v, sd, cp, n, surface, body, normals, tree)
+        else:  # the edge-limit pass takes the relief pass's place
+            v, relieved = self._limit_stretch(v0, v, sd, cp, n, surface, body, normals, tree)
+        v, verified = self._verify(v0, v, sd, surface, body, normals, tree)
         report.inside_before.append(before)
         report.inside_after.append(int(np.count_nonzero(sd < 0)))
         report.iterations.append(it)
         report.max_displacement.append(float(np.linalg.norm(v - v0, axis=1).max()))
         report.progressive.append(progressive)
         report.relieved.append(relieved)
+        report.verified.append(verified)
         return v
 
 

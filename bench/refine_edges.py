@@ -1,0 +1,113 @@
+"""Does refinement tear garments? New long edges and what is left inside, per refinement variant.
+
+Inputs (the issue's bar: real garments, real mocap, and generated outfits):
+- the real ArcSim tops of ../shared/data/external, fitted onto the neutral body (drape.geometry.fitting),
+  animated by the served DeePSD rig (4 influences) along real CMU clips drape never trained on
+  (fairmotion 01_01 and the eval's REAL_CLIPS, imported at 30 fps), every EVERY-th frame;
+- a generated 6k-vertex long sleeve + trousers on the held-out clip dance_b (bench/refine_spikes' case).
+
+Per variant, over all frames: the share of vertices inside the body after refinement (median and worst
+frame, by an exact signed distance independent of the refiner's own query), the edges made longer than
+2x their rest length that were not already that long in the input (count over all frame-edges, and the
+worst such edge's length over its rest length), the largest stretch against rest of any edge, and the
+refinement's milliseconds per frame in this process. Variants: the stretch relief pass (what /v1/refine
+runs: it has no rest shape), the edge-limit pass (`Refiner(rest=...)`: edges capped at max(ratio x rest,
+input length); what animate runs), and each with the last check (+chk: `verify_k=8`, off by default).
+
+Run: .venv/bin/python -m bench.refine_edges [--every 6] (about 5 minutes on the 2-core machine)
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drape.assets.body import load_body
+from drape.assets.motion import import_motion, load_clip
+from drape.assets.outfits import generate_outfit
+from drape.geometry.fitting import fit_garment
+from drape.geometry.mesh import unique_edges
+from drape.geometry.mesh_io import load_mesh
+from drape.geometry.queries import signed_distance_to_mesh
+from drape.geometry.refine import BodySurface, Refiner, RefineReport
+from drape.runtime.engine import Engine
+from drape.training.deepsd_eval import REAL_CLIPS
+
+SHARED = Path("..") / "shared" / "data"
+LONG = 2.0  # the bar: no edge made longer than 2x its rest length
+CHECK_K = 8  # the last check's nearest body vertices (Refiner.verify_k) in the +chk variants
+
+
+def motions(body):  # noqa: ANN001, ANN201
+    """[(name, poses (T, 24, 3), translation (T, 3))]: real CMU clips at 30 fps (those present)."""
+    paths = [SHARED / "external" / "fairmotion_01_01.bvh", *(SHARED / "mocap" / f"{c}.bvh" for c in REAL_CLIPS)]
+    out = []
+    for p in paths:
+        if p.exists():
+            m = import_motion(p.read_bytes(), body, fps=30.0, name=p.stem).motion
+            out.append((p.stem, m.poses.reshape(-1, 24, 3), m.trans))
+    return out
+
+
+def cases(every: int):  # noqa: ANN201
+    """[(garment name, rest vertices (N, 3), faces, [(clip, poses, translation)])]."""
+    body = load_body("neutral")
+    real = [(n, p[::every], t[::every]) for n, p, t in motions(body)]
+    out = []
+    for path in sorted((SHARED / "external").glob("*.obj")):
+        v, f = load_mesh(path)
+        fit = fit_garment(v, f, body)
+        out.append((path.stem, fit.vertices, f, real))
+    o = generate_outfit("longsleeve,trousers", vertices=6000, seed=77)
+    clip = load_clip("dance_b")
+    out.append(("longsleeve,trousers 6k", o.vertices, o.faces,
+                [("dance_b", clip.poses.reshape(-1, 24, 3)[::every // 2 or 1], clip.trans[::every // 2 or 1])]))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--every", type=int, default=6, help="use every k-th frame of the real clips")
+    ap.add_argument("--ratios", default="1.5", help="edge-limit caps to try, times the rest length")
+    args = ap.parse_args()
+    engine = Engine(refine_workers=1)
+    body = load_body("neutral")
+    surface = BodySurface(body.faces, len(body.vertices))
+    print(f"{'garment':24s} {'clip':14s} {'N':>5s} {'T':>4s} {'variant':14s} {'inside med':>10s} {'worst':>6s} "
+          f"{'new >2x':>7s} {'worst new':>9s} {'max/rest':>8s} {'ms/frame':>8s}")
+    for name, rest, faces, clips in cases(args.every):
+        out = engine.rig(rest, faces, "neutral")
+        edges = unique_edges(out.faces)
+        rest_len = np.linalg.norm(out.vertices[edges[:, 0]] - out.vertices[edges[:, 1]], axis=1)
+        variants = {"relief": Refiner(out.faces, len(rest)),
+                    "relief+chk": Refiner(out.faces, len(rest), verify_k=CHECK_K)}
+        for r in args.ratios.split(","):
+            variants[f"edges {r}x"] = Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r))
+            variants[f"edges {r}x+chk"] = Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
+                                                  verify_k=CHECK_K)
+        for clip, poses, trans in clips:
+            frames = np.concatenate(list(engine.pose_chunks(out, poses, trans))).astype(np.float64)
+            bodies = body.pose(poses, trans).astype(np.float64)
+            before = np.linalg.norm(frames[:, edges[:, 0]] - frames[:, edges[:, 1]], axis=2) / rest_len
+            inside0 = [np.mean(signed_distance_to_mesh(f, b, body.faces) < 0) for f, b in zip(frames, bodies, strict=True)]
+            print(f"{name[:24]:24s} {clip:14s} {len(rest):5d} {len(frames):4d} {'input':14s} "
+                  f"{np.median(inside0):10.2%} {max(inside0):6.2%} {'':7s} {'':9s} {before.max():7.2f}x")
+            for label, refiner in variants.items():
+                t = time.perf_counter()
+                refined = np.stack([refiner.refine_frame(f, b, surface, RefineReport())
+                                    for f, b in zip(frames, bodies, strict=True)])
+                ms = 1e3 * (time.perf_counter() - t) / len(frames)
+                after = np.linalg.norm(refined[:, edges[:, 0]] - refined[:, edges[:, 1]], axis=2) / rest_len
+                new = (after > LONG) & (before <= LONG)
+                worst_new = after[before <= LONG].max()
+                inside = [np.mean(signed_distance_to_mesh(f, b, body.faces) < 0)
+                          for f, b in zip(refined, bodies, strict=True)]
+                print(f"{'':24s} {'':14s} {'':5s} {'':4s} {label:14s} {np.median(inside):10.2%} {max(inside):6.2%} "
+                      f"{int(new.sum()):7d} {worst_new:8.2f}x {after.max():7.2f}x {ms:8.1f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
