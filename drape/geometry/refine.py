@@ -386,6 +386,7 @@ class Refiner:
         projections goes back to its refined position. sd, closest, closest_normal: as in `_relieve` (sd
         updated in place).
         """
+        assert self.rest_length is not None, "the edge-limit pass needs the rest shape"
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
         cap_all = np.maximum(self.stretch_ratio * self.rest_length, np.linalg.norm(v0[e0] - v0[e1], axis=1))
         over = np.linalg.norm(v[e0] - v[e1], axis=1) > cap_all * (1 + 1e-6)
