@@ -8,8 +8,9 @@ Inputs (the issue's bar: real garments, real mocap, and generated outfits):
 
 Per variant, over all frames: the share of vertices inside the body after refinement (median and worst
 frame, by an exact signed distance independent of the refiner's own query), the edges made longer than
-2x their rest length that were not already that long in the input (count over all frame-edges, and the
-worst such edge's length over its rest length), the largest stretch against rest of any edge, and the
+2x their rest length that were not already that long in the input (count over all frame-edges, how many
+of them pass through the body: ends on opposite sides of a limb, bench/refine_spikes.passes_through; and
+the worst such edge's length over its rest length), the largest stretch against rest of any edge, and the
 refinement's milliseconds per frame in this process. Variants: the stretch relief pass (what /v1/refine
 runs: it has no rest shape), the edge-limit pass (`Refiner(rest=...)`: edges capped at max(ratio x rest,
 input length); what animate runs), and each with the last check (+chk: `verify_k=8`, off by default).
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.refine_spikes import passes_through
 from drape.assets.body import load_body
 from drape.assets.motion import import_motion, load_clip
 from drape.assets.outfits import generate_outfit
@@ -77,7 +79,7 @@ def main() -> None:
     body = load_body("neutral")
     surface = BodySurface(body.faces, len(body.vertices))
     print(f"{'garment':24s} {'clip':14s} {'N':>5s} {'T':>4s} {'variant':14s} {'inside med':>10s} {'worst':>6s} "
-          f"{'new >2x':>7s} {'worst new':>9s} {'max/rest':>8s} {'ms/frame':>8s}")
+          f"{'new >2x':>7s} {'through':>7s} {'worst new':>9s} {'max/rest':>8s} {'ms/frame':>8s}")
     for name, rest, faces, clips in cases(args.every):
         out = engine.rig(rest, faces, "neutral")
         edges = unique_edges(out.faces)
@@ -94,7 +96,7 @@ def main() -> None:
             before = np.linalg.norm(frames[:, edges[:, 0]] - frames[:, edges[:, 1]], axis=2) / rest_len
             inside0 = [np.mean(signed_distance_to_mesh(f, b, body.faces) < 0) for f, b in zip(frames, bodies, strict=True)]
             print(f"{name[:24]:24s} {clip:14s} {len(rest):5d} {len(frames):4d} {'input':14s} "
-                  f"{np.median(inside0):10.2%} {max(inside0):6.2%} {'':7s} {'':9s} {before.max():7.2f}x")
+                  f"{np.median(inside0):10.2%} {max(inside0):6.2%} {'':7s} {'':7s} {'':9s} {before.max():7.2f}x")
             for label, refiner in variants.items():
                 t = time.perf_counter()
                 refined = np.stack([refiner.refine_frame(f, b, surface, RefineReport())
@@ -103,10 +105,12 @@ def main() -> None:
                 after = np.linalg.norm(refined[:, edges[:, 0]] - refined[:, edges[:, 1]], axis=2) / rest_len
                 new = (after > LONG) & (before <= LONG)
                 worst_new = after[before <= LONG].max()
+                through = sum(int(passes_through(refined[i][edges[e, :1]], refined[i][edges[e, 1:]], bodies[i],
+                                                 body.faces)[0]) for i, e in zip(*np.nonzero(new), strict=True))
                 inside = [np.mean(signed_distance_to_mesh(f, b, body.faces) < 0)
                           for f, b in zip(refined, bodies, strict=True)]
                 print(f"{'':24s} {'':14s} {'':5s} {'':4s} {label:14s} {np.median(inside):10.2%} {max(inside):6.2%} "
-                      f"{int(new.sum()):7d} {worst_new:8.2f}x {after.max():7.2f}x {ms:8.1f}", flush=True)
+                      f"{int(new.sum()):7d} {through:7d} {worst_new:8.2f}x {after.max():7.2f}x {ms:8.1f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,69 @@
+"""Refinement between layers: the inner layer as a thick, open collider; the outer pushed out of it."""
+
+import numpy as np
+
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.geometry.layers import LayerSurface, refine_layers
+from drape.geometry.lbs import pose_mesh
+from drape.geometry.queries import nearest_vertex_weights, signed_distance_to_mesh
+from drape.sim.layers import split_outfit
+from drape.sim.quality import INSIDE_BAND, outer_inner_distance
+
+BODY = load_body("neutral")
+
+
+def sheet(n: int = 11, half: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """A square sheet in the z = 0 plane, normals +z: vertices (n*n, 3) m, faces (2 (n-1)^2, 3)."""
+    x, y = np.meshgrid(np.linspace(-half, half, n), np.linspace(-half, half, n), indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    i = np.arange(n * n).reshape(n, n)
+    a, b, c, d = i[:-1, :-1].ravel(), i[1:, :-1].ravel(), i[1:, 1:].ravel(), i[:-1, 1:].ravel()
+    return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def test_the_inner_layer_is_a_collider_offset_by_its_thickness():
+    """Signed distances to the sheet offset by H_in = 6 mm: in front closer than H_in and behind it are
+    inside, farther in front is outside; past the sheet's edge and deeper behind than the band nothing is
+    judged (outside); the closest point lies on the offset surface."""
+    v, f = sheet()
+    surface = LayerSurface(f, len(v), thickness=0.006)
+    assert np.allclose(surface.normals(v), [0, 0, 1])
+    pts = np.array([[0.01, 0.02, 0.003], [0.01, 0.02, 0.010], [0.01, 0.02, -0.010],
+                    [0.01, 0.02, -0.050], [0.15, 0.0, -0.005]])
+    sd, cp, _ = surface.query(v, surface.normals(v), pts)
+    assert np.allclose(sd[:3], [-0.003, 0.004, -0.016], atol=1e-9)
+    assert np.all(sd[3:] > 0)
+    assert np.allclose(cp[0], [0.01, 0.02, 0.006])
+
+
+def test_refine_layers_pushes_the_outer_out_of_the_inner_and_both_out_of_the_body():
+    """A t-shirt under a jacket, each posed by the nearest-body-weights LBS baseline on a held-out clip: they
+    penetrate the body and each other. After refine_layers: <= 0.1% of either inside the body, the outer
+    behind the inner (the simulation's L-Coll measure) cut at least 5x and under 0.5%, and the refiners'
+    own count of outer vertices closer to the inner than H_in zero after the layer pass. Measured: L-Coll
+    1.72% -> 0.13%, H-Coll 2.1% / 3.6% -> 0.07% / 0.03%."""
+    (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 1500, seed=3)
+    clip = load_clip("dance_b")
+    frames = np.arange(0, clip.num_frames, 30)
+    p, t = clip.poses[frames].astype(float), clip.trans[frames].astype(float)
+    body = BODY.pose(p, t)
+    inner, outer = (pose_mesh(x, nearest_vertex_weights(x, BODY.vertices, BODY.weights), BODY.joints, p, t)
+                    for x in (vi, vo))
+
+    def l_coll(o, i):
+        sd, covered = outer_inner_distance(o, i, fi)
+        return float(np.mean(covered & (sd < 0) & (sd >= -INSIDE_BAND)))
+
+    def h_coll(x):
+        return float(np.mean([np.mean(signed_distance_to_mesh(a, b, BODY.faces) < 0) for a, b in
+                              zip(x, body, strict=True)]))
+
+    before = l_coll(outer, inner)
+    assert before > 0.005 and h_coll(inner) > 0.005 and h_coll(outer) > 0.005, "the input should penetrate"
+    ri, ro, report = refine_layers(inner, fi, outer, fo, body, BODY.faces, thickness=0.006)
+    assert ri.shape == inner.shape and ro.shape == outer.shape and ri.dtype == np.float32
+    assert h_coll(ri) <= 0.001 and h_coll(ro) <= 0.001
+    after = l_coll(ro, ri)
+    assert after <= before / 5 and after <= 0.005, (before, after)
+    assert sum(report.outer_in_inner_before) > 0 and sum(report.outer_in_inner_after) == 0
