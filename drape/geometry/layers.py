@@ -28,7 +28,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from drape.geometry.mesh import boundary_edges
-from drape.geometry.refine import EPS, BodySurface, Refiner, RefineReport, body_tree
+from drape.geometry.refine import (
+    EPS,
+    MAX_ITERATIONS,
+    RELIEF_ITERATIONS,
+    BodySurface,
+    Refiner,
+    RefineReport,
+    body_tree,
+)
 
 LAYER_EPS = 0.001  # metres kept beyond the inner layer's thickness
 BAND = 0.03  # metres behind the inner layer beyond which a point is not judged
@@ -77,13 +85,16 @@ class LayerRefiner:
     """Refinement of a two-layer garment stream; built once per pair of topologies and thickness.
 
     inner_faces (Fi, 3), outer_faces (Fo, 3): the layers' topologies; thickness: H_in, metres;
-    body_faces (G, 3) and body_vertices: the body's topology and vertex count; eps: metres kept from the body."""
+    body_faces (G, 3) and body_vertices: the body's topology and vertex count; eps: metres kept from the body;
+    max_iterations, relief_iterations: as refine.Refiner's, for every pass."""
 
     def __init__(self, inner_faces: np.ndarray, num_inner: int, outer_faces: np.ndarray, num_outer: int,
-                 thickness: float, body_faces: np.ndarray, body_vertices: int, eps: float = EPS):
-        self.inner = Refiner(inner_faces, num_inner, eps=eps)
-        self.outer = Refiner(outer_faces, num_outer, eps=eps)
-        self.between = Refiner(outer_faces, num_outer, eps=LAYER_EPS)
+                 thickness: float, body_faces: np.ndarray, body_vertices: int, eps: float = EPS,
+                 max_iterations: int = MAX_ITERATIONS, relief_iterations: int = RELIEF_ITERATIONS):
+        it, relief = max_iterations, relief_iterations
+        self.inner = Refiner(inner_faces, num_inner, eps=eps, max_iterations=it, relief_iterations=relief)
+        self.outer = Refiner(outer_faces, num_outer, eps=eps, max_iterations=it, relief_iterations=relief)
+        self.between = Refiner(outer_faces, num_outer, eps=LAYER_EPS, max_iterations=it, relief_iterations=relief)
         self.body_surface = BodySurface(body_faces, body_vertices)
         self.layer_surface = LayerSurface(inner_faces, num_inner, thickness)
 

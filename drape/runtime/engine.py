@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.assets.body import is_registered, load_body
+from drape.geometry.layers import LayerRefiner, LayerReport
 from drape.geometry.lbs import rest_space_offsets
 from drape.geometry.mesh import coincident_groups, regroup_faces
 from drape.geometry.refine import (
@@ -73,6 +74,26 @@ class RefineSettings:
     def refiner(self, faces: np.ndarray, num_vertices: int) -> Refiner:
         return Refiner(faces, num_vertices, eps=self.eps, max_iterations=self.max_iterations,
                        relief_iterations=self.relief_iterations)
+
+
+@dataclass(frozen=True)
+class InnerStream:
+    """A garment worn under a refined one: vertices (T, Ni, 3) float32 m, faces (Fi, 3) int32, thickness m."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    thickness: float
+
+
+@lru_cache(maxsize=4)
+def cached_layer_refiner(settings: RefineSettings, inner_faces: bytes, num_inner: int, outer_faces: bytes,
+                         num_outer: int, thickness: float, body: str) -> LayerRefiner:
+    """This process's LayerRefiner for two topologies (faces: (F, 3) int32 as bytes), a thickness and a body."""
+    b = load_body(body)
+    return LayerRefiner(np.frombuffer(inner_faces, dtype=np.int32).reshape(-1, 3), num_inner,
+                        np.frombuffer(outer_faces, dtype=np.int32).reshape(-1, 3), num_outer, thickness,
+                        b.faces, len(b.vertices), eps=settings.eps, max_iterations=settings.max_iterations,
+                        relief_iterations=settings.relief_iterations)
 
 
 @lru_cache(maxsize=8)
@@ -308,12 +329,41 @@ class Engine:
         return keys.astype(np.float32), corrections
 
     def refine_chunks(self, vertices: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray,
-                      translation: np.ndarray, options: RefineSettings, chunk: int = 32) -> Iterator[np.ndarray]:
-        """A given garment stream (T, N, 3), refined against the body in chunks: (n, N, 3) float32 each."""
+                      translation: np.ndarray, options: RefineSettings, chunk: int = 32,
+                      inner: InnerStream | None = None) -> Iterator[np.ndarray]:
+        """A given garment stream (T, N, 3), refined against the body in chunks: (n, N, 3) float32 each. With
+        an inner layer, in this process: the inner is refined against the body, then the stream against the
+        body, the refined inner and the body again (drape.geometry.layers); seams welded as in RefinePool."""
+        if inner is not None:
+            yield from self._refine_layers(vertices, faces, body, poses, translation, options, chunk, inner)
+            return
         for start in range(0, len(vertices), chunk):
             t = time.perf_counter()
             s = slice(start, start + chunk)
             yield self.refine_pool.refine(vertices[s], faces, body, poses[s], translation[s], options)
+            self._observe("refine", time.perf_counter() - t)
+
+    def _refine_layers(self, vertices: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray,
+                       translation: np.ndarray, options: RefineSettings, chunk: int,
+                       inner: InnerStream) -> Iterator[np.ndarray]:
+        def welded(frames: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            first, group = coincident_groups(np.ascontiguousarray(frames.transpose(1, 0, 2)).reshape(
+                frames.shape[1], -1))
+            return first, regroup_faces(f, group), group
+
+        first, outer_faces, group = welded(np.asarray(vertices), faces)
+        inner_first, inner_faces, _ = welded(inner.vertices, inner.faces)
+        refiner = cached_layer_refiner(options, np.ascontiguousarray(inner_faces, dtype=np.int32).tobytes(),
+                                       len(inner_first), np.ascontiguousarray(outer_faces, dtype=np.int32).tobytes(),
+                                       len(first), inner.thickness, body)
+        for start in range(0, len(vertices), chunk):
+            t = time.perf_counter()
+            s = slice(start, start + chunk)
+            posed = posed_body(body, poses[s], translation[s])
+            report = LayerReport()
+            out = np.stack([refiner.refine_frame(i[inner_first], o[first], b, report)[1]
+                            for i, o, b in zip(inner.vertices[s], vertices[s], posed, strict=True)])
+            yield out[:, group].astype(np.float32)
             self._observe("refine", time.perf_counter() - t)
 
     def garment_chunks(self, garment: IntrinsicGarment, latents: np.ndarray, poses: np.ndarray,

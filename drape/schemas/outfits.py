@@ -158,6 +158,17 @@ class AnimateRequest(BaseModel):
     fit: bool = Field(False, description=FIT_HELP.split(";")[0] + " (with outfit, not outfit_id)")
 
 
+class InnerLayer(BaseModel):
+    """The garment worn under the refined one: its stream (T, Ni, 3) m over the same frames, its faces, and its
+    thickness (m). The refined garment is pushed out of the body and then kept thickness + 1 mm outside this
+    layer (which is itself first refined against the body, as /v1/refine would refine it alone)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    vertices: list[list[Vec3]] = Field(min_length=1)
+    faces: list[Tri] = Field(min_length=1)
+    thickness: float = Field(0.006, gt=0, le=0.05, description="the inner layer's thickness H_in, metres")
+
+
 class RefineRequest(BaseModel):
     """A garment stream (T, N, 3) m with its faces, the body motion that goes with it, the body preset."""
 
@@ -169,6 +180,8 @@ class RefineRequest(BaseModel):
     motion: MotionInput
     body: str = "neutral"
     options: RefineOptions | None = Field(None, description="defaults: eps 3 mm, 3 iterations, 10 relief rounds")
+    inner: InnerLayer | None = Field(None, description="a garment under this one: the stream is also pushed out "
+                                     "of it (outer-through-inner removed)")
 
 
 class AnimateResponse(BaseModel):

@@ -278,14 +278,31 @@ def _animate_npz(data: bytes, settings: Settings, engine: Engine) -> dict:
     return request
 
 
+INNER_NPZ = ("inner_vertices", "inner_faces", "thickness")  # the inner layer's members in a refine npz
+
+
+def _npz_inner(z: dict, field: str = "body") -> dict | None:
+    """The inner layer of a refine npz (`INNER_NPZ` members), or None without inner_vertices."""
+    if "inner_vertices" not in z:
+        if "inner_faces" in z or "thickness" in z:
+            raise InvalidInput("inner_faces and thickness need inner_vertices (T, Ni, 3)", field)
+        return None
+    if "inner_faces" not in z:
+        raise InvalidInput("the archive lacks ['inner_faces']", field)
+    thickness = npz_scalar(z, "thickness")
+    return {"vertices": npz_numbers(z, "inner_vertices"), "faces": npz_numbers(z, "inner_faces", integer=True),
+            "thickness": 0.006 if thickness is None else thickness}
+
+
 def refine_arguments(kind: str, data: bytes, settings: Settings, content_type: str = "",
-                     ) -> tuple[Any, Any, dict, str | None, dict | None]:
+                     ) -> tuple[Any, Any, dict, str | None, dict | None, dict | None]:
     """A refine request's body (JSON, npz, or a multipart form with a garment npz and a motion_file)
-    -> (vertices, faces, motion dict, body preset, options)."""
+    -> (vertices, faces, motion dict, body preset, options, inner layer {"vertices", "faces", "thickness"} or
+    None)."""
     if kind == "multipart/form-data":
         return _refine_form(data, content_type, settings)
     if kind == "application/x-npz":
-        names = ("vertices", "faces", "poses", "translation", "fps", "clip", "body", *REFINE_OPTIONS)
+        names = ("vertices", "faces", "poses", "translation", "fps", "clip", "body", *REFINE_OPTIONS, *INNER_NPZ)
         z = npz_members(data, names, settings)
         missing = [k for k in ("vertices", "faces") if k not in z] + ([] if "poses" in z or "clip" in z else ["poses"])
         if missing:
@@ -295,16 +312,18 @@ def refine_arguments(kind: str, data: bytes, settings: Settings, content_type: s
                   "poses": npz_numbers(z, "poses") if "poses" in z else None,
                   "translation": npz_numbers(z, "translation") if "translation" in z else None}
         return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), motion, npz_text(z, "body"),
-                npz_options(z))
+                npz_options(z), _npz_inner(z))
     doc = _document(data)
-    _count(doc.get("vertices"), settings.max_frames, "frames", "vertices")
-    frames = doc.get("vertices")
-    if isinstance(frames, list) and frames:
-        _count(frames[0], settings.max_vertices, "vertices", "vertices")
-    _count(doc.get("faces"), settings.max_faces, "faces", "faces")
+    inner = doc.get("inner")
+    for pre, part in (("", doc), ("inner.", inner if isinstance(inner, dict) else {})):
+        _count(part.get("vertices"), settings.max_frames, "frames", f"{pre}vertices")
+        frames = part.get("vertices")
+        if isinstance(frames, list) and frames:
+            _count(frames[0], settings.max_vertices, "vertices", f"{pre}vertices")
+        _count(part.get("faces"), settings.max_faces, "faces", f"{pre}faces")
     _precheck_motion(doc.get("motion"), settings)
     d = _model(RefineRequest, doc).model_dump()
-    return d["vertices"], d["faces"], d["motion"], d["body"], d["options"]
+    return d["vertices"], d["faces"], d["motion"], d["body"], d["options"], d["inner"]
 
 
 # ---- multipart forms carrying a motion file ------------------------------------------------------
@@ -391,9 +410,11 @@ def _animate_form(data: bytes, content_type: str, settings: Settings, engine: En
             "outfit_id": outfit_id, "outfit": None, "influences": _text(parts, "influences")}
 
 
-def _refine_form(data: bytes, content_type: str, settings: Settings) -> tuple[Any, Any, dict, str | None, dict | None]:
-    """Form fields: garment (an npz with vertices (T, N, 3) and faces (F, 3)), motion_file (a BVH or npz file,
-    resampled to fps, default 30: it must give T frames), and optionally body, up and the refine options."""
+def _refine_form(data: bytes, content_type: str, settings: Settings,
+                 ) -> tuple[Any, Any, dict, str | None, dict | None, dict | None]:
+    """Form fields: garment (an npz with vertices (T, N, 3) and faces (F, 3), optionally an inner layer:
+    inner_vertices (T, Ni, 3), inner_faces, thickness), motion_file (a BVH or npz file, resampled to fps,
+    default 30: it must give T frames), and optionally body, up and the refine options."""
     from drape.service.handlers import check_body
 
     parts = _form(data, content_type, REFINE_FORM)
@@ -401,7 +422,7 @@ def _refine_form(data: bytes, content_type: str, settings: Settings) -> tuple[An
     if garment is None:
         raise InvalidInput("a garment npz with vertices (T, N, 3) and faces (F, 3) is required", "garment")
     try:
-        z = decode_npz(garment.data, ("vertices", "faces"), max_bytes=settings.max_decoded_bytes)
+        z = decode_npz(garment.data, ("vertices", "faces", *INNER_NPZ), max_bytes=settings.max_decoded_bytes)
     except NpzTooLarge as exc:
         raise LimitExceeded(str(exc), "garment") from exc
     except ValueError as exc:
@@ -411,7 +432,8 @@ def _refine_form(data: bytes, content_type: str, settings: Settings) -> tuple[An
         raise InvalidInput(f"the archive lacks {missing}", "garment")
     body = check_body(_text(parts, "body"))
     motion = _form_motion(parts, body, settings)
-    return npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), motion, body, _form_options(parts)
+    return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), motion, body, _form_options(parts),
+            _npz_inner(z, "garment"))
 
 
 # ---- the garment routes (intrinsic space) --------------------------------------------------------

@@ -14,7 +14,7 @@ from drape.geometry.fitting import UNITS, FitError, FitResult, fit_garment, infe
 from drape.geometry.placement import FAR_M, body_distance, placement
 from drape.geometry.queries import MeshDistance
 from drape.runtime.body_store import PREFIX as USER_BODY_PREFIX
-from drape.runtime.engine import Engine, RefineSettings, RiggedOutfit
+from drape.runtime.engine import Engine, InnerStream, RefineSettings, RiggedOutfit
 from drape.runtime.sparse_rig import INFLUENCES
 from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
@@ -288,11 +288,28 @@ class RefinePlan:
     translation: np.ndarray
     fps: float
     options: RefineSettings
+    inner: InnerStream | None = None  # a garment under this one: the stream is pushed out of it too
+
+
+def check_inner(inner: dict, frames: int, settings: Settings) -> InnerStream:
+    """An inner layer {"vertices" (T, Ni, 3), "faces" (Fi, 3), "thickness" m} over `frames` frames."""
+    v = _array(inner.get("vertices"), "inner.vertices", np.float64, 3)
+    if v.shape[0] != frames or v.shape[1] < 3 or v.shape[2] != 3:
+        raise InvalidInput(f"expected ({frames}, Ni, 3) with Ni >= 3 (the stream's frames), got {v.shape}",
+                           "inner.vertices")
+    if not np.isfinite(v).all():
+        raise InvalidInput("contains NaN or infinite values", "inner.vertices")
+    _, f = check_mesh(v[0], inner.get("faces"), settings, field="inner")
+    t = inner.get("thickness")
+    if isinstance(t, bool) or not isinstance(t, int | float) or not 0 < t <= 0.05:
+        raise InvalidInput(f"expected a thickness in metres in (0, 0.05], got {str(t)[:40]}", "inner.thickness")
+    return InnerStream(v.astype(np.float32), f, float(t))
 
 
 def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, body: str | None,
-                options: dict | None, max_posed: int | None) -> RefinePlan:
-    """Validate a refine request: the stream's shape, the faces, the motion (same frame count)."""
+                options: dict | None, max_posed: int | None, inner: dict | None = None) -> RefinePlan:
+    """Validate a refine request: the stream's shape, the faces, the motion (same frame count), the inner
+    layer if any (the same frames)."""
     v = _array(vertices, "vertices", np.float64, 3)
     if v.shape[0] < 1 or v.shape[2] != 3 or v.shape[1] < 3:
         raise InvalidInput(f"expected (T, N, 3) with T >= 1 and N >= 3, got {v.shape}", "vertices")
@@ -307,7 +324,12 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
     check_answer_size(v.shape[0], v.shape[1], max_posed, "vertices")
     opts = check_refine(options or True)
     assert opts is not None
-    return RefinePlan(v.astype(np.float32), f, check_body(body), poses, trans, fps, opts)
+    layer = None
+    if inner is not None:
+        layer = check_inner(inner, len(v), settings)
+        # the inner layer is refined too: its frames count against the same bound as the answer's
+        check_answer_size(v.shape[0], v.shape[1] + layer.vertices.shape[1], max_posed, "inner.vertices")
+    return RefinePlan(v.astype(np.float32), f, check_body(body), poses, trans, fps, opts, layer)
 
 
 def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None = None) -> bytes:

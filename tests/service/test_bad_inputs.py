@@ -144,3 +144,32 @@ def test_api_key_guards_v1(settings, path):
         problem(c.get(path, headers={"authorization": "Bearer wrong"}), 401)
         assert c.get(path, headers={"authorization": "Bearer s3cret"}).status_code == 200
         assert c.get("/healthz").status_code == 200  # liveness stays open
+
+
+def test_refine_inner_layer_bad_inputs(http):
+    """The inner layer of /v1/refine (JSON `inner`, npz inner_vertices / inner_faces / thickness): its frames
+    must match the stream's, its faces its vertices, its thickness lie in (0, 5 cm]; NaN refused."""
+    frames = [V] * 2
+    body = {"vertices": frames, "faces": F, "motion": {"poses": [[0.0] * 72] * 2}}
+    inner = {"vertices": frames, "faces": F, "thickness": 0.004}
+    assert http.post("/v1/refine", json={**body, "inner": inner}).status_code == 200
+    problem(http.post("/v1/refine", json={**body, "inner": {**inner, "vertices": [V] * 3}}), 422, "inner.vertices",
+            "(2, Ni, 3)")
+    problem(http.post("/v1/refine", json={**body, "inner": {**inner, "faces": [[0, 1, 99]]}}), 422, "inner.faces")
+    problem(http.post("/v1/refine", json={**body, "inner": {**inner, "thickness": 0.5}}), 422, "thickness")
+    problem(http.post("/v1/refine", json={**body, "inner": {**inner, "vertices": [[[0, 0, 0]] * 3] * 2}}),
+            422, "inner")
+
+    def post(**arrays):
+        buf = io.BytesIO()
+        np.savez(buf, vertices=np.array(frames, np.float32), faces=np.array(F), poses=np.zeros((2, 72)), **arrays)
+        return http.post("/v1/refine", content=buf.getvalue(), headers={"content-type": "application/x-npz"})
+
+    bad = np.array(frames, np.float32)
+    bad[1, 0, 0] = np.nan
+    problem(post(inner_vertices=bad, inner_faces=np.array(F)), 422, "inner.vertices", "NaN")
+    problem(post(inner_vertices=np.array(frames, np.float32)), 422, "inner_faces")
+    problem(post(thickness=np.array(0.004)), 422, "inner_vertices")
+    problem(post(inner_vertices=np.array(frames, np.float32), inner_faces=np.array(F), thickness=np.array(-1.0)),
+            422, "thickness")
+    assert post(inner_vertices=np.array(frames, np.float32), inner_faces=np.array(F)).status_code == 200

@@ -136,6 +136,43 @@ def test_refine_route_and_animate_refine(server_url, outfit):
     assert inside(raw) > 0.01 and inside(fixed) < 0.25 * inside(raw)
 
 
+def test_refine_with_an_inner_layer(server_url):
+    """client.refine with `inner`: the jacket's stream kept out of the body and of the t-shirt under it, equal
+    to the library's refine_layers (sync and async clients); without `inner` the jacket still cuts the shirt."""
+    from drape.geometry.layers import refine_layers
+    from drape.geometry.lbs import pose_mesh
+    from drape.geometry.queries import nearest_vertex_weights
+    from drape.sim.layers import split_outfit
+    from drape.sim.quality import INSIDE_BAND, outer_inner_distance
+
+    body = load_body("neutral")
+    (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 1500, seed=3)
+    clip = load_clip("dance_b")
+    frames = np.arange(0, clip.num_frames, 40)
+    poses, trans = clip.poses[frames], clip.trans[frames]
+    inner, outer = (pose_mesh(v, nearest_vertex_weights(v, body.vertices, body.weights), body.joints,
+                              poses.astype(float), trans.astype(float)).astype(np.float32) for v in (vi, vo))
+    motion = {"poses": poses, "translation": trans, "fps": 30.0}
+    with drape.Client(server_url) as client:
+        served = client.refine(outer, fo, motion=motion, inner=(inner, fi), thickness=0.006)
+        alone = client.refine(outer, fo, motion=motion)
+    ri, ro, _ = refine_layers(inner, fi, outer, fo, body.pose(poses.astype(float), trans.astype(float)),
+                              body.faces, thickness=0.006)
+    assert served.shape == outer.shape and np.abs(served - ro).max() < 1e-5
+
+    def l_coll(o):
+        sd, covered = outer_inner_distance(o, ri, fi)
+        return float(np.mean(covered & (sd < 0) & (sd >= -INSIDE_BAND)))
+
+    assert l_coll(alone) > 0.005 and l_coll(served) <= l_coll(alone) / 5
+
+    async def run() -> np.ndarray:
+        async with drape.AsyncClient(server_url) as client:
+            return await client.refine(outer, fo, motion=motion, inner=(inner, fi), thickness=0.006)
+
+    assert np.abs(asyncio.run(run()) - served).max() < 1e-6
+
+
 def test_refine_with_a_clip_name(server_url, outfit):
     """client.refine sends npz; a motion given as a clip name refines like the clip's own poses."""
     clip = load_clip("kick")

@@ -260,13 +260,16 @@ refine_router = APIRouter(prefix="/v1", tags=["refine"])
     JSON: {"schema": {"$ref": "#/components/schemas/RefineRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
                      "npz: vertices (T, N, 3), faces (F, 3), poses (T, 24, 3) or (T, 72) with optional translation "
-                     "(T, 3) and fps, or clip (a name); optional body, and the options as scalars: eps, "
-                     "max_iterations, relief_iterations"}},
+                     "(T, 3) and fps, or clip (a name); optional body, the options as scalars: eps, "
+                     "max_iterations, relief_iterations, and a garment under this one: inner_vertices (T, Ni, 3), "
+                     "inner_faces (Fi, 3), thickness (metres, scalar)"}},
     "multipart/form-data": REFINE_FORM}}})
 async def refine_stream(request: Request) -> Response:
     """Garment stream + faces + body motion -> the stream with body penetration removed (same formats as animate;
     GLB: the refined stream as a vertex animation). A multipart form carries the stream as an npz (garment) and
-    the motion as a file (motion_file: BVH or AMASS npz)."""
+    the motion as a file (motion_file: BVH or AMASS npz). With `inner` (a garment worn under this one, over the
+    same frames, and its thickness) the stream is also kept thickness + 1 mm outside the inner layer, itself
+    refined against the body first; the answer is this stream only."""
     answer = choose(request.headers.get("accept"), STREAM_FORMATS)
     kind = media_type(request)
     if kind not in (NPZ, JSON, "multipart/form-data", ""):
@@ -276,12 +279,12 @@ async def refine_stream(request: Request) -> Response:
     content_type = request.headers.get("content-type", "")
 
     def plan() -> FrameSource:
-        args = decode.refine_arguments(kind, data, settings, content_type)
-        p = handlers.plan_refine(settings, *args, max_posed(answer, settings))
+        vertices, faces, motion, body, options, inner = decode.refine_arguments(kind, data, settings, content_type)
+        p = handlers.plan_refine(settings, vertices, faces, motion, body, options, max_posed(answer, settings), inner)
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.refine_chunks(p.vertices, p.faces, p.body, p.poses, p.translation, p.options,
-                                        settings.stream_chunk_frames)
+                                        settings.stream_chunk_frames, inner=p.inner)
 
         return FrameSource(chunks, p.faces, len(p.vertices), p.vertices.shape[1], p.fps, "")
 
