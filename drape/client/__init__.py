@@ -28,7 +28,9 @@ from drape.client.client import (
     DrapeAPIError,
     FitResult,
     GarmentTemplate,
+    LayerFrames,
     RigResult,
 )
 
-__all__ = ["AsyncClient", "Client", "DesignSamples", "DrapeAPIError", "FitResult", "GarmentTemplate", "RigResult"]
+__all__ = ["AsyncClient", "Client", "DesignSamples", "DrapeAPIError", "FitResult", "GarmentTemplate", "LayerFrames",
+           "RigResult"]

@@ -83,6 +83,41 @@ class DesignSamples:
     vertices: np.ndarray
 
 
+@dataclass(frozen=True)
+class LayerFrames:
+    """Two garments worn together along a motion: inner_vertices (T, Ni, 3) and outer_vertices (T, No, 3)
+    float32 m, world space; their faces (F, 3) int32; the templates' names; frames per second."""
+
+    inner: str
+    outer: str
+    fps: float
+    inner_vertices: np.ndarray
+    inner_faces: np.ndarray
+    outer_vertices: np.ndarray
+    outer_faces: np.ndarray
+
+
+def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float, refine: bool) -> dict[str, Any]:
+    """The layers animate request as JSON (the route takes JSON only): the motion as a clip name or poses."""
+    if isinstance(motion, bytes | Path):
+        raise ValueError("animate_layers takes a clip name or poses (a motion file: import it first, "
+                         "drape.assets.motion.import_motion or `drape motions import`)")
+    arrays = _motion_arrays(motion)
+    m: dict[str, Any] = ({"clip": str(arrays["clip"])} if "clip" in arrays else
+                         {"poses": np.asarray(arrays["poses"]).reshape(len(arrays["poses"]), -1).tolist(),
+                          **({"translation": arrays["translation"].tolist()} if "translation" in arrays else {}),
+                          **({"fps": float(arrays["fps"])} if "fps" in arrays else {})})
+    return {"json": {"inner": inner, "outer": outer, "thickness": float(thickness), "motion": m,
+                     "refine": bool(refine)}}
+
+
+def _layer_frames(response: httpx.Response) -> LayerFrames:
+    _raise_for(response)
+    z = decode_npz(response.content)
+    return LayerFrames(str(z["inner"]), str(z["outer"]), float(z["fps"]), z["inner_vertices"], z["inner_faces"],
+                       z["outer_vertices"], z["outer_faces"])
+
+
 def _raise_for(response: httpx.Response) -> None:
     if response.status_code < 400:
         return
@@ -513,6 +548,30 @@ class Client(_Base):
         their shapes at `frame` of `motion`."""
         return _samples(self._http.post(_garment_path(name, "sample"), **_sample_npz(count, seed, motion, frame)))
 
+    def layers(self) -> list[dict[str, Any]]:
+        """The served layer combinations: inner, outer, body, thickness [min, max] m, model."""
+        r = self._http.get("/v1/layers")
+        _raise_for(r)
+        return list(r.json()["layers"])
+
+    @overload
+    def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
+                       refine: bool = False, format: Literal["array"] = "array") -> LayerFrames: ...
+
+    @overload
+    def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
+                       refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+
+    def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
+                       refine: bool = False, format: Format = "array") -> LayerFrames | bytes:
+        """Two templates worn together (a combination of `layers()`) along `motion` (a clip name or poses):
+        both layers' frames (format="glb" / "pc2": the two as one mesh, inner first, as bytes). thickness: the
+        inner garment's, m; refine: both out of the body and the outer kept thickness + 1 mm outside the inner."""
+        req = _layers_request(inner, outer, motion, thickness, refine)
+        if format != "array":
+            return self._file("/v1/layers/animate", _file_type(format), **req)
+        return _layer_frames(self._http.post("/v1/layers/animate", headers={"Accept": NPZ}, **req))
+
 
 class AsyncClient(_Base):
     """The async twin of Client, on httpx.AsyncClient."""
@@ -572,6 +631,28 @@ class AsyncClient(_Base):
         """Design candidates and their shapes at `frame` (see Client.sample_designs)."""
         return _samples(await self._http.post(_garment_path(name, "sample"),
                                               **_sample_npz(count, seed, motion, frame)))
+
+    async def layers(self) -> list[dict[str, Any]]:
+        """See Client.layers."""
+        r = await self._http.get("/v1/layers")
+        _raise_for(r)
+        return list(r.json()["layers"])
+
+    @overload
+    async def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
+                             refine: bool = False, format: Literal["array"] = "array") -> LayerFrames: ...
+
+    @overload
+    async def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
+                             refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+
+    async def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
+                             refine: bool = False, format: Format = "array") -> LayerFrames | bytes:
+        """See Client.animate_layers."""
+        req = _layers_request(inner, outer, motion, thickness, refine)
+        if format != "array":
+            return await self._file("/v1/layers/animate", _file_type(format), **req)
+        return _layer_frames(await self._http.post("/v1/layers/animate", headers={"Accept": NPZ}, **req))
 
     async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4,
                   fit: bool = False) -> RigResult:

@@ -38,6 +38,7 @@ from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 from drape.runtime.intrinsic import DECODE_BLOCK, INTRINSIC_DIR, GarmentRegistry, IntrinsicGarment
+from drape.runtime.layers import LayerCatalog, LayerCombination
 from drape.runtime.sparse_rig import INFLUENCES, fit_poses, sparse_rig
 
 POSE_BLOCK = 128  # frames posed per call (then handed out a chunk at a time)
@@ -229,6 +230,7 @@ class Engine:
                  intrinsic_dir: str | Path | None = INTRINSIC_DIR):
         self.model = DeePSDModel(model_dir, threads=threads)
         self.garments = GarmentRegistry(intrinsic_dir, threads=threads)
+        self.layers = LayerCatalog()
         self.refine_pool = RefinePool(refine_workers)
         self.cache: LRUBytesCache[RiggedOutfit] = LRUBytesCache(cache_bytes)
         self._observe = observe or (lambda stage, seconds: None)
@@ -365,6 +367,33 @@ class Engine:
                             for i, o, b in zip(inner.vertices[s], vertices[s], posed, strict=True)])
             yield out[:, group].astype(np.float32)
             self._observe("refine", time.perf_counter() - t)
+
+    def layer_chunks(self, combination: LayerCombination, thickness: float, poses: np.ndarray,
+                     translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,
+                     ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Two layers along a motion (poses (T, 24, 3) rad, translation (T, 3) m): (inner (n, Ni, 3), outer
+        (n, No, 3)) float32 m in chunks of up to `chunk` frames. Each layer is posed by its own served DeePSD rig;
+        with `refine`, the post step between layers (drape.geometry.layers, the inner's thickness m) in this
+        process: the inner and the outer out of the body, the outer out of the inner, then of the body again."""
+        inner_t, outer_t = combination.inner, combination.outer
+        rigs = [self.rig(t.vertices, t.faces, t.body) for t in (inner_t, outer_t)]
+        refiner = None
+        if refine is not None:
+            refiner = cached_layer_refiner(refine, inner_t.faces.tobytes(), inner_t.num_vertices,
+                                           outer_t.faces.tobytes(), outer_t.num_vertices, thickness, inner_t.body)
+        start = 0
+        for inner, outer in zip(*(self.pose_chunks(r, poses, translation, chunk) for r in rigs), strict=True):
+            if refiner is not None:
+                t = time.perf_counter()
+                at = slice(start, start + len(inner))
+                report = LayerReport()
+                pairs = [refiner.refine_frame(i, o, b, report) for i, o, b in
+                         zip(inner, outer, posed_body(inner_t.body, poses[at], translation[at]), strict=True)]
+                inner = np.stack([p[0] for p in pairs]).astype(np.float32)
+                outer = np.stack([p[1] for p in pairs]).astype(np.float32)
+                self._observe("refine", time.perf_counter() - t)
+            start += len(inner)
+            yield inner, outer
 
     def garment_chunks(self, garment: IntrinsicGarment, latents: np.ndarray, poses: np.ndarray,
                        translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,

@@ -156,9 +156,13 @@ def _read_npy_data(f: IO[bytes], shape: tuple[int, ...], fortran: bool, dtype: n
     return flat.reshape(shape)
 
 
-def stream_header(num_frames: int, faces: np.ndarray, num_vertices: int, fps: float, outfit_id: str) -> bytes:
-    header = json.dumps({"num_frames": num_frames, "num_vertices": num_vertices, "num_faces": int(len(faces)),
-                         "fps": fps, "dtype": "<f4", "outfit_id": outfit_id}).encode()
+def stream_header(num_frames: int, faces: np.ndarray, num_vertices: int, fps: float, outfit_id: str,
+                  layers: list[dict] | None = None) -> bytes:
+    """layers: for a stream of several garments as one mesh, [{"name", "start", "stop"}] vertex ranges (the
+    header's `layers` member, absent otherwise)."""
+    fields = {"num_frames": num_frames, "num_vertices": num_vertices, "num_faces": int(len(faces)),
+              "fps": fps, "dtype": "<f4", "outfit_id": outfit_id}
+    header = json.dumps(fields | ({"layers": layers} if layers else {})).encode()
     return MAGIC + struct.pack("<II", VERSION, len(header)) + header + np.ascontiguousarray(faces, dtype="<i4").tobytes()
 
 

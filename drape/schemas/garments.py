@@ -23,7 +23,8 @@ class GarmentInfo(BaseModel):
     num_vertices: int
     num_faces: int
     body: str = Field(description="the body preset the template is dressed on and the model was trained with")
-    models: list[str] = Field(description="the models of this template: 'intrinsic'")
+    models: list[str] = Field(description="the models of this template: 'intrinsic', or 'deepsd' for a layer "
+                                          "template (GET /v1/layers)")
     fps: float | None = Field(None, description="the frame rate of the training motions (intrinsic)")
     window: int | None = Field(None, description="past frames in a motion window, besides the current one "
                                                  "(intrinsic)")

@@ -40,6 +40,7 @@ class FrameSource:
     num_vertices: int
     fps: float
     outfit_id: str
+    layers: list[dict] | None = None  # several garments as one mesh: [{"name", "start", "stop"}] vertex ranges
 
 
 def _frames32(chunk: np.ndarray) -> np.ndarray:
@@ -49,7 +50,7 @@ def _frames32(chunk: np.ndarray) -> np.ndarray:
 def encode_frame_stream(src: FrameSource) -> Pieces:
     """The frame stream (drape.schemas.binary): header and faces, then each chunk as its count and its
     float32 bytes, written from the computed array without a copy; a zero count ends it."""
-    yield stream_header(src.num_frames, src.faces, src.num_vertices, src.fps, src.outfit_id)
+    yield stream_header(src.num_frames, src.faces, src.num_vertices, src.fps, src.outfit_id, src.layers)
     for chunk in src.chunks():
         yield from stream_chunk(chunk)
     yield stream_chunk(np.zeros((0, src.num_vertices, 3), np.float32))[0]

@@ -26,6 +26,7 @@ from drape.schemas.garments import (
     SampleRequest,
     SampleResponse,
 )
+from drape.schemas.layers import LayersAnimateRequest, LayersAnimateResponse
 from drape.schemas.outfits import (
     AnimateRequest,
     AnimateResponse,
@@ -41,7 +42,7 @@ from drape.service.admission import Admission
 from drape.service.bodies import stored_body
 from drape.service.http import require_api_key
 from drape.service.metrics import CountRequests, Metrics
-from drape.service.routers import bodies, garments, health, models, outfits, viewer
+from drape.service.routers import bodies, garments, health, layers, models, outfits, viewer
 from drape.service.routers import catalog as catalog_router
 from drape.service.settings import Settings
 
@@ -91,7 +92,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(viewer.router)  # the page and its files; the page calls /v1 with the key typed into it
     auth = [Depends(require_api_key)]
-    for router in (catalog_router.router, bodies.router, models.router, outfits.router, outfits.refine_router, garments.router):
+    for router in (catalog_router.router, bodies.router, models.router, outfits.router, outfits.refine_router,
+                   garments.router, layers.router):
         app.include_router(router, dependencies=auth)
 
     def openapi() -> dict:
@@ -101,7 +103,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         comps = schema.setdefault("components", {}).setdefault("schemas", {})
         for model in (RigRequest, RigResponse, FitRequest, FitResponse, AnimateRequest, AnimateResponse, RefineRequest, Problem,
                       GarmentTemplate, EncodeRequest, EncodeFields, EncodeResponse, KeyframeAnimateRequest,
-                      KeyframeFields, SampleRequest, SampleFields, SampleResponse, BodyMesh, BodyRegistered):
+                      KeyframeFields, SampleRequest, SampleFields, SampleResponse, BodyMesh, BodyRegistered,
+                      LayersAnimateRequest, LayersAnimateResponse):
             js = model.model_json_schema(ref_template="#/components/schemas/{model}")
             comps.update(js.pop("$defs", {}))
             comps[model.__name__] = js

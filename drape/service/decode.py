@@ -548,3 +548,14 @@ def _garment_npz(route: str, data: bytes, settings: Settings) -> dict:
             refine = refine if (bool(flag) and refine) else bool(flag)
         request.update(keyframes=keyframes, refine=refine or False)
     return request
+
+
+# ---- the layer routes ----------------------------------------------------------------------------
+
+def layers_request(data: bytes, settings: Settings) -> dict:
+    """A JSON layers animate request (LayersAnimateRequest) -> its fields as a dict."""
+    from drape.schemas.layers import LayersAnimateRequest
+
+    doc = _document(data)
+    _precheck_motion(doc.get("motion"), settings)
+    return _model(LayersAnimateRequest, doc).model_dump()

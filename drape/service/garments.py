@@ -26,6 +26,9 @@ MAX_LATENT = 1e4  # |latent value|: far beyond any trained latent, and far from 
 def find(engine: Engine, name: str) -> IntrinsicGarment:
     """The garment named `name`, or a 404 naming it and listing the served ones."""
     garment = engine.garments.get(name)
+    if garment is None and engine.layers.template(name) is not None:
+        raise NotFound(f"garment {quoted(name, 80)} is a layer template with no intrinsic model: it is animated by "
+                       "POST /v1/layers/animate", "name")
     if garment is None:
         known = engine.garments.names()
         served = f"the served garments: {', '.join(known)}" if known else "no garments are served"
@@ -34,7 +37,9 @@ def find(engine: Engine, name: str) -> IntrinsicGarment:
 
 
 def garment_list(engine: Engine) -> GarmentList:
-    return GarmentList(garments=[GarmentInfo(**g.info()) for g in engine.garments])
+    """The intrinsic templates, then the layer templates (GET /v1/layers)."""
+    return GarmentList(garments=[*(GarmentInfo(**g.info()) for g in engine.garments),
+                                 *(GarmentInfo(**t.info()) for t in engine.layers.templates())])
 
 
 def check_frame(value: Any, num_frames: int, field: str) -> int:

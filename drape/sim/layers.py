@@ -34,10 +34,13 @@ import numpy as np
 
 from drape.assets.body import Body
 from drape.assets.motion import Motion
+from drape.assets.outfits import split_outfit
 from drape.sim.collider import Hull
 from drape.sim.params import CLOTH_RADIUS, LayerParams
 from drape.sim.quality import layer_stats
 from drape.sim.simulate import Cloth, simulate_cloths
+
+__all__ = ["LayerResult", "layer_cloths", "simulate_layers", "split_outfit"]
 
 
 @dataclass
@@ -99,27 +102,3 @@ def simulate_layers(
     stats["seconds"] = round(run.seconds, 3)
     stats["seconds_per_frame"] = round(run.seconds / (T + S), 4)
     return LayerResult(inner, outer, run.poses, run.trans, params, stats, run.seconds, S)
-
-
-def split_outfit(types: str, vertices: int, seed: int = 0, body: str | Body = "neutral",
-                 looseness: float | None = None, length: float | None = None,
-                 ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """Two garments ("inner,outer", e.g. "tshirt,jacket") generated as one layered outfit
-    (`drape.assets.outfits.generate_outfit`, the outer built around the inner) and split into two meshes:
-    ((inner vertices (Ni, 3) float32, faces (Fi, 3) int32), (outer ..)). vertices: the two together."""
-    from drape.assets.outfits import generate_outfit
-
-    kinds = [t.strip() for t in types.split(",")]
-    if len(kinds) != 2:
-        raise ValueError(f"give two garment types, inner first: {types!r}")
-    outfit = generate_outfit(kinds, vertices=vertices, seed=seed, body=body, looseness=looseness, length=length)
-    if outfit.garments != kinds:
-        raise ValueError(f"the generator layers {kinds} as {outfit.garments} (inner first): swap them")
-    out = []
-    for g in range(2):
-        keep = outfit.garment == g
-        index = np.full(len(keep), -1, dtype=np.int64)
-        index[keep] = np.arange(int(keep.sum()))
-        faces = outfit.faces[keep[outfit.faces].all(axis=1)]
-        out.append((outfit.vertices[keep].astype(np.float32), index[faces].astype(np.int32)))
-    return out[0], out[1]

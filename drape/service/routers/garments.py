@@ -102,7 +102,8 @@ async def _read_post(request: Request, name: str) -> _Post:
 @router.get("", response_model=GarmentList, responses=problem_responses(401))
 def list_garments(request: Request) -> GarmentList:
     """The served garment templates: name, vertex count, body, models; for intrinsic ones the frame rate, the
-    motion window (past frames besides the current one), the model version and the latent size Z."""
+    motion window (past frames besides the current one), the model version and the latent size Z; then the
+    layer templates (models ["deepsd"]: animated in pairs by POST /v1/layers/animate)."""
     return handlers.garment_list(engine_of(request))
 
 
@@ -112,7 +113,8 @@ def list_garments(request: Request) -> GarmentList:
 def get_garment(request: Request, name: str = NAME) -> Response:
     """The template mesh: vertices (N, 3) metres in rest pose on its body, faces (F, 3); JSON or npz by Accept."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ])
-    g = handlers.find(engine_of(request), name)
+    engine = engine_of(request)
+    g = engine.layers.template(name) or handlers.find(engine, name)
     if answer == NPZ:
         return Response(encode_npz({"name": np.array(g.name), "body": np.array(g.body), "vertices": g.vertices,
                                     "faces": g.faces}), media_type=NPZ)

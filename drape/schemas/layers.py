@@ -1,0 +1,49 @@
+"""Requests and answers of the layer routes: an inner and an outer garment template worn together, animated
+along a motion. Vertices are metres, world space; thickness is the inner garment's (H_in), metres."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from drape.schemas.outfits import MotionInput, RefineOptions, Vec3
+
+
+class LayerInfo(BaseModel):
+    """A served combination of two garment templates (each served by GET /v1/garments/{name})."""
+
+    inner: str
+    outer: str
+    body: str = Field(description="the body preset both templates are dressed on")
+    thickness: list[float] = Field(description="[min, max]: the inner thicknesses served, metres")
+    model: str = Field(description="what poses the layers: 'deepsd' (DeePSD's rig of each layer, then the post "
+                                   "step between layers with refine)")
+
+
+class LayerList(BaseModel):
+    layers: list[LayerInfo]
+
+
+class LayersAnimateRequest(BaseModel):
+    """Two templates worn together (a combination of GET /v1/layers), the inner's thickness, a motion."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [
+        {"inner": "tshirt", "outer": "jacket", "thickness": 0.006, "motion": {"clip": "walk"}, "refine": True}]})
+    inner: str = Field(max_length=128, description="the inner template (GET /v1/layers)")
+    outer: str = Field(max_length=128, description="the outer template")
+    thickness: float = Field(0.006, description="the inner garment's thickness H_in, metres, within the "
+                                                "combination's range")
+    motion: MotionInput
+    refine: bool | RefineOptions = Field(False, description="the post step: both layers out of the body, the "
+                                                            "outer kept thickness + 1 mm outside the inner")
+
+
+class LayersAnimateResponse(BaseModel):
+    """Both layers' frames: inner_vertices (T, Ni, 3), outer_vertices (T, No, 3) metres, and their faces."""
+
+    inner: str
+    outer: str
+    fps: float
+    inner_vertices: list[list[Vec3]]
+    inner_faces: list[list[int]]
+    outer_vertices: list[list[Vec3]]
+    outer_faces: list[list[int]]

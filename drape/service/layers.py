@@ -1,0 +1,61 @@
+"""The layer routes' work (GET /v1/layers, POST /v1/layers/animate), knowing nothing of HTTP: the served
+combinations, and a request checked into a plan (domain errors name the field)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drape.runtime.engine import Engine, RefineSettings
+from drape.runtime.layers import LayerCombination
+from drape.schemas.layers import LayerInfo, LayerList
+from drape.service.errors import InvalidInput, NotFound, quoted
+from drape.service.handlers import check_answer_size, check_motion, check_refine
+from drape.service.settings import Settings
+
+
+def layer_list(engine: Engine) -> LayerList:
+    return LayerList(layers=[LayerInfo(inner=c.inner.name, outer=c.outer.name, body=c.inner.body,
+                                       thickness=list(c.thickness), model=c.model)
+                             for c in engine.layers.combinations()])
+
+
+@dataclass(frozen=True)
+class LayersPlan:
+    """A checked layers animate request: the combination, the inner's thickness (m), the motion (poses
+    (T, 24, 3) rad, translation (T, 3) m, fps) and the refinement settings (None: none)."""
+
+    combination: LayerCombination
+    thickness: float
+    poses: np.ndarray
+    translation: np.ndarray
+    fps: float
+    refine: RefineSettings | None
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.poses)
+
+
+def plan_layers(settings: Settings, engine: Engine, request: dict, max_posed: int | None) -> LayersPlan:
+    """Check a layers animate request (a dict shaped like LayersAnimateRequest): both templates served (404
+    naming the unknown one), worn together (422 listing the combinations), the thickness in the combination's
+    range, the motion, and both layers' frames within the answer's bound."""
+    names = {t.name for t in engine.layers.templates()}
+    for field in ("inner", "outer"):
+        if request[field] not in names:
+            raise NotFound(f"unknown layer template {quoted(request[field], 80)}; the served ones: "
+                           f"{', '.join(sorted(names))} (GET /v1/layers)", field)
+    combo = engine.layers.find(request["inner"], request["outer"])
+    if combo is None:
+        pairs = ", ".join(f"{c.inner.name} under {c.outer.name}" for c in engine.layers.combinations())
+        raise InvalidInput(f"{request['inner']!r} under {request['outer']!r} is not served; the combinations: "
+                           f"{pairs} (GET /v1/layers)", "outer")
+    lo, hi = combo.thickness
+    thickness = request["thickness"]
+    if not lo <= thickness <= hi:
+        raise InvalidInput(f"{thickness:g} m is outside the served range [{lo:g}, {hi:g}] m", "thickness")
+    poses, translation, fps = check_motion(request["motion"], settings)
+    check_answer_size(len(poses), combo.inner.num_vertices + combo.outer.num_vertices, max_posed, "motion")
+    return LayersPlan(combo, float(thickness), poses, translation, fps, check_refine(request["refine"]))

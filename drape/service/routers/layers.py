@@ -1,0 +1,112 @@
+"""Two garments worn together: GET /v1/layers (the served combinations) and POST /v1/layers/animate (both layers
+along a motion). Each template's rest mesh is served by GET /v1/garments/{name}.
+
+The POST route is heavy: like animate it reads the body within the limits, takes a computing slot (503 +
+Retry-After when the service is full) and checks and computes off the event loop; the work is in
+drape.service.layers and Engine.layer_chunks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+from fastapi import APIRouter, Request, Response
+from fastapi.responses import JSONResponse
+
+from drape.schemas.binary import FRAMES, NPZ, encode_npz
+from drape.schemas.gltf import GLB, vertex_animation_glb
+from drape.schemas.layers import LayerList
+from drape.schemas.pc2 import PC2
+from drape.service import decode
+from drape.service import layers as handlers
+from drape.service.answers import JSON, FrameSource
+from drape.service.errors import UnsupportedMediaType
+from drape.service.http import engine_of, media_type, read_body, settings_of
+from drape.service.negotiate import choose
+from drape.service.problems import problem_responses
+from drape.service.routers.outfits import (
+    BINARY,
+    ERRORS,
+    STREAM_FORMATS,
+    max_posed,
+    stream_answer,
+    whole_answer,
+)
+
+router = APIRouter(prefix="/v1/layers", tags=["layers"])
+
+
+@router.get("", response_model=LayerList, responses=problem_responses(401))
+def list_layers(request: Request) -> LayerList:
+    """The served combinations of an inner and an outer garment template: names, body, the inner thicknesses
+    served ([min, max], metres) and what poses them (`model`)."""
+    return handlers.layer_list(engine_of(request))
+
+
+@router.post("/animate", responses={200: {
+    "description": "both layers' frames: JSON or npz (inner_vertices (T, Ni, 3), inner_faces, outer_vertices "
+                   "(T, No, 3), outer_faces); the frame stream, PC2 or GLB (a vertex animation) of the two as one "
+                   "mesh, inner first (the frame stream's header names the ranges in `layers`)", "content": {
+        JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY,
+        PC2: BINARY, GLB: BINARY}}, **ERRORS},
+    openapi_extra={"requestBody": {"required": True, "content": {
+        JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateRequest"}}}}})
+async def animate_layers(request: Request) -> Response:
+    """An inner and an outer template worn together (a combination of GET /v1/layers), the inner's thickness
+    (m) and a motion (+ refine) -> both layers' vertices, world space, metres. Each layer is posed by DeePSD's
+    served rig (`model`: "deepsd"); `refine` runs the post step between layers: both out of the body, the
+    outer kept thickness + 1 mm outside the inner (drape.geometry.layers)."""
+    answer = choose(request.headers.get("accept"), STREAM_FORMATS)
+    kind = media_type(request)
+    if kind not in (JSON, ""):
+        raise UnsupportedMediaType(f"send {JSON}, not {kind!r}", "Content-Type")
+    settings, engine = settings_of(request), engine_of(request)
+    data = await read_body(request)
+
+    def plan() -> handlers.LayersPlan:
+        return handlers.plan_layers(settings, engine, decode.layers_request(data, settings),
+                                    max_posed(answer, settings))
+
+    def pairs(p: handlers.LayersPlan) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        return engine.layer_chunks(p.combination, p.thickness, p.poses, p.translation,
+                                   settings.stream_chunk_frames, refine=p.refine)
+
+    if answer in (JSON, NPZ):
+        def whole() -> Response:
+            p = plan()
+            chunks = list(pairs(p))
+            inner = np.concatenate([c[0] for c in chunks])
+            outer = np.concatenate([c[1] for c in chunks])
+            c = p.combination
+            if answer == NPZ:
+                return Response(encode_npz({
+                    "inner": np.array(c.inner.name), "outer": np.array(c.outer.name), "fps": np.array(p.fps),
+                    "inner_vertices": inner, "inner_faces": c.inner.faces, "outer_vertices": outer,
+                    "outer_faces": c.outer.faces}), media_type=NPZ)
+            return JSONResponse({"inner": c.inner.name, "outer": c.outer.name, "fps": p.fps,
+                                 "inner_vertices": inner.tolist(), "inner_faces": c.inner.faces.tolist(),
+                                 "outer_vertices": outer.tolist(), "outer_faces": c.outer.faces.tolist()})
+
+        return await whole_answer(request, whole)
+
+    def source() -> FrameSource:
+        p = plan()
+        c = p.combination
+        ni, no = c.inner.num_vertices, c.outer.num_vertices
+        faces = np.concatenate([c.inner.faces, c.outer.faces + ni]).astype(np.int32)
+
+        def chunks() -> Iterator[np.ndarray]:
+            return (np.concatenate([i, o], axis=1) for i, o in pairs(p))
+
+        layers = [{"name": c.inner.name, "start": 0, "stop": ni}, {"name": c.outer.name, "start": ni, "stop": ni + no}]
+        return FrameSource(chunks, faces, p.num_frames, ni + no, p.fps, "", layers)
+
+    if answer == GLB:
+        def glb() -> Response:
+            src = source()
+            frames = np.concatenate(list(src.chunks()))
+            return Response(vertex_animation_glb(frames, src.faces, src.fps, name="layers"), media_type=GLB)
+
+        return await whole_answer(request, glb)
+    return await stream_answer(request, answer, source)

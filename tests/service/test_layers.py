@@ -1,0 +1,87 @@
+"""The layer routes: GET /v1/layers, the layer templates in /v1/garments, POST /v1/layers/animate through the
+client and the frame stream, bad inputs."""
+
+import asyncio
+import json
+
+import numpy as np
+from svc_env import problem
+
+import drape
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.assets.outfits import split_outfit
+from drape.geometry.layers import refine_layers
+from drape.schemas.binary import FRAMES, FrameDecoder
+
+CLIP = load_clip("dance_b")
+MOTION = {"poses": CLIP.poses[:40:8].reshape(5, 72), "translation": CLIP.trans[:40:8], "fps": 30.0}
+
+
+def test_layers_are_listed_and_their_templates_served(http):
+    layers = http.get("/v1/layers").json()["layers"]
+    assert [(x["inner"], x["outer"]) for x in layers] == [("tshirt", "jacket"), ("tanktop", "longsleeve")]
+    assert all(x["thickness"] == [0.002, 0.02] and x["model"] == "deepsd" and x["body"] == "neutral" for x in layers)
+    (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 4000, seed=7)
+    js = http.get("/v1/garments/jacket").json()
+    assert np.allclose(js["vertices"], vo) and js["faces"] == fo.tolist() and js["body"] == "neutral"
+    listed = {g["name"]: g for g in http.get("/v1/garments").json()["garments"]}
+    assert listed["tshirt"]["num_vertices"] == len(vi) and listed["tshirt"]["models"] == ["deepsd"]
+    problem(http.post("/v1/garments/jacket/encode", json={"vertices": [[0, 0, 0]], "frame": 0,
+                                                          "motion": {"clip": "kick"}}), 404, "layer template")
+
+
+def test_animate_layers_through_the_client(server_url):
+    """Both layers' frames from the client (sync and async), the refined ones equal to the library's post step on
+    the unrefined ones; GLB and PC2 of the two as one mesh; the frame stream names the layer ranges."""
+    with drape.Client(server_url) as client:
+        assert [x["outer"] for x in client.layers()] == ["jacket", "longsleeve"]
+        raw = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION)
+        fixed = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, thickness=0.004, refine=True)
+        pc2 = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, format="pc2")
+    (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 4000, seed=7)
+    assert raw.inner_vertices.shape == (5, len(vi), 3) and raw.outer_vertices.shape == (5, len(vo), 3)
+    assert np.array_equal(raw.inner_faces, fi) and np.array_equal(fixed.outer_faces, fo) and raw.fps == 30.0
+    body = load_body("neutral")
+    posed = body.pose(MOTION["poses"].reshape(-1, 24, 3).astype(float), MOTION["translation"].astype(float))
+    ri, ro, report = refine_layers(raw.inner_vertices, fi, raw.outer_vertices, fo, posed, body.faces, thickness=0.004)
+    assert np.abs(fixed.inner_vertices - ri).max() < 1e-5 and np.abs(fixed.outer_vertices - ro).max() < 1e-5
+    assert sum(report.outer_in_inner_after) < sum(report.outer_in_inner_before)
+    assert pc2[:12] == b"POINTCACHE2\0" and len(pc2) == 32 + 5 * (len(vi) + len(vo)) * 12
+
+    async def go():
+        async with drape.AsyncClient(server_url) as client:
+            return await client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION)
+
+    assert np.array_equal(asyncio.run(go()).outer_vertices, raw.outer_vertices)
+
+
+def test_the_frame_stream_names_the_layer_ranges(http):
+    body = {"inner": "tanktop", "outer": "longsleeve", "motion": {"clip": "kick"}}
+    r = http.post("/v1/layers/animate", json=body, headers={"accept": FRAMES})
+    assert r.status_code == 200
+    dec = FrameDecoder()
+    frames = np.stack(list(dec.feed(r.content)))
+    ranges = dec.header["layers"]
+    assert [x["name"] for x in ranges] == ["tanktop", "longsleeve"] and ranges[1]["stop"] == frames.shape[1]
+    js = http.post("/v1/layers/animate", json=body).json()
+    assert np.allclose(frames[:, : ranges[0]["stop"]], js["inner_vertices"], atol=1e-6)
+    assert np.allclose(frames[:, ranges[1]["start"]:], js["outer_vertices"], atol=1e-6)
+
+
+def test_layers_bad_inputs(http):
+    ok = {"inner": "tshirt", "outer": "jacket", "motion": {"clip": "kick"}}
+
+    def post(**change):
+        return http.post("/v1/layers/animate", json={**ok, **change})
+
+    problem(post(inner="cardigan"), 404, "cardigan", "tshirt")
+    problem(post(inner="tanktop"), 422, "tanktop", "not served")
+    problem(post(thickness=0.5), 422, "thickness", "0.02")
+    problem(post(motion={"poses": [[0.0] * 72] * 201}), 413, "frames")
+    nan = json.dumps({**ok, "motion": {"poses": [[float("nan")] * 72]}})  # NaN literals: not JSON
+    problem(http.post("/v1/layers/animate", content=nan, headers={"content-type": "application/json"}), 422,
+            "motion", "NaN")
+    problem(post(refine={"eps": -1.0}), 422, "eps")
+    problem(post(colour="red"), 422, "colour")
+    problem(http.post("/v1/layers/animate", content=b"x", headers={"content-type": "application/x-npz"}), 415)
