@@ -86,6 +86,28 @@ def test_refine_as_glb_and_pc2(http, outfit):
     assert (start, rate) == (0.0, 1.0) and np.array_equal(frames, want)
 
 
+def test_layers_as_glb_and_pc2(http):
+    """/v1/layers/animate's GLB (the two layers as one mesh, inner first) passes the validator and plays the npz
+    answer's frames; its PC2 equals them."""
+    body = {"inner": "tshirt", "outer": "jacket", "motion": {"clip": "kick"}, "refine": True}
+
+    def ask(accept):
+        r = http.post("/v1/layers/animate", json=body, headers={"accept": accept})
+        assert r.status_code == 200, r.text[:500]
+        return r.content
+
+    z = decode_npz(ask(NPZ))
+    want = np.concatenate([z["inner_vertices"], z["outer_vertices"]], axis=1)
+    glb = ask(GLB)
+    report = validate(glb)
+    assert report["errors"] == 0, report["messages"]
+    player = GlbPlayer(glb)
+    for t in (0, 20, len(want) - 1):
+        assert np.abs(player.positions("layers", t) - want[t]).max() < 1e-6
+    frames, _, _ = read_pc2(ask(PC2))
+    assert np.array_equal(frames, want)
+
+
 def test_animate_as_pc2_equals_npz(http, outfit):
     body = animate_body(outfit, False)
     data = post(http, "/v1/outfits/animate", body, PC2)
@@ -96,7 +118,7 @@ def test_animate_as_pc2_equals_npz(http, outfit):
 
 def test_the_schema_offers_glb_and_pc2(http):
     paths = http.get("/openapi.json").json()["paths"]
-    for path in ("/v1/outfits/animate", "/v1/refine"):
+    for path in ("/v1/outfits/animate", "/v1/refine", "/v1/layers/animate"):
         content = paths[path]["post"]["responses"]["200"]["content"]
         assert GLB in content and PC2 in content
     assert GLB in paths["/v1/outfits/rig"]["post"]["responses"]["200"]["content"]
