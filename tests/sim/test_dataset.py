@@ -112,6 +112,7 @@ def _layer_build(out, **kw):
                          2, holdout_params=1, holdout_motions=1, progress=False, workers=1, **kw)
 
 
+@pytest.mark.slow  # about 17 s: `make test-slow`
 def test_layer_dataset_items_splits_and_resume(tmp_path):
     m = _layer_build(tmp_path)
     assert m["layers"] and m["last_run"]["simulated"] == 6

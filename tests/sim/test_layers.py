@@ -109,6 +109,7 @@ def test_layer_params_and_held_out_thickness_bins():
     assert LayerParams.model_validate_json(ps[0].to_json()) == ps[0]
 
 
+@pytest.mark.slow  # about 17 s: `make test-slow`
 def test_sim_run_outer_writes_the_two_layer_contract_and_renders(tmp_path):
     import json
     import subprocess

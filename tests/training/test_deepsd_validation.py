@@ -39,6 +39,7 @@ def test_real_mocap_widens_the_pose_pool(cfg):
         "drape/training/configs/deepsd_wide.json"))["mocap"]["train"])
 
 
+@pytest.mark.slow  # about 25 s: `make test-slow`
 def test_the_checkpoint_is_chosen_on_validation_and_exported(cfg, tmp_path):
     train(cfg, tmp_path / "ckpt", log=lambda *_: None)
     record = choose_checkpoint(cfg, tmp_path / "ckpt", log=lambda *_: None)
