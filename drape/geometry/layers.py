@@ -35,7 +35,6 @@ from drape.geometry.refine import (
     BodySurface,
     Refiner,
     RefineReport,
-    body_tree,
 )
 
 LAYER_EPS = 0.001  # metres kept beyond the inner layer's thickness
@@ -58,11 +57,7 @@ class LayerSurface(BodySurface):
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
               tree: cKDTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """points (P, 3) -> (signed distance to the offset surface (P,), closest point on it (P, 3), normal)."""
-        tree = tree or body_tree(body)
-        sd, cp, n = super().query(body, normals, points, tree, k)
-        if len(points) == 0:
-            return sd, cp, n
-        near = tree.query(points, k=1)[1]
+        sd, cp, n, near = self._query(body, normals, points, tree, k)
         unjudged = self.boundary[near] | (sd < -self.band)
         sd = np.where(unjudged, np.maximum(np.abs(sd), self.thickness + 1e-6), sd) - self.thickness
         return sd, cp + self.thickness * n, n

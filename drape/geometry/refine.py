@@ -108,8 +108,13 @@ class BodySurface:
         others get the exact closest point on the faces around their k nearest body vertices
         (k: this surface's `k` unless given).
         """
+        return self._query(body, normals, points, tree, k)[:3]
+
+    def _query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray, tree: cKDTree | None,
+               k: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """`query`'s answer and each point's nearest body vertex (P,) int."""
         if len(points) == 0:
-            return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+            return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
         tree = tree or body_tree(body)
         k = k or self.k
         # both cores only for a whole large garment: below ~10k points the threads cost more than they save
@@ -146,7 +151,7 @@ class BodySurface:
             d = np.linalg.norm(diff, axis=1)
             cp[idx], n[idx] = c, nn
             sd[idx] = np.where(np.einsum("pc,pc->p", diff, nn) < 0, -d, d)
-        return sd, cp, n
+        return sd, cp, n, near[:, 0]
 
 
 @dataclass
@@ -288,6 +293,41 @@ class Refiner:
         targets[ordered[use]] = placed[use]
         return targets[inside]
 
+    def _hold_outside(self, xm: np.ndarray, cp: np.ndarray, nn: np.ndarray, query: bool, surface: BodySurface,
+                      body: np.ndarray, normals: np.ndarray, tree: cKDTree,
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One round's collision step of the relief and edge-limit passes, on moved points xm (P, 3), in place:
+        with `query`, what is inside goes to its closest body point + eps (cp, nn: renewed); otherwise onto the
+        outer side of its last closest point's tangent plane (cp (P, 3), nn (P, 3): those points and normals).
+        -> (signed distances (P,), eps where put out; cp; nn; inside (P,) bool)."""
+        if query:
+            s, cp, nn = surface.query(body, normals, xm, tree)
+            inside = s < 0
+            xm[inside] = cp[inside] + self.eps * nn[inside]
+        else:
+            s = np.einsum("pc,pc->p", xm - cp, nn)
+            inside = s < 0
+            xm[inside] += (self.eps - s[inside])[:, None] * nn[inside]
+        s[inside] = self.eps
+        return s, cp, nn, inside
+
+    def _settle(self, xm: np.ndarray, s: np.ndarray, inside: np.ndarray, refined: np.ndarray,
+                refined_sd: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                tree: cKDTree) -> None:
+        """After the last round, in place on xm (P, 3) and s (P,): a point placed off one part's surface can land
+        inside another (the armpit, between the thighs), so what was just put out (`inside`) is put out once
+        more; what is still inside goes back to `refined` (P, 3) with its distance `refined_sd` (P,)."""
+        check = np.nonzero(inside)[0]
+        q, c, cn = surface.query(body, normals, xm[check], tree)
+        s[check] = q
+        check, c, cn = check[q < 0], c[q < 0], cn[q < 0]
+        xm[check] = c + self.eps * cn
+        q = surface.query(body, normals, xm[check], tree)[0]
+        back = check[q < 0]
+        xm[back] = refined[back]
+        s[back] = refined_sd[back]
+        s[check[q >= 0]] = q[q >= 0]
+
     def _relieve(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, closest: np.ndarray,
                  closest_normal: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
                  tree: cKDTree) -> tuple[np.ndarray, int]:
@@ -329,28 +369,12 @@ class Refiner:
             # each end moves by its stretched edges' mean excess (twice the textbook half step: converges faster)
             force = np.stack([np.bincount(a, pull[:, c], m) - np.bincount(b, pull[:, c], m) for c in range(3)], axis=1)
             xm = x[moving] - force[moving] / count[moving, None]
-            if (k + 1) % self.relief_query_every == 0 or k == self.relief_iterations - 1:
-                s, cp, nn = surface.query(body, normals, xm, tree)
-                inside = s < 0
-                xm[inside] = cp[inside] + self.eps * nn[inside]
-            else:  # between queries a vertex is held on the outer side of its last closest point's tangent plane
-                s = np.einsum("pc,pc->p", xm - cp, nn)
-                inside = s < 0
-                xm[inside] += (self.eps - s[inside])[:, None] * nn[inside]
-            s[inside] = self.eps
+            query = (k + 1) % self.relief_query_every == 0 or k == self.relief_iterations - 1
+            s, cp, nn, inside = self._hold_outside(xm, cp, nn, query, surface, body, normals, tree)
             x[moving] = xm
-        # a point placed off one part's surface can land inside another (the armpit, between the thighs):
-        # project once more what was just projected; what is still inside keeps its refined position
-        check = np.nonzero(inside)[0]
-        q, c, cn = surface.query(body, normals, x[moving[check]], tree)
-        s[check] = q
-        check = check[q < 0]
-        x[moving[check]] = c[q < 0] + self.eps * cn[q < 0]
-        q = surface.query(body, normals, x[moving[check]], tree)[0]
-        back = check[q < 0]
-        x[moving[back]] = v[verts[moving[back]]]
-        s[back] = sd[verts[moving[back]]]
-        s[check[q >= 0]] = q[q >= 0]
+        xm = x[moving]
+        self._settle(xm, s, inside, v[verts[moving]], sd[verts[moving]], surface, body, normals, tree)
+        x[moving] = xm
         # the pass may only lower a connected patch's largest stretch: a patch it made worse (pulled round
         # a limb to its far side) keeps its refined position
         mov = free[verts]  # (m,) the moving vertices as a mask
@@ -419,27 +443,9 @@ class Refiner:
             corr = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
             count = np.maximum(incident @ (excess > 0).astype(np.float64), 1.0)
             xm = xm + (self.stretch_omega / count)[:, None] * (share @ corr)
-            if (it + 1) % self.stretch_query_every == 0 or it == self.stretch_iterations - 1:
-                s, cp, nn = surface.query(body, normals, xm, tree)
-                inside = s < 0
-                xm[inside] = cp[inside] + self.eps * nn[inside]
-            else:  # between queries a vertex is held on the outer side of its last closest point's tangent plane
-                s = np.einsum("pc,pc->p", xm - cp, nn)
-                inside = s < 0
-                xm[inside] += (self.eps - s[inside])[:, None] * nn[inside]
-            s[inside] = self.eps
-        # a point placed off one part's surface can land inside another: project once more what was just
-        # projected; what is still inside keeps its refined position
-        check = np.nonzero(inside)[0]
-        q, c, cn = surface.query(body, normals, xm[check], tree)
-        s[check] = q
-        check, c, cn = check[q < 0], c[q < 0], cn[q < 0]
-        xm[check] = c + self.eps * cn
-        q = surface.query(body, normals, xm[check], tree)[0]
-        back = check[q < 0]
-        xm[back] = v[verts[moving[back]]]
-        s[back] = sd[verts[moving[back]]]
-        s[check[q >= 0]] = q[q >= 0]
+            query = (it + 1) % self.stretch_query_every == 0 or it == self.stretch_iterations - 1
+            s, cp, nn, inside = self._hold_outside(xm, cp, nn, query, surface, body, normals, tree)
+        self._settle(xm, s, inside, v[verts[moving]], sd[verts[moving]], surface, body, normals, tree)
         out = v.copy()
         out[verts[moving]] = xm
         sd[verts[moving]] = s
