@@ -97,6 +97,16 @@ def cached_layer_refiner(settings: RefineSettings, inner_faces: bytes, num_inner
                         relief_iterations=settings.relief_iterations)
 
 
+def refine_layer_frames(refiner: LayerRefiner, inner: np.ndarray, outer: np.ndarray, body: str, poses: np.ndarray,
+                        translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two layers' frames inner (n, Ni, 3), outer (n, No, 3) through the post step between layers against `body`
+    posed by (poses, translation) -> (inner, outer) float32."""
+    report = LayerReport()
+    pairs = [refiner.refine_frame(i, o, b, report)
+             for i, o, b in zip(inner, outer, posed_body(body, poses, translation), strict=True)]
+    return np.stack([p[0] for p in pairs]).astype(np.float32), np.stack([p[1] for p in pairs]).astype(np.float32)
+
+
 @lru_cache(maxsize=8)
 def body_surface(body: str, faces: bytes | None = None, num_vertices: int = 0) -> BodySurface:
     """The body's collision surface, built once per process. A worker process does not know the user
@@ -361,11 +371,9 @@ class Engine:
         for start in range(0, len(vertices), chunk):
             t = time.perf_counter()
             s = slice(start, start + chunk)
-            posed = posed_body(body, poses[s], translation[s])
-            report = LayerReport()
-            out = np.stack([refiner.refine_frame(i[inner_first], o[first], b, report)[1]
-                            for i, o, b in zip(inner.vertices[s], vertices[s], posed, strict=True)])
-            yield out[:, group].astype(np.float32)
+            out = refine_layer_frames(refiner, inner.vertices[s][:, inner_first], vertices[s][:, first], body,
+                                      poses[s], translation[s])[1]
+            yield out[:, group]
             self._observe("refine", time.perf_counter() - t)
 
     def layer_chunks(self, combination: LayerCombination, thickness: float, poses: np.ndarray,
@@ -386,11 +394,7 @@ class Engine:
             if refiner is not None:
                 t = time.perf_counter()
                 at = slice(start, start + len(inner))
-                report = LayerReport()
-                pairs = [refiner.refine_frame(i, o, b, report) for i, o, b in
-                         zip(inner, outer, posed_body(inner_t.body, poses[at], translation[at]), strict=True)]
-                inner = np.stack([p[0] for p in pairs]).astype(np.float32)
-                outer = np.stack([p[1] for p in pairs]).astype(np.float32)
+                inner, outer = refine_layer_frames(refiner, inner, outer, inner_t.body, poses[at], translation[at])
                 self._observe("refine", time.perf_counter() - t)
             start += len(inner)
             yield inner, outer
