@@ -62,6 +62,56 @@ def new_long_edges(frames: np.ndarray, posed: np.ndarray, rest: np.ndarray, face
     return int(np.count_nonzero((after > 2) & (before <= 2)))
 
 
+Rows = dict[str, tuple[tuple[np.ndarray, np.ndarray], float]]
+
+
+class LayerRows:
+    """One layered outfit (`pair`, VERTICES, SEED) split into its two templates (inner: vi, fi; outer: vo, fo),
+    the whole outfit, their served DeePSD rigs and the refiners, made once; `rows` poses and refines them."""
+
+    def __init__(self, engine: Engine, pair: str, thickness: float, body, surface: BodySurface):  # noqa: ANN001
+        (self.vi, self.fi), (self.vo, self.fo) = split_outfit(pair, VERTICES, seed=SEED)
+        self.whole = generate_outfit(pair.split(","), vertices=VERTICES, seed=SEED)
+        self.engine, self.body, self.surface = engine, body, surface
+        self.rigs = [engine.rig(v, f, "neutral") for v, f in
+                     ((self.whole.vertices, self.whole.faces), (self.vi, self.fi), (self.vo, self.fo))]
+        self.layers = LayerRefiner(self.fi, len(self.vi), self.fo, len(self.vo), thickness, body.faces,
+                                   len(body.vertices))
+        self.body_i, self.body_o = Refiner(self.fi, len(self.vi)), Refiner(self.fo, len(self.vo))
+
+    def rows(self, poses: np.ndarray, trans: np.ndarray, bodies: np.ndarray) -> Rows:
+        """poses (T, 24, 3), trans (T, 3), the posed bodies (T, M, 3) -> {label: ((inner (T, Ni, 3), outer
+        (T, No, 3)), refinement seconds per frame)} for `one outfit`, `each alone`, `+ body`, `+ layers`."""
+        w, gi, go = [np.concatenate(list(self.engine.pose_chunks(r, poses, trans))).astype(np.float64)
+                     for r in self.rigs]
+        layer = self.whole.garment
+        rows: Rows = {"one outfit": ((w[:, layer == 0], w[:, layer == 1]), 0.0), "each alone": ((gi, go), 0.0)}
+        t = time.perf_counter()
+        r = RefineReport()
+        refined = tuple(np.stack([refiner.refine_frame(x, b, self.surface, r) for x, b in
+                                  zip(frames, bodies, strict=True)]) for refiner, frames in
+                        ((self.body_i, gi), (self.body_o, go)))
+        rows["+ body"] = ((refined[0], refined[1]), (time.perf_counter() - t) / len(bodies))
+        t = time.perf_counter()
+        report = LayerReport()
+        both = [self.layers.refine_frame(i, o, b, report) for i, o, b in zip(gi, go, bodies, strict=True)]
+        rows["+ layers"] = ((np.stack([p[0] for p in both]), np.stack([p[1] for p in both])),
+                            (time.perf_counter() - t) / len(bodies))
+        return rows
+
+
+def h_coll(frames: np.ndarray, bodies: np.ndarray, faces: np.ndarray) -> float:
+    """Share of vertices inside the body (exact closest triangle), frames (T, N, 3), bodies (T, M, 3)."""
+    return float(np.mean([np.mean(signed_distance_to_mesh(x, b, faces) < 0) for x, b in zip(frames, bodies, strict=True)]))
+
+
+def l_coll(outer: np.ndarray, inner: np.ndarray, inner_faces: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Share of outer vertices behind the inner within INSIDE_BAND where it covers them -> (share, signed
+    distances (T, No), covered (T, No))."""
+    sd, covered = outer_inner_distance(outer, inner, inner_faces)
+    return float(np.mean(covered & (sd < 0) & (sd >= -INSIDE_BAND))), sd, covered
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--every", type=int, default=4, help="use every k-th frame")
@@ -73,40 +123,19 @@ def main() -> None:
     print(f"{'pair':19s} {'clip':11s} {'T':>4s} {'rows':12s} {'H inner':>8s} {'H outer':>8s} {'L-Coll':>7s} "
           f"{'gap mm':>7s} {'new >2x':>7s} {'ms/frame':>8s}")
     for pair in PAIRS:
-        (vi, fi), (vo, fo) = split_outfit(pair, VERTICES, seed=SEED)
-        whole = generate_outfit(pair.split(","), vertices=VERTICES, seed=SEED)
-        layer = whole.garment
-        rig_whole = engine.rig(whole.vertices, whole.faces, "neutral")
-        rig_i, rig_o = engine.rig(vi, fi, "neutral"), engine.rig(vo, fo, "neutral")
-        refiner = LayerRefiner(fi, len(vi), fo, len(vo), args.thickness, body.faces, len(body.vertices))
-        body_i, body_o = Refiner(fi, len(vi)), Refiner(fo, len(vo))
+        lr = LayerRows(engine, pair, args.thickness, body, surface)
         for name, poses, trans in clips(body, args.every):
             bodies = body.pose(poses, trans).astype(np.float64)
-
-            w, *alone = [np.concatenate(list(engine.pose_chunks(rig, poses, trans))).astype(np.float64)
-                         for rig in (rig_whole, rig_i, rig_o)]
-            rows = {"one outfit": ((w[:, layer == 0], w[:, layer == 1]), 0.0)}
-            rows["each alone"] = (alone, 0.0)
-            t = time.perf_counter()
-            r = RefineReport()
-            refined = (np.stack([body_i.refine_frame(x, b, surface, r) for x, b in zip(alone[0], bodies, strict=True)]),
-                       np.stack([body_o.refine_frame(x, b, surface, r) for x, b in zip(alone[1], bodies, strict=True)]))
-            rows["+ body"] = (refined, (time.perf_counter() - t) / len(bodies))
-            t = time.perf_counter()
-            report = LayerReport()
-            pairs = [refiner.refine_frame(i, o, b, report) for i, o, b in zip(*alone, bodies, strict=True)]
-            rows["+ layers"] = ((np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])),
-                                (time.perf_counter() - t) / len(bodies))
+            rows = lr.rows(poses, trans, bodies)
+            gi, go = rows["each alone"][0]
             for label, ((inner, outer), seconds) in rows.items():
-                h = [np.mean([np.mean(signed_distance_to_mesh(x, b, body.faces) < 0) for x, b in
-                              zip(layer_frames, bodies, strict=True)]) for layer_frames in (inner, outer)]
-                sd, covered = outer_inner_distance(outer, inner, fi)
-                lcoll = float(np.mean(covered & (sd < 0) & (sd >= -INSIDE_BAND)))
+                lcoll, sd, covered = l_coll(outer, inner, lr.fi)
                 gap = float(np.median(sd[covered])) * 1e3
-                longer = (new_long_edges(inner, alone[0], vi, fi) + new_long_edges(outer, alone[1], vo, fo)
+                longer = (new_long_edges(inner, gi, lr.vi, lr.fi) + new_long_edges(outer, go, lr.vo, lr.fo)
                           if label.startswith("+") else 0)
-                print(f"{pair:19s} {name:11s} {len(bodies):4d} {label:12s} {h[0]:8.2%} {h[1]:8.2%} {lcoll:7.2%} "
-                      f"{gap:7.1f} {longer:7d} {seconds * 1e3:8.1f}", flush=True)
+                print(f"{pair:19s} {name:11s} {len(bodies):4d} {label:12s} {h_coll(inner, bodies, body.faces):8.2%} "
+                      f"{h_coll(outer, bodies, body.faces):8.2%} {lcoll:7.2%} {gap:7.1f} {longer:7d} "
+                      f"{seconds * 1e3:8.1f}", flush=True)
 
 
 if __name__ == "__main__":

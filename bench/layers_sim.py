@@ -23,23 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.layers_refine import PAIRS, REAL, LayerRows, h_coll, l_coll
 from drape.assets.body import load_body
 from drape.assets.motion import Motion, import_motion, load_clip
-from drape.assets.outfits import generate_outfit
-from drape.geometry.layers import LayerRefiner, LayerReport
 from drape.geometry.metrics import hausdorff_mm, rmse_mm, sted
-from drape.geometry.queries import signed_distance_to_mesh
-from drape.geometry.refine import BodySurface, Refiner, RefineReport
+from drape.geometry.refine import BodySurface
 from drape.runtime.engine import Engine
-from drape.sim.layers import simulate_layers, split_outfit
+from drape.sim.layers import simulate_layers
 from drape.sim.params import LayerParams
-from drape.sim.quality import INSIDE_BAND, outer_inner_distance
 
-PAIRS = ("tshirt,jacket", "tanktop,longsleeve")
-VERTICES = 4000
-SEED = 7
 THICKNESS = 0.006
-REAL = Path("..") / "shared" / "data" / "mocap" / "02_01_walk.bvh"
 CACHE = Path("data") / "layers_eval"
 
 
@@ -62,10 +55,6 @@ def simulated(pair: str, motion: Motion, frames: int, inner, outer, body) -> dic
     return {k: z[k] for k in z.files}
 
 
-def h_coll(frames: np.ndarray, bodies: np.ndarray, faces: np.ndarray) -> float:
-    return float(np.mean([np.mean(signed_distance_to_mesh(x, b, faces) < 0) for x, b in zip(frames, bodies, strict=True)]))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", type=int, default=60, help="motion frames simulated per sequence")
@@ -76,33 +65,20 @@ def main() -> None:
     print(f"{'pair':19s} {'clip':11s} {'T':>3s} {'rows':11s} {'RMSE mm':>8s} {'Haus mm':>8s} {'STED':>6s} "
           f"{'H inner':>8s} {'H outer':>8s} {'L-Coll':>7s}")
     for pair in PAIRS:
-        (vi, fi), (vo, fo) = split_outfit(pair, VERTICES, seed=SEED)
-        whole = generate_outfit(pair.split(","), vertices=VERTICES, seed=SEED)
-        rigs = [engine.rig(v, f, "neutral") for v, f in ((whole.vertices, whole.faces), (vi, fi), (vo, fo))]
-        layers = LayerRefiner(fi, len(vi), fo, len(vo), THICKNESS, body.faces, len(body.vertices))
-        body_i, body_o = Refiner(fi, len(vi)), Refiner(fo, len(vo))
+        lr = LayerRows(engine, pair, THICKNESS, body, surface)
         for motion in motions(body):
-            sim = simulated(pair, motion, args.frames, (vi, fi), (vo, fo), body)
+            sim = simulated(pair, motion, args.frames, (lr.vi, lr.fi), (lr.vo, lr.fo), body)
             poses, trans = sim["poses"].astype(np.float64), sim["trans"].astype(np.float64)
             bodies = body.pose(poses, trans).astype(np.float64)
-            w, gi, go = [np.concatenate(list(engine.pose_chunks(r, poses, trans))).astype(np.float64) for r in rigs]
-            r = RefineReport()
-            bi = np.stack([body_i.refine_frame(x, b, surface, r) for x, b in zip(gi, bodies, strict=True)])
-            bo = np.stack([body_o.refine_frame(x, b, surface, r) for x, b in zip(go, bodies, strict=True)])
-            report = LayerReport()
-            both = [layers.refine_frame(i, o, b, report) for i, o, b in zip(gi, go, bodies, strict=True)]
             rows = {"sim": (sim["inner"], sim["outer"]),
-                    "one outfit": (w[:, whole.garment == 0], w[:, whole.garment == 1]),
-                    "each alone": (gi, go), "+ body": (bi, bo),
-                    "+ layers": (np.stack([p[0] for p in both]), np.stack([p[1] for p in both]))}
+                    **{label: frames for label, (frames, _) in lr.rows(poses, trans, bodies).items()}}
             for label, (inner, outer) in rows.items():
-                sd, covered = outer_inner_distance(outer, inner, fi)
-                lcoll = float(np.mean(covered & (sd < 0) & (sd >= -INSIDE_BAND)))
+                lcoll = l_coll(outer, inner, lr.fi)[0]
                 if label == "sim":
                     err = f"{'':8s} {'':8s} {'':6s}"
                 else:
                     err = (f"{rmse_mm(outer, sim['outer']):8.1f} {hausdorff_mm(outer, sim['outer']):8.1f} "
-                           f"{sted(outer, sim['outer'], fo)['sted']:6.3f}")
+                           f"{sted(outer, sim['outer'], lr.fo)['sted']:6.3f}")
                 print(f"{pair:19s} {motion.name[:11]:11s} {len(bodies):3d} {label:11s} {err} "
                       f"{h_coll(inner, bodies, body.faces):8.2%} {h_coll(outer, bodies, body.faces):8.2%} "
                       f"{lcoll:7.2%}", flush=True)
