@@ -171,6 +171,13 @@ def test_body_surface_matches_the_exact_mesh_distance_where_garments_go():
     assert np.allclose(np.linalg.norm(pts - cp, axis=1)[close], np.abs(sd[close]))
 
 
+def dance_b_bodies():
+    """The body posed at every 15th frame of dance_b, where it overlaps itself: (11, M, 3) float64 m."""
+    clip = load_clip("dance_b")
+    frames = np.arange(0, clip.num_frames, 15)
+    return BODY.pose(clip.poses[frames].astype(float), clip.trans[frames].astype(float)).astype(np.float64)
+
+
 def test_body_surface_sees_points_deep_in_a_posed_body():
     """Points 1.5-4 cm under the surface of a posed body that overlaps itself (dance_b): where a
     point is inside one part and the nearest body vertex belongs to another, BodySurface must still
@@ -178,9 +185,7 @@ def test_body_surface_sees_points_deep_in_a_posed_body():
     vertex's normal, 29 of these 22,000 points disagreed; looking at both nearest ones', 8."""
     from drape.geometry.refine import BodySurface
 
-    clip = load_clip("dance_b")
-    frames = np.arange(0, clip.num_frames, 15)
-    bodies = BODY.pose(clip.poses[frames].astype(float), clip.trans[frames].astype(float)).astype(np.float64)
+    bodies = dance_b_bodies()
     surface = BodySurface(BODY.faces, len(BODY.vertices))
     rng = np.random.default_rng(0)
     candidates = vertices_where_garments_go()
@@ -201,9 +206,7 @@ def test_more_nearest_vertices_see_what_two_miss_in_the_body_overlap():
     around the 2 nearest body vertices can all belong to the part the point is not inside (the armpit), and
     the point reads as outside; the faces around 8 (`query(k=8)`, the refinement's optional last check)
     agree with the exact closest triangle far more often. Measured: 15 and 2 of 22,000 points disagree."""
-    clip = load_clip("dance_b")
-    frames = np.arange(0, clip.num_frames, 15)
-    bodies = BODY.pose(clip.poses[frames].astype(float), clip.trans[frames].astype(float)).astype(np.float64)
+    bodies = dance_b_bodies()
     surface = BodySurface(BODY.faces, len(BODY.vertices))
     rng = np.random.default_rng(0)
     candidates = vertices_where_garments_go()
