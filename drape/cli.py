@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -256,6 +257,22 @@ def _train_intrinsic(args: argparse.Namespace) -> None:
     model, summary = train(load_config(args.template, args.config), args.checkpoints)
     print(json.dumps({k: v for k, v in summary.items() if k not in ("config", "latent_mean", "latent_std")}, indent=2))
     for path in export_trained(model, summary, args.out or ASSETS / "models" / "intrinsic" / args.template):
+        print(path)
+
+
+def _train_mgn_inner(args: argparse.Namespace) -> None:
+    import json
+    import platform
+    import time
+
+    from drape.training.layers_inner import export_trained, load_config, train
+
+    t0 = time.time()
+    model, task, summary = train(load_config(args.inner, args.config), args.checkpoints or f"checkpoints/mgn_inner_{args.inner}")
+    summary["wall_seconds"] = round(time.time() - t0, 1)
+    summary["machine"] = f"{platform.machine()}, {os.cpu_count()} CPUs"
+    print(json.dumps({k: v for k, v in summary.items() if k != "validation"}, indent=2))
+    for path in export_trained(model, task, summary, args.out or ASSETS / "models" / "mgn_inner" / args.inner):
         print(path)
 
 
@@ -518,6 +535,13 @@ def build_parser() -> argparse.ArgumentParser:
     ti.add_argument("--checkpoints", help="default checkpoints/intrinsic/<template>")
     ti.add_argument("--out", help="where the ONNX model goes (default drape/assets/models/intrinsic/<template>)")
     ti.set_defaults(func=_train_intrinsic)
+    tm = t.add_parser("mgn-inner", help="MGN's inner-layer network of one served inner template, by physics "
+                      "(resumes from checkpoints; exported with DeePSD's rig measured on the same validation split)")
+    tm.add_argument("--inner", required=True, help="tshirt or tanktop: drape/training/configs/mgn_inner_<inner>.json")
+    tm.add_argument("--config", help="another config file")
+    tm.add_argument("--checkpoints", help="default checkpoints/mgn_inner_<inner>")
+    tm.add_argument("--out", help="default drape/assets/models/mgn_inner/<inner>")
+    tm.set_defaults(func=_train_mgn_inner)
     td = t.add_parser("deepsd", help="train DeePSD by physics on generated outfits (resumes from checkpoints)")
     td.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     td.add_argument("--checkpoints", default="checkpoints/deepsd")

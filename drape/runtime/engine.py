@@ -38,7 +38,7 @@ from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 from drape.runtime.intrinsic import DECODE_BLOCK, INTRINSIC_DIR, GarmentRegistry, IntrinsicGarment
-from drape.runtime.layers import LayerCatalog, LayerCombination
+from drape.runtime.layers import LayerCatalog, LayerCombination, LayerTemplate
 from drape.runtime.sparse_rig import INFLUENCES, fit_poses, sparse_rig
 
 POSE_BLOCK = 128  # frames posed per call (then handed out a chunk at a time)
@@ -380,17 +380,24 @@ class Engine:
                      translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,
                      ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Two layers along a motion (poses (T, 24, 3) rad, translation (T, 3) m): (inner (n, Ni, 3), outer
-        (n, No, 3)) float32 m in chunks of up to `chunk` frames. Each layer is posed by its own served DeePSD rig;
+        (n, No, 3)) float32 m in chunks of up to `chunk` frames. The inner layer is posed by its template's
+        inner-layer network where one is served (`inner_chunks`), else, as the outer, by its own served DeePSD rig;
         with `refine`, the post step between layers (drape.geometry.layers, the inner's thickness m) in this
         process: the inner and the outer out of the body, the outer out of the inner, then of the body again."""
         inner_t, outer_t = combination.inner, combination.outer
-        rigs = [self.rig(t.vertices, t.faces, t.body) for t in (inner_t, outer_t)]
+        outer_chunks = self.pose_chunks(self.rig(outer_t.vertices, outer_t.faces, outer_t.body), poses, translation,
+                                        chunk)
+        if inner_t.network is not None:
+            inner_chunks = self.inner_chunks(inner_t, poses, translation, chunk)
+        else:
+            inner_chunks = self.pose_chunks(self.rig(inner_t.vertices, inner_t.faces, inner_t.body), poses,
+                                            translation, chunk)
         refiner = None
         if refine is not None:
             refiner = cached_layer_refiner(refine, inner_t.faces.tobytes(), inner_t.num_vertices,
                                            outer_t.faces.tobytes(), outer_t.num_vertices, thickness, inner_t.body)
         start = 0
-        for inner, outer in zip(*(self.pose_chunks(r, poses, translation, chunk) for r in rigs), strict=True):
+        for inner, outer in zip(inner_chunks, outer_chunks, strict=True):
             if refiner is not None:
                 t = time.perf_counter()
                 at = slice(start, start + len(inner))
@@ -398,6 +405,26 @@ class Engine:
                 self._observe("refine", time.perf_counter() - t)
             start += len(inner)
             yield inner, outer
+
+    def inner_chunks(self, template: LayerTemplate, poses: np.ndarray, translation: np.ndarray,
+                     chunk: int = 32) -> Iterator[np.ndarray]:
+        """An inner layer posed by its network (template.network: MGN's pose MLP -> basis coefficients, then the
+        batched posing of a rig): (n, Ni, 3) float32 m in chunks of up to `chunk` frames."""
+        network = template.network
+        if network is None:
+            raise ValueError(f"{template.name}: no inner-layer network is served")
+        joints = load_body(template.body).joints
+        block = max(chunk, POSE_BLOCK)
+        for start in range(0, len(poses), block):
+            p, tr = poses[start : start + block], translation[start : start + block]
+            t = time.perf_counter()
+            keys = network.pose_keys(p)
+            self._observe("pose", time.perf_counter() - t)
+            t = time.perf_counter()
+            frames = pose_outfit(template.vertices, network.rig, keys, joints, p, tr)
+            self._observe("posing", time.perf_counter() - t)
+            for s in range(0, len(frames), chunk):
+                yield frames[s : s + chunk]
 
     def garment_chunks(self, garment: IntrinsicGarment, latents: np.ndarray, poses: np.ndarray,
                        translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,

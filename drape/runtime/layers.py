@@ -1,40 +1,91 @@
 """The served layer combinations (issue 22): an inner and an outer garment template worn together.
 
 Each combination is one generated layered outfit (drape.assets.outfits.split_outfit: the outer built around the
-inner, VERTICES together, a fixed seed) split into its two templates, on the neutral body. Until the MGN
-networks are trained, both layers are posed by DeePSD's served rig, each rigged on its own, and the post step
-between layers (drape.geometry.layers) keeps the outer out of the inner: the `model` of every combination says
-so ("deepsd"). The templates are made on first use (about 1.5 s each combination) and kept.
+inner, VERTICES together, a fixed seed) split into its two templates, on the neutral body. The inner layer is
+posed by MGN's inner-layer network of its template (drape/assets/models/mgn_inner/<inner>/, `InnerModel`) where
+one ships and its manifest says it measured better than DeePSD on the validation split (`served`), else by
+DeePSD's served rig; the outer by DeePSD's served rig of that layer alone (MGN's outer network is not trained).
+The post step between layers (drape.geometry.layers) keeps the outer out of the inner. `inner_model`,
+`outer_model` and `model` ("<inner_model>+<outer_model>", or the one name when both are the same) say what poses
+them. The templates are made on first use (about 1.5 s each combination) and kept.
 
 Shapes: template vertices (N, 3) float32 metres in rest pose on the body; faces (F, 3) int32.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from drape.assets.outfits import split_outfit
+from drape.runtime.deepsd import Rig
 
 COMBINATIONS = (("tshirt", "jacket"), ("tanktop", "longsleeve"))  # (inner, outer) garment types
 VERTICES = 4000  # both layers together
 SEED = 7
 BODY = "neutral"
 THICKNESS = (0.002, 0.02)  # metres: the inner thicknesses the post step between layers is served for
-MODEL = "deepsd"  # what poses the layers: DeePSD's rig of each layer, then the post step between them
+DEEPSD = "deepsd"  # DeePSD's served rig of the layer alone
+MGN_INNER = "mgn_inner"  # MGN's inner-layer network of the template
+INNER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_inner"
+
+
+class InnerModel:
+    """MGN's inner-layer network of one template (drape.export.layers): pose.onnx (poses (T, 72) -> pose_keys
+    (T, K)) and rig.npz (vertices (N, 3) m, faces, weights (N, 24), blend_shapes (K, N, 3) m), checked against
+    the manifest's sha256. Posed like a DeePSD rig: drape.runtime.deepsd.pose_outfit(vertices, rig, keys, ...)."""
+
+    def __init__(self, folder: str | Path, threads: int = 2):
+        import onnxruntime as ort
+
+        folder = Path(folder)
+        self.manifest = json.loads((folder / "manifest.json").read_text())
+        blobs = {}
+        for name in ("pose", "rig"):
+            entry = self.manifest["files"][name]
+            blob = (folder / entry["file"]).read_bytes()
+            if hashlib.sha256(blob).hexdigest() != entry["sha256"]:
+                raise ValueError(f"{folder / entry['file']}: sha256 does not match the manifest")
+            blobs[name] = blob
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = threads
+        opts.inter_op_num_threads = 1
+        self.session = ort.InferenceSession(blobs["pose"], opts, providers=["CPUExecutionProvider"])
+        import io
+
+        with np.load(io.BytesIO(blobs["rig"]), allow_pickle=False) as z:
+            self.vertices, self.faces = z["vertices"], z["faces"]
+            self.rig = Rig(weights=z["weights"], blend_shapes=z["blend_shapes"])
+        self.served = self.manifest["served"] == MGN_INNER
+
+    def pose_keys(self, poses: np.ndarray) -> np.ndarray:
+        """(T, 24, 3) or (T, 72) axis-angle rad -> (T, K) float32."""
+        p = np.asarray(poses, np.float32).reshape(len(poses), 72)
+        return self.session.run(["pose_keys"], {"poses": p})[0]
+
+
+def load_inner_model(name: str, folder: Path = INNER_MODELS) -> InnerModel | None:
+    """The template's shipped inner-layer network, or None where none ships."""
+    path = folder / name
+    return InnerModel(path) if (path / "manifest.json").exists() else None
 
 
 @dataclass(frozen=True)
 class LayerTemplate:
-    """One layer's template: name, role ('inner' | 'outer'), body, vertices (N, 3) float32 m, faces (F, 3) int32."""
+    """One layer's template: name, role ('inner' | 'outer'), body, vertices (N, 3) float32 m, faces (F, 3) int32;
+    network: the inner-layer network that poses it (None: DeePSD's rig)."""
 
     name: str
     role: str
     body: str
     vertices: np.ndarray
     faces: np.ndarray
+    network: InnerModel | None = field(default=None, compare=False)  # the served inner-layer network, if any
 
     @property
     def num_vertices(self) -> int:
@@ -43,7 +94,12 @@ class LayerTemplate:
     def info(self) -> dict:
         """The template's entry in GET /v1/garments."""
         return {"name": self.name, "num_vertices": self.num_vertices, "num_faces": int(len(self.faces)),
-                "body": self.body, "models": [MODEL]}
+                "body": self.body, "models": [self.model]}
+
+    @property
+    def model(self) -> str:
+        """What poses this layer: MGN_INNER where its network is served, else DEEPSD."""
+        return MGN_INNER if self.network is not None else DEEPSD
 
 
 @dataclass(frozen=True)
@@ -53,14 +109,19 @@ class LayerCombination:
     inner: LayerTemplate
     outer: LayerTemplate
     thickness: tuple[float, float] = THICKNESS
-    model: str = MODEL
+
+    @property
+    def model(self) -> str:
+        a, b = self.inner.model, self.outer.model
+        return a if a == b else f"{a}+{b}"
 
 
 class LayerCatalog:
     """The served combinations (COMBINATIONS), made on first use; thread-safe."""
 
-    def __init__(self, combinations: tuple[tuple[str, str], ...] = COMBINATIONS):
+    def __init__(self, combinations: tuple[tuple[str, str], ...] = COMBINATIONS, models: Path = INNER_MODELS):
         self._kinds = combinations
+        self._models = models
         self._made: list[LayerCombination] | None = None
         self._lock = threading.Lock()
 
@@ -70,7 +131,13 @@ class LayerCatalog:
                 made = []
                 for inner, outer in self._kinds:
                     (vi, fi), (vo, fo) = split_outfit(f"{inner},{outer}", VERTICES, seed=SEED, body=BODY)
-                    made.append(LayerCombination(LayerTemplate(inner, "inner", BODY, vi, fi),
+                    network = load_inner_model(inner, self._models)
+                    if network is not None and not (network.vertices.shape == vi.shape
+                                                    and np.allclose(network.vertices, vi, atol=1e-6)
+                                                    and np.array_equal(network.faces, fi)):
+                        raise ValueError(f"the {inner} inner-layer network was trained on another template")
+                    served = network if network is not None and network.served else None
+                    made.append(LayerCombination(LayerTemplate(inner, "inner", BODY, vi, fi, served),
                                                  LayerTemplate(outer, "outer", BODY, vo, fo)))
                 self._made = made
             return self._made

@@ -15,8 +15,11 @@ class LayerInfo(BaseModel):
     outer: str
     body: str = Field(description="the body preset both templates are dressed on")
     thickness: list[float] = Field(description="[min, max]: the inner thicknesses served, metres")
-    model: str = Field(description="what poses the layers: 'deepsd' (DeePSD's rig of each layer, then the post "
-                                   "step between layers with refine)")
+    model: str = Field(description="what poses the layers: '<inner_model>+<outer_model>', or the one name when "
+                                   "both are the same (then, with refine, the post step between layers)")
+    inner_model: str = Field(description="what poses the inner layer: 'mgn_inner' (MGN's inner-layer network of "
+                                         "the template) or 'deepsd' (DeePSD's rig of the layer alone)")
+    outer_model: str = Field(description="what poses the outer layer: 'deepsd' (DeePSD's rig of the layer alone)")
 
 
 class LayerList(BaseModel):

@@ -17,7 +17,8 @@ from drape.service.settings import Settings
 
 def layer_list(engine: Engine) -> LayerList:
     return LayerList(layers=[LayerInfo(inner=c.inner.name, outer=c.outer.name, body=c.inner.body,
-                                       thickness=list(c.thickness), model=c.model)
+                                       thickness=list(c.thickness), model=c.model,
+                                       inner_model=c.inner.model, outer_model=c.outer.model)
                              for c in engine.layers.combinations()])
 
 
