@@ -30,11 +30,10 @@ from drape.assets.motion import import_motion, load_clip
 from drape.assets.outfits import generate_outfit
 from drape.geometry.layers import LayerRefiner, LayerReport
 from drape.geometry.mesh import unique_edges
-from drape.geometry.queries import signed_distance_to_mesh
 from drape.geometry.refine import BodySurface, Refiner, RefineReport
 from drape.runtime.engine import Engine
 from drape.sim.layers import split_outfit
-from drape.sim.quality import INSIDE_BAND, outer_inner_distance
+from drape.training.layers_eval import h_coll, l_coll
 
 PAIRS = ("tshirt,jacket", "tanktop,longsleeve")
 VERTICES = 4000
@@ -98,18 +97,6 @@ class LayerRows:
         rows["+ layers"] = ((np.stack([p[0] for p in both]), np.stack([p[1] for p in both])),
                             (time.perf_counter() - t) / len(bodies))
         return rows
-
-
-def h_coll(frames: np.ndarray, bodies: np.ndarray, faces: np.ndarray) -> float:
-    """Share of vertices inside the body (exact closest triangle), frames (T, N, 3), bodies (T, M, 3)."""
-    return float(np.mean([np.mean(signed_distance_to_mesh(x, b, faces) < 0) for x, b in zip(frames, bodies, strict=True)]))
-
-
-def l_coll(outer: np.ndarray, inner: np.ndarray, inner_faces: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Share of outer vertices behind the inner within INSIDE_BAND where it covers them -> (share, signed
-    distances (T, No), covered (T, No))."""
-    sd, covered = outer_inner_distance(outer, inner, inner_faces)
-    return float(np.mean(covered & (sd < 0) & (sd >= -INSIDE_BAND))), sd, covered
 
 
 def main() -> None:

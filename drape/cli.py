@@ -326,6 +326,22 @@ def _eval_deepsd(args: argparse.Namespace) -> None:
             print(path)
 
 
+def _eval_layers(args: argparse.Namespace) -> None:
+    from drape.training.layers_eval import evaluate, format_table, write_results
+
+    results = evaluate(frames=args.frames)
+    table = format_table(results)
+    print(table)
+    if args.write:
+        for path in write_results(results):
+            print(path)
+        docs = Path(args.docs)
+        docs.write_text("# Layered garments against the two-layer simulation (`drape eval layers`)\n\n"
+                        "Written by `drape eval layers --write`; what each row and column is: "
+                        "drape/training/layers_eval.py and docs/layers.md.\n\n" + table)
+        print(docs)
+
+
 def _eval_intrinsic(args: argparse.Namespace) -> None:
     from drape.training.intrinsic_eval import evaluate, format_table, write_results
 
@@ -573,6 +589,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help="a `drape sim dataset` directory; mean vertex error against its sequences when it exists")
     evd.set_defaults(func=_eval_deepsd)
 
+    evl = ev.add_parser("layers", help="the served layer combinations against two-layer simulations on held-out "
+                        "motions: RMSE, Hausdorff, STED, H-Coll, L-Coll, speed (simulates what data/layers_eval lacks)")
+    evl.add_argument("--frames", type=int, default=60, help="motion frames simulated per sequence")
+    evl.add_argument("--write", action="store_true", help="into the inner networks' manifests and --docs")
+    evl.add_argument("--docs", default="docs/layers_eval.md")
+    evl.set_defaults(func=_eval_layers)
     evi = ev.add_parser("intrinsic", help="a template's intrinsic garment space on held-out parameters x motions")
     evi.add_argument("--template", required=True)
     evi.add_argument("--dataset", help="the `drape sim dataset` folder (default data/intrinsic/<template>)")

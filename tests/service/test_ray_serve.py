@@ -36,7 +36,8 @@ serve = pytest.importorskip("ray.serve")
 
 REPLICAS = 2
 CHECKS = [not_a_server_error, status_code_conformance, response_schema_conformance, negative_data_rejection]
-EXAMPLES = 40  # per operation (positive and negative): >= 500 cases, as in-process in test_contract.py
+EXAMPLES = 20  # per operation (positive and negative): >= 250 cases; the in-process run (test_contract.py) makes
+# >= 1,000 against the same schema (test_served_schema_is_the_apps), this one checks the proxy in between
 CASES = {"count": 0}
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -138,7 +139,7 @@ def test_api_conforms_to_its_schema_through_serve(case, url):
 
 def test_enough_generated_cases_through_serve():
     """Runs after the schema tests in this module."""
-    assert CASES["count"] >= 500, CASES["count"]
+    assert CASES["count"] >= 250, CASES["count"]
 
 
 @pytest.fixture(scope="module")

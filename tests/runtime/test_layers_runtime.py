@@ -1,0 +1,82 @@
+"""The layer catalog and the engine with an inner-layer network (an untrained one exported on the served tshirt
+template): which model poses each layer, and that the engine's inner stream is that network's."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.assets.outfits import split_outfit
+from drape.export.layers import export_inner
+from drape.models.layers import InnerConfig, InnerPSD
+from drape.runtime.deepsd import pose_outfit
+from drape.runtime.engine import Engine
+from drape.runtime.layers import BODY, SEED, VERTICES, LayerCatalog, load_inner_model
+from drape.training.layers_inner import body_weights
+
+
+def _export(folder, served="mgn_inner", pair="tshirt,jacket", seed=SEED):
+    torch.manual_seed(1)
+    (v, f), _ = split_outfit(pair, VERTICES, seed=seed, body=BODY)
+    model = InnerPSD(InnerConfig(num_vertices=len(v), num_basis=8, width=16, basis_init=0.005))
+    export_inner(model, folder / pair.split(",")[0], vertices=v, faces=f, weights=body_weights(v, load_body(BODY), 4),
+                 manifest={"served": served})
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("mgn_inner")
+    _export(folder)
+    return folder
+
+
+def test_a_served_network_poses_the_inner_layer(models):
+    catalog = LayerCatalog(models=models)
+    c = catalog.find("tshirt", "jacket")
+    assert c.inner.model == "mgn_inner" and c.outer.model == "deepsd" and c.model == "mgn_inner+deepsd"
+    assert catalog.template("tshirt").info()["models"] == ["mgn_inner"]
+    other = catalog.find("tanktop", "longsleeve")  # no network shipped for it here
+    assert other.inner.network is None and other.model == "deepsd"
+
+
+def test_a_network_that_measured_worse_is_not_served(models, tmp_path):
+    for p in (models / "tshirt").iterdir():
+        (tmp_path / "tshirt").mkdir(exist_ok=True)
+        (tmp_path / "tshirt" / p.name).write_bytes(p.read_bytes())
+    manifest = json.loads((tmp_path / "tshirt" / "manifest.json").read_text())
+    manifest["served"] = "deepsd"
+    (tmp_path / "tshirt" / "manifest.json").write_text(json.dumps(manifest))
+    assert not load_inner_model("tshirt", tmp_path).served
+    assert LayerCatalog(models=tmp_path).find("tshirt", "jacket").model == "deepsd"
+
+
+def test_a_network_of_another_template_is_refused(tmp_path):
+    _export(tmp_path, seed=SEED + 1)
+    with pytest.raises(ValueError, match="another template"):
+        LayerCatalog(models=tmp_path).combinations()
+
+
+def test_the_engine_s_inner_stream_is_the_network_s(models):
+    engine = Engine(refine_workers=1)
+    try:
+        engine.layers = LayerCatalog(models=models)
+        c = engine.layers.find("tshirt", "jacket")
+        clip = load_clip("dance_b")
+        poses, trans = clip.poses[:40].astype(np.float64), clip.trans[:40].astype(np.float64)
+        parts = list(engine.layer_chunks(c, 0.006, poses, trans, chunk=16))
+        inner = np.concatenate([p[0] for p in parts])
+        outer = np.concatenate([p[1] for p in parts])
+        net = c.inner.network
+        ref = pose_outfit(c.inner.vertices, net.rig, net.pose_keys(poses), load_body(BODY).joints, poses, trans)
+        assert inner.shape == ref.shape and np.abs(inner - ref).max() <= 1e-5
+        rig = engine.rig(c.outer.vertices, c.outer.faces, BODY)
+        assert np.abs(outer - np.concatenate(list(engine.pose_chunks(rig, poses, trans)))).max() <= 1e-5
+        # the untrained basis moves the cloth: not the template skinned alone
+        skinned = pose_outfit(c.inner.vertices, net.rig, np.zeros_like(net.pose_keys(poses)), load_body(BODY).joints,
+                              poses, trans)
+        assert np.abs(inner - skinned).max() > 1e-3
+    finally:
+        engine.close()
