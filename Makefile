@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: serve test test-slow deepsd-model sim-dataset intrinsic-data intrinsic-data-long layers-data check-blender lint typecheck clean
+.PHONY: serve test test-slow deepsd-model sim-dataset intrinsic-data intrinsic-data-long layers-data mgn-inner-models check-blender lint typecheck clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -123,6 +123,16 @@ layers-data: $(VENV)/.dev-installed
 	done
 
 # Blender (bpy, ~400 MB wheel, needs numpy < 2) lives in its own venv, installed once (stamp file);
+# MGN's inner-layer networks of the served inner templates (drape/training/configs/mgn_inner_<inner>.json), one
+# command each: trained by physics (no simulation needed), the checkpoint chosen on the validation split, DeePSD's
+# rig measured on the same split decides which one serves; exported into drape/assets/models/mgn_inner/<inner>;
+# then `drape eval layers --write` measures what ships against the two-layer simulations (simulating what
+# data/layers_eval lacks). ~25 min per template on the 2-core machine, ~10 min for the evaluation
+MGN_INNER ?= tshirt tanktop
+mgn-inner-models: $(VENV)/.dev-installed
+	for i in $(MGN_INNER); do $(BIN)/drape train mgn-inner --inner $$i || exit 1; done
+	$(BIN)/drape eval layers --write
+
 # check-blender imports drape's GLB and PC2 answers into Blender and compares the evaluated meshes
 # with drape's own vertices (writes docs/blender_check.md; bench/blender_check.py says how).
 BLENDER_VENV := .venv-blender
