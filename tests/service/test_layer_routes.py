@@ -12,6 +12,8 @@ from drape.assets.body import load_body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import split_outfit
 from drape.geometry.layers import refine_layers
+from drape.runtime.deepsd import pose_outfit
+from drape.runtime.layers import LayerCatalog
 from drape.schemas.binary import FRAMES, FrameDecoder
 
 CLIP = load_clip("dance_b")
@@ -21,12 +23,19 @@ MOTION = {"poses": CLIP.poses[:40:8].reshape(5, 72), "translation": CLIP.trans[:
 def test_layers_are_listed_and_their_templates_served(http):
     layers = http.get("/v1/layers").json()["layers"]
     assert [(x["inner"], x["outer"]) for x in layers] == [("tshirt", "jacket"), ("tanktop", "longsleeve")]
-    assert all(x["thickness"] == [0.002, 0.02] and x["model"] == "deepsd" and x["body"] == "neutral" for x in layers)
+    assert all(x["thickness"] == [0.002, 0.02] and x["body"] == "neutral" for x in layers)
+    served = LayerCatalog()  # what poses each layer: the inner network where one ships and measured better
+    for x in layers:
+        c = served.find(x["inner"], x["outer"])
+        assert (x["inner_model"], x["outer_model"], x["model"]) == (c.inner.model, "deepsd", c.model)
+        assert x["inner_model"] in ("mgn_inner", "deepsd")
+        assert x["model"] == (x["inner_model"] if x["inner_model"] == "deepsd" else f"{x['inner_model']}+deepsd")
     (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 4000, seed=7)
     js = http.get("/v1/garments/jacket").json()
     assert np.allclose(js["vertices"], vo) and js["faces"] == fo.tolist() and js["body"] == "neutral"
     listed = {g["name"]: g for g in http.get("/v1/garments").json()["garments"]}
-    assert listed["tshirt"]["num_vertices"] == len(vi) and listed["tshirt"]["models"] == ["deepsd"]
+    assert listed["tshirt"]["num_vertices"] == len(vi) and listed["tshirt"]["models"] == [served.template("tshirt").model]
+    assert listed["jacket"]["models"] == ["deepsd"]
     problem(http.post("/v1/garments/jacket/encode", json={"vertices": [[0, 0, 0]], "frame": 0,
                                                           "motion": {"clip": "kick"}}), 404, "layer template")
 
@@ -44,6 +53,11 @@ def test_animate_layers_through_the_client(server_url):
     assert np.array_equal(raw.inner_faces, fi) and np.array_equal(fixed.outer_faces, fo) and raw.fps == 30.0
     body = load_body("neutral")
     posed = body.pose(MOTION["poses"].reshape(-1, 24, 3).astype(float), MOTION["translation"].astype(float))
+    net = LayerCatalog().find("tshirt", "jacket").inner.network
+    if net is not None:  # the shipped inner network poses the inner layer: its stream is that network's
+        ref = pose_outfit(vi, net.rig, net.pose_keys(MOTION["poses"]), body.joints, MOTION["poses"],
+                          MOTION["translation"])
+        assert np.abs(raw.inner_vertices - ref).max() < 1e-5
     ri, ro, report = refine_layers(raw.inner_vertices, fi, raw.outer_vertices, fo, posed, body.faces, thickness=0.004)
     assert np.abs(fixed.inner_vertices - ri).max() < 1e-5 and np.abs(fixed.outer_vertices - ro).max() < 1e-5
     assert sum(report.outer_in_inner_after) < sum(report.outer_in_inner_before)
