@@ -101,6 +101,7 @@ LAYERS_HOLDOUT_PARAMS ?= 3
 LAYERS_THICKNESS ?= 0.004,0.012
 LAYERS_FRAMES ?= 90
 LAYERS_VERTICES ?= 4000
+LAYERS_SEED ?= 7  # the served templates (drape.runtime.layers: 4,000 vertices, seed 7), so an outer network trained here serves them
 LAYERS_COMBOS ?= tshirt,jacket tanktop,longsleeve
 LAYERS_CMU := $(if $(wildcard $(MOCAP)/05_12_dance.bvh),05_12_dance 06_01_walk,)
 LAYERS_PROC := proc1 proc2 proc3 proc4 proc5
@@ -115,7 +116,7 @@ layers-data: $(VENV)/.dev-installed
 	for combo in $(LAYERS_COMBOS); do \
 		inner=$${combo%,*}; outer=$${combo#*,}; dir=$(LAYERS_DIR)/$${inner}_$${outer}; \
 		test -f $$dir/$$inner.obj -a -f $$dir/$$outer.obj || \
-			$(BIN)/drape sim outfit --type $$combo --vertices $(LAYERS_VERTICES) --seed 0 --out $$dir || exit 1; \
+			$(BIN)/drape sim outfit --type $$combo --vertices $(LAYERS_VERTICES) --seed $(LAYERS_SEED) --out $$dir || exit 1; \
 		(cd $$dir && $(CURDIR)/$(BIN)/drape sim dataset --garment $$inner.obj --outer $$outer.obj \
 			--params $(LAYERS_PARAMS) --seed 22 --thickness $(LAYERS_THICKNESS) --motions $(LAYERS_MOTIONS) \
 			--frames $(LAYERS_FRAMES) --holdout-params $(LAYERS_HOLDOUT_PARAMS) \
