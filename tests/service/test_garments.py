@@ -17,6 +17,7 @@ from drape.assets.body import load_body
 from drape.assets.motion import load_clip
 from drape.geometry.metrics import collision_share
 from drape.runtime.intrinsic import IntrinsicGarment
+from drape.runtime.layers import LayerCatalog
 from drape.schemas.binary import NPZ, decode_npz, encode_npz
 from drape.schemas.gltf import GLB
 from drape.schemas.pc2 import read_pc2
@@ -66,7 +67,9 @@ def test_list_and_template(server_url, http, garment):
         with pytest.raises(drape.DrapeAPIError) as info:
             client.garment("no such skirt")
     assert [g.model_dump() for g in listed if g.models == ["intrinsic"]] == [garment.info()]
-    assert {g.name for g in listed if g.models == ["deepsd"]} == {"tshirt", "jacket", "tanktop", "longsleeve"}
+    layers = {t.name: [t.model] for t in LayerCatalog().templates()}  # mgn_inner where an inner network serves
+    assert {g.name: g.models for g in listed if g.name in layers} == layers
+    assert set(layers) == {"tshirt", "jacket", "tanktop", "longsleeve"} and layers["jacket"] == ["deepsd"]
     assert listed[0].latent_size == 100 and listed[0].window == 8 and listed[0].models == ["intrinsic"]
     assert (tpl.name, tpl.body) == (NAME, "neutral")
     assert np.array_equal(tpl.vertices, intrinsic_model().vertices) and np.array_equal(tpl.faces, garment.faces)
