@@ -289,18 +289,21 @@ class Engine:
         return self.cache.get(outfit_id)
 
     def pose_chunks(self, outfit: RiggedOutfit, poses: np.ndarray, translation: np.ndarray,
-                    chunk: int = 32, refine: RefineSettings | None = None) -> Iterator[np.ndarray]:
+                    chunk: int = 32, refine: RefineSettings | None = None,
+                    pose_keys: Callable[[np.ndarray], np.ndarray] | None = None) -> Iterator[np.ndarray]:
         """Posed vertices in chunks of up to `chunk` frames: (n, N, 3) float32 each, refined if asked.
 
         Posing runs POSE_BLOCK frames per call (a 32-frame call re-packs the blend shapes for its GEMM
         and poses ~1.5x slower a frame: bench/pose.py) and the block is handed out `chunk` frames at a time.
+        pose_keys: poses (n, 24, 3) -> the rig's keys (n, P); default DeePSD's pose network.
         """
         joints = load_body(outfit.body).joints
+        keys_of = pose_keys or self.model.pose_keys
         block = max(chunk, POSE_BLOCK)
         for start in range(0, len(poses), block):
             p, tr = poses[start : start + block], translation[start : start + block]
             t = time.perf_counter()
-            keys = self.model.pose_keys(p)
+            keys = keys_of(p)
             self._observe("pose", time.perf_counter() - t)
             t = time.perf_counter()
             frames = pose_outfit(outfit.vertices, outfit.rig, keys, joints, p, tr)
@@ -413,18 +416,8 @@ class Engine:
         network = template.network
         if network is None:
             raise ValueError(f"{template.name}: no inner-layer network is served")
-        joints = load_body(template.body).joints
-        block = max(chunk, POSE_BLOCK)
-        for start in range(0, len(poses), block):
-            p, tr = poses[start : start + block], translation[start : start + block]
-            t = time.perf_counter()
-            keys = network.pose_keys(p)
-            self._observe("pose", time.perf_counter() - t)
-            t = time.perf_counter()
-            frames = pose_outfit(template.vertices, network.rig, keys, joints, p, tr)
-            self._observe("posing", time.perf_counter() - t)
-            for s in range(0, len(frames), chunk):
-                yield frames[s : s + chunk]
+        outfit = RiggedOutfit(template.name, template.body, template.vertices, template.faces, network.rig)
+        return self.pose_chunks(outfit, poses, translation, chunk, pose_keys=network.pose_keys)
 
     def garment_chunks(self, garment: IntrinsicGarment, latents: np.ndarray, poses: np.ndarray,
                        translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,

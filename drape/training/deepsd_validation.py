@@ -56,26 +56,31 @@ def validation_motions(cfg: dict, body: str) -> list[Motion]:
 Poser = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (poses (T, 24, 3), trans (T, 3)) -> (T, N, 3)
 
 
+def measure_poser(cfg: dict, vertices: np.ndarray, faces: np.ndarray, body_name: str, body: Body,
+                  pose: Poser) -> dict:
+    """One garment (vertices (N, 3) m, faces) posed by `pose` along the validation motions on `body_name`
+    (`frames_per_clip` frames each): {"inside_triangle_pct": share of vertices inside the posed body (exact
+    closest triangle, %, mean over frames), "edge_error_mm": mean over motions}."""
+    inside, edge = [], []
+    for motion in validation_motions(cfg, body_name):
+        frames = np.linspace(0, motion.num_frames - 1, cfg["validation"]["frames_per_clip"]).round().astype(int)
+        poses, trans = motion.poses[frames].astype(np.float64), motion.trans[frames].astype(np.float64)
+        posed = pose(poses, trans)
+        for g, b in zip(posed, body.pose(poses, trans), strict=True):
+            b = b.astype(np.float64)
+            dist = MeshDistance(b, body.faces, vertex_normals(b, body.faces))
+            inside.append(float(np.mean(dist.signed_distance(g.astype(np.float64)) < 0)))
+        edge.append(edge_length_error_mm(posed, vertices, faces))
+    return {"inside_triangle_pct": 100 * float(np.mean(inside)), "edge_error_mm": float(np.mean(edge))}
+
+
 def _measure(cfg: dict, rig: Callable[[np.ndarray, np.ndarray, Body], Poser], log: Callable[[str], object]) -> dict:
     """Every validation outfit rigged by `rig(vertices, faces, body)`, posed along the validation motions."""
-    v = cfg["validation"]
     per_outfit = {}
     for spec in validation_specs(cfg):
         verts, faces = load_outfit(spec)
         body = load_body(spec.body)
-        pose = rig(verts, faces, body)
-        inside, edge = [], []
-        for motion in validation_motions(cfg, spec.body):
-            frames = np.linspace(0, motion.num_frames - 1, v["frames_per_clip"]).round().astype(int)
-            poses, trans = motion.poses[frames].astype(np.float64), motion.trans[frames].astype(np.float64)
-            posed = pose(poses, trans)
-            for g, b in zip(posed, body.pose(poses, trans), strict=True):
-                b = b.astype(np.float64)
-                dist = MeshDistance(b, body.faces, vertex_normals(b, body.faces))
-                inside.append(float(np.mean(dist.signed_distance(g.astype(np.float64)) < 0)))
-            edge.append(edge_length_error_mm(posed, verts, faces))
-        per_outfit[spec.key] = {"inside_triangle_pct": 100 * float(np.mean(inside)),
-                                "edge_error_mm": float(np.mean(edge))}
+        per_outfit[spec.key] = measure_poser(cfg, verts, faces, spec.body, body, rig(verts, faces, body))
     inside_pct = float(np.mean([o["inside_triangle_pct"] for o in per_outfit.values()]))
     edge_mm = float(np.mean([o["edge_error_mm"] for o in per_outfit.values()]))
     log(f"validation: {inside_pct:.2f}% inside, {edge_mm:.2f} mm edge error")

@@ -29,13 +29,11 @@ import torch
 
 from drape.assets.body import Body, load_body
 from drape.assets.outfits import split_outfit
-from drape.geometry.mesh import neighbour_table, unique_edges, vertex_normals
-from drape.geometry.metrics import edge_length_error_mm
-from drape.geometry.queries import MeshDistance
+from drape.geometry.mesh import neighbour_table, unique_edges
 from drape.models.layers import InnerConfig, InnerPSD
 from drape.training import physics
 from drape.training.deepsd_data import pose_pool
-from drape.training.deepsd_validation import validation_motions
+from drape.training.deepsd_validation import Poser, measure_poser
 
 CONFIGS = Path(__file__).parent / "configs"
 
@@ -109,25 +107,11 @@ def pose_inner(model: InnerPSD, task: InnerTask, poses: np.ndarray, trans: np.nd
     return pose_outfit(task.vertices, rig, keys, task.body.joints, poses, trans)
 
 
-Poser = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (poses (T, 24, 3), trans (T, 3)) -> (T, N, 3)
-
-
 def measure(cfg: dict, vertices: np.ndarray, faces: np.ndarray, body: Body, pose: Poser) -> dict:
-    """The validation split's figures of one poser: inside the posed body (exact closest triangle, %, mean over
-    frames), edge error (mm) and score = inside % + edge error mm."""
-    v = cfg["validation"]
-    inside, edge = [], []
-    for motion in validation_motions(cfg, cfg["body"]):
-        frames = np.linspace(0, motion.num_frames - 1, v["frames_per_clip"]).round().astype(int)
-        poses, trans = motion.poses[frames].astype(np.float64), motion.trans[frames].astype(np.float64)
-        posed = pose(poses, trans)
-        for g, b in zip(posed, body.pose(poses, trans), strict=True):
-            b = b.astype(np.float64)
-            dist = MeshDistance(b, body.faces, vertex_normals(b, body.faces))
-            inside.append(float(np.mean(dist.signed_distance(g.astype(np.float64)) < 0)))
-        edge.append(edge_length_error_mm(posed, vertices, faces))
-    inside_pct, edge_mm = 100 * float(np.mean(inside)), float(np.mean(edge))
-    return {"score": inside_pct + edge_mm, "inside_triangle_pct": inside_pct, "edge_error_mm": edge_mm}
+    """The validation split's figures of one poser (deepsd_validation.measure_poser on the config's body) and
+    score = inside % + edge error mm."""
+    figures = measure_poser(cfg, vertices, faces, cfg["body"], body, pose)
+    return {"score": figures["inside_triangle_pct"] + figures["edge_error_mm"], **figures}
 
 
 def _latest(ckpt_dir: Path) -> Path | None:
