@@ -18,7 +18,6 @@ at best for the einsum formulation kept in `drape.geometry.lbs` (bench/pose.py).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import threading
 from collections.abc import Callable
@@ -31,6 +30,7 @@ import numpy as np
 
 from drape.geometry.mesh import neighbour_table, vertex_normals, weld
 from drape.geometry.skeleton import PARENTS, as_pose_array, forward_kinematics
+from drape.runtime.model_files import checked_files, cpu_session
 
 MODEL_DIR = Path(__file__).resolve().parents[1] / "assets" / "models" / "deepsd"
 
@@ -59,21 +59,10 @@ class DeePSDModel:
     """The two ONNX files of a DeePSD export, checked against their manifest's sha256."""
 
     def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2):
-        import onnxruntime as ort
-
         model_dir = Path(model_dir)
         self.manifest = json.loads((model_dir / "manifest.json").read_text())
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
-        opts.inter_op_num_threads = 1
-        self.sessions = {}
-        for name in ("outfit", "pose"):
-            entry = self.manifest["files"][name]
-            blob = (model_dir / entry["file"]).read_bytes()
-            digest = hashlib.sha256(blob).hexdigest()
-            if digest != entry["sha256"]:
-                raise ValueError(f"{entry['file']}: sha256 {digest} does not match the manifest")
-            self.sessions[name] = ort.InferenceSession(blob, opts, providers=["CPUExecutionProvider"])
+        blobs = checked_files(model_dir, self.manifest, ("outfit", "pose"))
+        self.sessions = {name: cpu_session(blob, threads) for name, blob in blobs.items()}
         self.num_keys = int(self.manifest["files"]["pose"]["outputs"][0]["shape"][-1])
 
     def rig(self, vertices: np.ndarray, faces: np.ndarray) -> Rig:

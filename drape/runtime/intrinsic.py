@@ -19,7 +19,6 @@ indices into the motion.
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import time
@@ -38,6 +37,7 @@ from drape.geometry.character_space import (
     world_space_numpy,
 )
 from drape.geometry.skeleton import as_pose_array
+from drape.runtime.model_files import checked_files, cpu_session
 
 INTRINSIC_DIR = Path(__file__).resolve().parents[1] / "assets" / "models" / "intrinsic"
 DECODE_BLOCK = 256  # frames decoded per ONNX Runtime call
@@ -101,26 +101,15 @@ class IntrinsicGarment:
     """
 
     def __init__(self, model_dir: str | Path, threads: int = 2):
-        import onnxruntime as ort
-
         self.path = Path(model_dir)
         self.manifest: dict[str, Any] = json.loads((self.path / "manifest.json").read_text())
         files = self.manifest.get("files", {})
         missing = [k for k in REQUIRED_FILES if k not in files]
         if missing:
             raise ValueError(f"{self.path}: the manifest lists no {', '.join(missing)} file")
-        blobs: dict[str, bytes] = {}
-        for key, entry in files.items():
-            blob = (self.path / entry["file"]).read_bytes()
-            digest = hashlib.sha256(blob).hexdigest()
-            if digest != entry["sha256"]:
-                raise ValueError(f"{self.path / entry['file']}: sha256 {digest} does not match the manifest")
-            blobs[key] = blob
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
-        opts.inter_op_num_threads = 1
-        self.sessions = {k: ort.InferenceSession(blobs[k], opts, providers=["CPUExecutionProvider"])
-                         for k, entry in files.items() if str(entry["file"]).endswith(".onnx")}
+        blobs = checked_files(self.path, self.manifest, files)
+        self.sessions = {k: cpu_session(blobs[k], threads) for k, entry in files.items()
+                         if str(entry["file"]).endswith(".onnx")}
         with np.load(io.BytesIO(blobs["template"]), allow_pickle=False) as z:
             self.vertices = np.ascontiguousarray(z["vertices"], dtype=np.float32)
             self.faces = np.ascontiguousarray(z["faces"], dtype=np.int32)

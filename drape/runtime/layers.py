@@ -14,7 +14,7 @@ Shapes: template vertices (N, 3) float32 metres in rest pose on the body; faces 
 
 from __future__ import annotations
 
-import hashlib
+import io
 import json
 import threading
 from dataclasses import dataclass, field
@@ -24,6 +24,7 @@ import numpy as np
 
 from drape.assets.outfits import split_outfit
 from drape.runtime.deepsd import Rig
+from drape.runtime.model_files import checked_files, cpu_session
 
 COMBINATIONS = (("tshirt", "jacket"), ("tanktop", "longsleeve"))  # (inner, outer) garment types
 VERTICES = 4000  # both layers together
@@ -41,23 +42,10 @@ class InnerModel:
     the manifest's sha256. Posed like a DeePSD rig: drape.runtime.deepsd.pose_outfit(vertices, rig, keys, ...)."""
 
     def __init__(self, folder: str | Path, threads: int = 2):
-        import onnxruntime as ort
-
         folder = Path(folder)
         self.manifest = json.loads((folder / "manifest.json").read_text())
-        blobs = {}
-        for name in ("pose", "rig"):
-            entry = self.manifest["files"][name]
-            blob = (folder / entry["file"]).read_bytes()
-            if hashlib.sha256(blob).hexdigest() != entry["sha256"]:
-                raise ValueError(f"{folder / entry['file']}: sha256 does not match the manifest")
-            blobs[name] = blob
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
-        opts.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(blobs["pose"], opts, providers=["CPUExecutionProvider"])
-        import io
-
+        blobs = checked_files(folder, self.manifest, ("pose", "rig"))
+        self.session = cpu_session(blobs["pose"], threads)
         with np.load(io.BytesIO(blobs["rig"]), allow_pickle=False) as z:
             self.vertices, self.faces = z["vertices"], z["faces"]
             self.rig = Rig(weights=z["weights"], blend_shapes=z["blend_shapes"])
