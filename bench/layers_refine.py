@@ -1,7 +1,7 @@
 """Two layers from DeePSD, and the refinement between layers (drape.geometry.layers).
 
 Inputs: two layered outfits (tshirt + jacket, tanktop + longsleeve; 4,000 vertices together, generated as one
-outfit and split: drape.sim.layers.split_outfit) on the neutral body, along the held-out clip dance_b and the
+outfit and split, the served templates: drape.runtime.layers) on the neutral body, along the held-out clip dance_b and the
 real CMU clip 02_01_walk (imported at 30 fps; skipped where ../shared/data/mocap is absent), every EVERY-th
 frame. Rows, per pair and clip:
 - `one outfit`: DeePSD rigs both layers as one outfit (today's way), served rig (4 influences);
@@ -27,17 +27,13 @@ import numpy as np
 
 from drape.assets.body import load_body
 from drape.assets.motion import import_motion, load_clip
-from drape.assets.outfits import generate_outfit
 from drape.geometry.layers import LayerRefiner, LayerReport
 from drape.geometry.mesh import unique_edges
 from drape.geometry.refine import BodySurface, Refiner, RefineReport
 from drape.runtime.engine import Engine
-from drape.sim.layers import split_outfit
-from drape.training.layers_eval import h_coll, l_coll
+from drape.training.layers_eval import Rows, h_coll, l_coll
 
 PAIRS = ("tshirt,jacket", "tanktop,longsleeve")
-VERTICES = 4000
-SEED = 7
 REAL = Path("..") / "shared" / "data" / "mocap" / "02_01_walk.bvh"
 
 
@@ -61,30 +57,30 @@ def new_long_edges(frames: np.ndarray, posed: np.ndarray, rest: np.ndarray, face
     return int(np.count_nonzero((after > 2) & (before <= 2)))
 
 
-Rows = dict[str, tuple[tuple[np.ndarray, np.ndarray], float]]
+LabelledRows = dict[str, tuple[tuple[np.ndarray, np.ndarray], float]]
 
 
 class LayerRows:
-    """One layered outfit (`pair`, VERTICES, SEED) split into its two templates (inner: vi, fi; outer: vo, fo),
-    the whole outfit, their served DeePSD rigs and the refiners, made once; `rows` poses and refines them."""
+    """One served combination (`pair`: the catalog's templates; inner: vi, fi; outer: vo, fo), DeePSD's layers
+    (`deepsd`: drape.training.layers_eval.Rows, the whole outfit and each layer rigged) and the refiners, made
+    once; `rows` poses and refines them."""
 
     def __init__(self, engine: Engine, pair: str, thickness: float, body, surface: BodySurface):  # noqa: ANN001
-        (self.vi, self.fi), (self.vo, self.fo) = split_outfit(pair, VERTICES, seed=SEED)
-        self.whole = generate_outfit(pair.split(","), vertices=VERTICES, seed=SEED)
-        self.engine, self.body, self.surface = engine, body, surface
-        self.rigs = [engine.rig(v, f, "neutral") for v, f in
-                     ((self.whole.vertices, self.whole.faces), (self.vi, self.fi), (self.vo, self.fo))]
+        c = engine.layers.find(*pair.split(","))
+        if c is None:
+            raise ValueError(f"{pair}: not a served combination")
+        self.deepsd = Rows(engine, c).deepsd
+        (self.vi, self.fi), (self.vo, self.fo) = (c.inner.vertices, c.inner.faces), (c.outer.vertices, c.outer.faces)
+        self.body, self.surface = body, surface
         self.layers = LayerRefiner(self.fi, len(self.vi), self.fo, len(self.vo), thickness, body.faces,
                                    len(body.vertices))
         self.body_i, self.body_o = Refiner(self.fi, len(self.vi)), Refiner(self.fo, len(self.vo))
 
-    def rows(self, poses: np.ndarray, trans: np.ndarray, bodies: np.ndarray) -> Rows:
+    def rows(self, poses: np.ndarray, trans: np.ndarray, bodies: np.ndarray) -> LabelledRows:
         """poses (T, 24, 3), trans (T, 3), the posed bodies (T, M, 3) -> {label: ((inner (T, Ni, 3), outer
         (T, No, 3)), refinement seconds per frame)} for `one outfit`, `each alone`, `+ body`, `+ layers`."""
-        w, gi, go = [np.concatenate(list(self.engine.pose_chunks(r, poses, trans))).astype(np.float64)
-                     for r in self.rigs]
-        layer = self.whole.garment
-        rows: Rows = {"one outfit": ((w[:, layer == 0], w[:, layer == 1]), 0.0), "each alone": ((gi, go), 0.0)}
+        one, (gi, go) = self.deepsd(poses, trans)
+        rows: LabelledRows = {"one outfit": (one, 0.0), "each alone": ((gi, go), 0.0)}
         t = time.perf_counter()
         r = RefineReport()
         refined = tuple(np.stack([refiner.refine_frame(x, b, self.surface, r) for x, b in

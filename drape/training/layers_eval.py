@@ -111,11 +111,16 @@ class Rows:
         return (np.concatenate([p[0] for p in parts]).astype(np.float64),
                 np.concatenate([p[1] for p in parts]).astype(np.float64))
 
-    def rows(self, poses: np.ndarray, trans: np.ndarray) -> dict[str, Posed]:
+    def deepsd(self, poses: np.ndarray, trans: np.ndarray) -> tuple[Posed, Posed]:
+        """DeePSD's layers: (rigged as one outfit, each rigged alone), each (inner, outer)."""
         whole = self._pose(0, poses, trans)
         layer = self.whole.garment
-        inner, outer = self._pose(1, poses, trans), self._pose(2, poses, trans)
-        out = {"deepsd one outfit": (whole[:, layer == 0], whole[:, layer == 1]), "deepsd each alone": (inner, outer)}
+        return (whole[:, layer == 0], whole[:, layer == 1]), (self._pose(1, poses, trans), self._pose(2, poses, trans))
+
+    def rows(self, poses: np.ndarray, trans: np.ndarray) -> dict[str, Posed]:
+        one, alone = self.deepsd(poses, trans)
+        outer = alone[1]
+        out = {"deepsd one outfit": one, "deepsd each alone": alone}
         mgn = self.mgn_inner(poses, trans)
         if mgn is not None:
             out["mgn inner"] = (mgn, outer)
