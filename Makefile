@@ -88,39 +88,37 @@ intrinsic-data-long: $(VENV)/.dev-installed
 		--frames 300 --holdout-params 4 --holdout-motions 2 --splits test --workers $(WORKERS) --out .
 
 # two-layer ground truth (issue 22; docs/sim.md "Two layers"): an inner and an outer garment simulated together
-# on the neutral body, for two combinations: a t-shirt under an open jacket and a tank top under a long sleeve.
-# Per combination: LAYERS_PARAMS sampled parameter sets (the last LAYERS_HOLDOUT_PARAMS held out, with inner
-# thickness H_in bins of their own in LAYERS_THICKNESS) x 5 seeded procedural motions (training) + the DeepMimic
-# walk and dance_a and, when $(MOCAP) exists, the CMU clips LAYERS_CMU (all held out) x LAYERS_FRAMES frames.
-# ~1.1-1.4 s per simulated frame per core at ~4.1k vertices (docs/sim.md): 16 x 9 x 121 frames x 2 combinations
-# is ~12 core-hours. Resumable (rerun to continue; train items first), WORKERS=N processes, e.g.
+# on the neutral body, for the served combinations (a t-shirt under an open jacket, a tank top under a long
+# sleeve), the training data of the outer-layer network. One cloth (the default parameters) and LAYERS_PARAMS
+# inner thicknesses H_in in LAYERS_THICKNESS (MGN's setting: the outer network is conditioned on H_in alone;
+# the last LAYERS_HOLDOUT_PARAMS held out, with bins of their own) x 6 seeded procedural motions (training) +
+# the DeepMimic dance_a (held out: the validation motion; `drape eval layers` evaluates on dance_b and CMU
+# 02_01_walk, in neither) x LAYERS_FRAMES frames; only the train and test (held-out H_in x dance_a) splits.
+# ~2.3 s per simulated sequence frame per core for tshirt+jacket (1.5k + 2.4k vertices): 38 sequences x 90
+# frames is ~2.2 core-hours per combination. Resumable (rerun to continue; train items first), WORKERS=N, e.g.
 #   mkdir -p data/layers && nohup make layers-data WORKERS=2 > data/layers/log.txt 2>&1 &
 LAYERS_DIR ?= data/layers
-LAYERS_PARAMS ?= 16
-LAYERS_HOLDOUT_PARAMS ?= 3
+LAYERS_PARAMS ?= 8
+LAYERS_HOLDOUT_PARAMS ?= 2
 LAYERS_THICKNESS ?= 0.004,0.012
 LAYERS_FRAMES ?= 90
 LAYERS_VERTICES ?= 4000
 LAYERS_SEED ?= 7  # the served templates (drape.runtime.layers: 4,000 vertices, seed 7), so an outer network trained here serves them
 LAYERS_COMBOS ?= tshirt,jacket tanktop,longsleeve
-LAYERS_CMU := $(if $(wildcard $(MOCAP)/05_12_dance.bvh),05_12_dance 06_01_walk,)
-LAYERS_PROC := proc1 proc2 proc3 proc4 proc5
-LAYERS_MOTIONS = $(subst $(space),$(comma),$(strip $(patsubst %,../motions/%.npz,$(LAYERS_PROC)) walk dance_a \
-	$(patsubst %,../motions/cmu_%.npz,$(LAYERS_CMU))))
+LAYERS_PROC := 1 2 3 4 5 6
+LAYERS_MOTIONS = $(subst $(space),$(comma),$(strip $(patsubst %,../motions/proc%.npz,$(LAYERS_PROC)) dance_a))
 layers-data: $(VENV)/.dev-installed
 	mkdir -p $(LAYERS_DIR)/motions
-	for s in 1 2 3 4 5; do test -f $(LAYERS_DIR)/motions/proc$$s.npz || \
+	for s in $(LAYERS_PROC); do test -f $(LAYERS_DIR)/motions/proc$$s.npz || \
 		$(BIN)/drape motions generate --frames 120 --seed $$s --fps 30 --out $(LAYERS_DIR)/motions/proc$$s.npz; done
-	for c in $(LAYERS_CMU); do test -f $(LAYERS_DIR)/motions/cmu_$$c.npz || \
-		$(BIN)/drape motions import $(MOCAP)/$$c.bvh --fps 30 --out $(LAYERS_DIR)/motions/cmu_$$c.npz; done
 	for combo in $(LAYERS_COMBOS); do \
 		inner=$${combo%,*}; outer=$${combo#*,}; dir=$(LAYERS_DIR)/$${inner}_$${outer}; \
 		test -f $$dir/$$inner.obj -a -f $$dir/$$outer.obj || \
 			$(BIN)/drape sim outfit --type $$combo --vertices $(LAYERS_VERTICES) --seed $(LAYERS_SEED) --out $$dir || exit 1; \
-		(cd $$dir && $(CURDIR)/$(BIN)/drape sim dataset --garment $$inner.obj --outer $$outer.obj \
+		(cd $$dir && $(CURDIR)/$(BIN)/drape sim dataset --garment $$inner.obj --outer $$outer.obj --material fixed \
 			--params $(LAYERS_PARAMS) --seed 22 --thickness $(LAYERS_THICKNESS) --motions $(LAYERS_MOTIONS) \
-			--frames $(LAYERS_FRAMES) --holdout-params $(LAYERS_HOLDOUT_PARAMS) \
-			--holdout-motions $(words walk dance_a $(LAYERS_CMU)) --workers $(WORKERS) --out .) || exit 1; \
+			--frames $(LAYERS_FRAMES) --holdout-params $(LAYERS_HOLDOUT_PARAMS) --holdout-motions 1 \
+			--splits train,test --workers $(WORKERS) --out .) || exit 1; \
 	done
 
 # Blender (bpy, ~400 MB wheel, needs numpy < 2) lives in its own venv, installed once (stamp file);

@@ -276,6 +276,24 @@ def _train_mgn_inner(args: argparse.Namespace) -> None:
         print(path)
 
 
+def _train_mgn_outer(args: argparse.Namespace) -> None:
+    import json
+    import platform
+    import time
+
+    from drape.training.layers_outer import export_trained, load_config, train
+
+    t0 = time.time()
+    cfg = load_config(args.outer, args.config)
+    model, task, summary = train(cfg, args.checkpoints or f"checkpoints/mgn_outer_{args.outer}")
+    summary["wall_seconds"] = round(time.time() - t0, 1)
+    summary["machine"] = f"{platform.machine()}, {os.cpu_count()} CPUs"
+    print(json.dumps({k: v for k, v in summary.items() if k not in ("validation", "val_seqs")}, indent=2))
+    out = args.out or ASSETS / "models" / "mgn_outer" / f"{cfg['inner']}_{args.outer}"
+    for path in export_trained(model, task, summary, out):
+        print(path)
+
+
 def _export_deepsd(args: argparse.Namespace) -> None:
     from drape.export.deepsd import export_deepsd_from_checkpoints
 
@@ -437,8 +455,11 @@ def _sim_dataset(args: argparse.Namespace) -> None:
                     for g, o in zip(args.garment, args.outer, strict=True)}
         low, high = (float(x) for x in args.thickness.split(","))
         params = list(sample_layer_params(args.params, seed=args.seed, thickness=(low, high),
-                                          held_out=args.holdout_params))
+                                          held_out=args.holdout_params, material=args.material))
     else:
+        if args.material != "sampled":
+            raise SystemExit("--material fixed is for two layers (--outer): one garment's parameter sets differ "
+                             "only by the sampled material")
         garments = {Path(g).stem: load_mesh(g) for g in args.garment}
         params = sample_params(args.params, seed=args.seed)
     motions = [_motion_arg(m) for m in args.motions.split(",")]
@@ -558,6 +579,14 @@ def build_parser() -> argparse.ArgumentParser:
     tm.add_argument("--checkpoints", help="default checkpoints/mgn_inner_<inner>")
     tm.add_argument("--out", help="default drape/assets/models/mgn_inner/<inner>")
     tm.set_defaults(func=_train_mgn_inner)
+    to = t.add_parser("mgn-outer", help="MGN's outer-layer network of one served combination, on its two-layer "
+                      "simulations (make layers-data; resumes from checkpoints; exported with DeePSD's outer rig "
+                      "measured on the same validation sequences)")
+    to.add_argument("--outer", required=True, help="jacket: drape/training/configs/mgn_outer_<outer>.json")
+    to.add_argument("--config", help="another config file")
+    to.add_argument("--checkpoints", help="default checkpoints/mgn_outer_<outer>")
+    to.add_argument("--out", help="default drape/assets/models/mgn_outer/<inner>_<outer>")
+    to.set_defaults(func=_train_mgn_outer)
     td = t.add_parser("deepsd", help="train DeePSD by physics on generated outfits (resumes from checkpoints)")
     td.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     td.add_argument("--checkpoints", default="checkpoints/deepsd")
@@ -623,6 +652,9 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--thickness", default="0.004,0.012",
                     help="with --outer: LOW,HIGH range of the sampled inner thickness H_in, m (held-out parameter "
                          "sets get their own bins of it)")
+    sd.add_argument("--material", choices=("sampled", "fixed"), default="sampled",
+                    help="with --outer: sample the cloth's parameters per set (default) or keep the defaults and "
+                         "vary H_in alone (MGN's setting: its outer network is conditioned on H_in only)")
     sd.add_argument("--params", type=int, default=8, help="number of parameter sets to sample")
     sd.add_argument("--seed", type=int, default=0, help="seed of the parameter sampler")
     sd.add_argument("--motions", required=True, help="comma list of clip names or motion npz files")

@@ -42,3 +42,30 @@ def motion_windows(joints: np.ndarray, root_position: np.ndarray, root_rotation:
     idx = np.clip(np.arange(T)[:, None] + np.arange(-window, 1)[None, :], 0, None)  # (T, W + 1)
     w = (joints[idx] - root_position[:, None, None, :]).reshape(T, -1, 3)  # (T, (W + 1) * 24, 3)
     return np.matmul(w, root_rotation).reshape(T, window + 1, -1, 3).astype(np.float32)
+
+
+MOTION_FEATURES = 78  # per frame: 69 joint rotations + gravity, velocity, angular velocity (3 each)
+
+
+def motion_features(poses: np.ndarray, trans: np.ndarray, rest_joints: np.ndarray, parents: np.ndarray,
+                    fps: float) -> np.ndarray:
+    """A pose sequence as per-frame inputs of a sequence network -> (T, MOTION_FEATURES) float32.
+
+    poses (T, 24, 3) or (T, 72) axis-angle rad, trans (T, 3) m, fps frames per second. Per frame t: the 23
+    non-root joints' axis-angle rotations (69, rad); then in frame t's character space: the gravity direction
+    (-Y world, unit), the root's velocity (m/s, backward difference; frame 0 takes frame 1's) and the root's
+    angular velocity (axis-angle of R_{t-1}^T R_t times fps, rad/s, likewise). Invariant to where the body
+    stands and which way it faces.
+    """
+    from drape.geometry.rotations import matrix_to_axis_angle
+
+    poses = np.asarray(poses, np.float64).reshape(len(poses), 24, 3)
+    _, root, rot = root_frames(poses, np.asarray(trans, np.float64), rest_joints, parents)
+    gravity = np.einsum("tij,i->tj", rot, np.array([0.0, -1.0, 0.0]))
+    velocity = np.zeros_like(root)
+    spin = np.zeros_like(root)
+    if len(poses) > 1:
+        velocity[1:] = np.einsum("tij,ti->tj", rot[1:], np.diff(root, axis=0)) * fps
+        spin[1:] = matrix_to_axis_angle(np.matmul(np.swapaxes(rot[:-1], 1, 2), rot[1:])) * fps
+        velocity[0], spin[0] = velocity[1], spin[1]
+    return np.concatenate([poses[:, 1:].reshape(len(poses), 69), gravity, velocity, spin], axis=1).astype(np.float32)

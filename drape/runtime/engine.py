@@ -38,7 +38,13 @@ from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 from drape.runtime.intrinsic import DECODE_BLOCK, INTRINSIC_DIR, GarmentRegistry, IntrinsicGarment
-from drape.runtime.layers import LayerCatalog, LayerCombination, LayerTemplate
+from drape.runtime.layers import (
+    InnerModel,
+    LayerCatalog,
+    LayerCombination,
+    LayerTemplate,
+    OuterModel,
+)
 from drape.runtime.sparse_rig import INFLUENCES, fit_poses, sparse_rig
 
 POSE_BLOCK = 128  # frames posed per call (then handed out a chunk at a time)
@@ -381,15 +387,19 @@ class Engine:
 
     def layer_chunks(self, combination: LayerCombination, thickness: float, poses: np.ndarray,
                      translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,
-                     ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """Two layers along a motion (poses (T, 24, 3) rad, translation (T, 3) m): (inner (n, Ni, 3), outer
-        (n, No, 3)) float32 m in chunks of up to `chunk` frames. The inner layer is posed by its template's
-        inner-layer network where one is served (`inner_chunks`), else, as the outer, by its own served DeePSD rig;
-        with `refine`, the post step between layers (drape.geometry.layers, the inner's thickness m) in this
-        process: the inner and the outer out of the body, the outer out of the inner, then of the body again."""
+                     fps: float = 30.0) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Two layers along a motion (poses (T, 24, 3) rad, translation (T, 3) m, fps frames/s): (inner (n, Ni, 3),
+        outer (n, No, 3)) float32 m in chunks of up to `chunk` frames. The inner layer is posed by its template's
+        inner-layer network where one is served (`inner_chunks`), else by its own served DeePSD rig; the outer by
+        the combination's outer-layer network where one is served (`outer_chunks`: the inner's thickness m), else
+        by its DeePSD rig; with `refine`, the post step between layers (drape.geometry.layers, the thickness) in
+        this process: the inner and the outer out of the body, the outer out of the inner, then of the body again."""
         inner_t, outer_t = combination.inner, combination.outer
-        outer_chunks = self.pose_chunks(self.rig(outer_t.vertices, outer_t.faces, outer_t.body), poses, translation,
-                                        chunk)
+        if outer_t.network is not None:
+            outer_chunks = self.outer_chunks(combination, thickness, poses, translation, fps, chunk)
+        else:
+            outer_chunks = self.pose_chunks(self.rig(outer_t.vertices, outer_t.faces, outer_t.body), poses,
+                                            translation, chunk)
         if inner_t.network is not None:
             inner_chunks = self.inner_chunks(inner_t, poses, translation, chunk)
         else:
@@ -414,10 +424,34 @@ class Engine:
         """An inner layer posed by its network (template.network: MGN's pose MLP -> basis coefficients, then the
         batched posing of a rig): (n, Ni, 3) float32 m in chunks of up to `chunk` frames."""
         network = template.network
-        if network is None:
+        if not isinstance(network, InnerModel):
             raise ValueError(f"{template.name}: no inner-layer network is served")
         outfit = RiggedOutfit(template.name, template.body, template.vertices, template.faces, network.rig)
         return self.pose_chunks(outfit, poses, translation, chunk, pose_keys=network.pose_keys)
+
+    def outer_chunks(self, combination: LayerCombination, thickness: float, poses: np.ndarray,
+                     translation: np.ndarray, fps: float, chunk: int = 32) -> Iterator[np.ndarray]:
+        """An outer layer posed by its network (combination.outer.network: MGN's Transformer over windows of the
+        motion, reading the inner network's keys and the thickness m; then the batched posing of a rig):
+        (n, No, 3) float32 m in chunks of up to `chunk` frames. The keys of the whole motion are computed first."""
+        inner, outer = combination.inner.network, combination.outer.network
+        if not isinstance(outer, OuterModel) or not isinstance(inner, InnerModel):
+            raise ValueError(f"{combination.outer.name}: no outer-layer network is served")
+        t = time.perf_counter()
+        p = np.asarray(poses, np.float32).reshape(len(poses), 24, 3)
+        keys = outer.pose_keys(p, translation, fps, thickness, inner.pose_keys(p),
+                               load_body(combination.outer.body).joints)
+        self._observe("pose", time.perf_counter() - t)
+        done = 0
+
+        def next_keys(block: np.ndarray) -> np.ndarray:  # pose_chunks asks for consecutive blocks
+            nonlocal done
+            done += len(block)
+            return keys[done - len(block):done]
+
+        t_ = combination.outer
+        outfit = RiggedOutfit(t_.name, t_.body, t_.vertices, t_.faces, outer.rig)
+        return self.pose_chunks(outfit, poses, translation, chunk, pose_keys=next_keys)
 
     def garment_chunks(self, garment: IntrinsicGarment, latents: np.ndarray, poses: np.ndarray,
                        translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,

@@ -4,7 +4,11 @@ Each combination is one generated layered outfit (drape.assets.outfits.split_out
 inner, VERTICES together, a fixed seed) split into its two templates, on the neutral body. The inner layer is
 posed by MGN's inner-layer network of its template (drape/assets/models/mgn_inner/<inner>/, `InnerModel`) where
 one ships and its manifest says it measured better than DeePSD on the validation split (`served`), else by
-DeePSD's served rig; the outer by DeePSD's served rig of that layer alone (MGN's outer network is not trained).
+DeePSD's served rig; the outer by MGN's outer-layer network of the combination (drape/assets/models/mgn_outer/
+<inner>_<outer>/, `OuterModel`: a Transformer over windows of the motion that reads the inner network's keys and
+the thickness) where one ships, is `served` and was trained beside the served inner network (its sha256), else
+by DeePSD's served rig of that layer alone. A combination with an outer network serves the thicknesses it was
+trained on.
 The post step between layers (drape.geometry.layers) keeps the outer out of the inner. `inner_model`,
 `outer_model` and `model` ("<inner_model>+<outer_model>", or the one name when both are the same) say what poses
 them. The templates are made on first use (about 1.5 s each combination) and kept.
@@ -33,7 +37,9 @@ BODY = "neutral"
 THICKNESS = (0.002, 0.02)  # metres: the inner thicknesses the post step between layers is served for
 DEEPSD = "deepsd"  # DeePSD's served rig of the layer alone
 MGN_INNER = "mgn_inner"  # MGN's inner-layer network of the template
+MGN_OUTER = "mgn_outer"  # MGN's outer-layer network of the combination
 INNER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_inner"
+OUTER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_outer"
 
 
 class InnerModel:
@@ -50,11 +56,82 @@ class InnerModel:
             self.vertices, self.faces = z["vertices"], z["faces"]
             self.rig = Rig(weights=z["weights"], blend_shapes=z["blend_shapes"])
         self.served = self.manifest["served"] == MGN_INNER
+        self.sha256 = self.manifest["files"]["pose"]["sha256"]
+
+    name = MGN_INNER
 
     def pose_keys(self, poses: np.ndarray) -> np.ndarray:
         """(T, 24, 3) or (T, 72) axis-angle rad -> (T, K) float32."""
         p = np.asarray(poses, np.float32).reshape(len(poses), 72)
         return self.session.run(["pose_keys"], {"poses": p})[0]
+
+
+def window_starts(frames: int, window: int) -> tuple[np.ndarray, int]:
+    """The windows an outer-layer network runs on: first frames (S,) at half-window stride, the last ending at
+    the last frame, and their length (min(window, frames))."""
+    if frames <= window:
+        return np.zeros(1, np.int64), frames
+    stride = max(window // 2, 1)
+    starts = list(range(0, frames - window + 1, stride))
+    if starts[-1] != frames - window:
+        starts.append(frames - window)
+    return np.asarray(starts, np.int64), window
+
+
+def blend_windows(values: np.ndarray, starts: np.ndarray, frames: int) -> np.ndarray:
+    """Per-window outputs (S, L, K) -> (frames, K) float32: each frame the mean of the windows covering it,
+    weighted by a triangle over the window (its middle frames count most; no seam where windows change)."""
+    length = values.shape[1]
+    w = np.minimum(np.arange(1, length + 1), np.arange(length, 0, -1)).astype(np.float64)
+    acc = np.zeros((frames, values.shape[2]))
+    norm = np.zeros(frames)
+    for s, v in zip(starts, values, strict=True):
+        acc[s:s + length] += w[:, None] * v
+        norm[s:s + length] += w
+    return (acc / norm[:, None]).astype(np.float32)
+
+
+class OuterModel:
+    """MGN's outer-layer network of one combination (drape.export.layers.export_outer): outer.onnx ((motion
+    (S, W, 78), thickness (S, 1) m, inner_keys (S, W, Ki)) -> outer_keys (S, W, K)) and rig.npz (vertices (No, 3)
+    m, faces, weights (No, 24), blend_shapes (K, No, 3) m), checked against the manifest's sha256; `inner_sha256`
+    is the inner network's pose.onnx it was trained beside (it reads that network's keys)."""
+
+    def __init__(self, folder: str | Path, threads: int = 2):
+        folder = Path(folder)
+        self.manifest = json.loads((folder / "manifest.json").read_text())
+        blobs = checked_files(folder, self.manifest, ("outer", "rig"))
+        self.session = cpu_session(blobs["outer"], threads)
+        with np.load(io.BytesIO(blobs["rig"]), allow_pickle=False) as z:
+            self.vertices, self.faces = z["vertices"], z["faces"]
+            self.rig = Rig(weights=z["weights"], blend_shapes=z["blend_shapes"])
+        self.window = int(self.manifest["model_config"]["window"])
+        self.inner_sha256 = self.manifest["inner_network"]["pose_sha256"]
+        self.served = self.manifest["served"] == MGN_OUTER
+        self.thickness = (float(self.manifest["config"]["thickness"][0]), float(self.manifest["config"]["thickness"][1]))
+
+    name = MGN_OUTER
+
+    def pose_keys(self, poses: np.ndarray, trans: np.ndarray, fps: float, thickness: float, inner_keys: np.ndarray,
+                  rest_joints: np.ndarray) -> np.ndarray:
+        """poses (T, 24, 3) rad, trans (T, 3) m, thickness H_in m, inner_keys (T, Ki) (the inner network's) ->
+        (T, K) float32: the motion's windows run as one batch, blended (`blend_windows`)."""
+        from drape.geometry.character_space import motion_features
+        from drape.geometry.skeleton import PARENTS
+
+        features = motion_features(poses, trans, rest_joints, PARENTS, fps)
+        starts, length = window_starts(len(features), self.window)
+        out = self.session.run(["outer_keys"], {
+            "motion": np.stack([features[s:s + length] for s in starts]),
+            "thickness": np.full((len(starts), 1), thickness, np.float32),
+            "inner_keys": np.stack([np.asarray(inner_keys, np.float32)[s:s + length] for s in starts])})[0]
+        return blend_windows(out, starts, len(features))
+
+
+def load_outer_model(inner: str, outer: str, folder: Path = OUTER_MODELS) -> OuterModel | None:
+    """The combination's shipped outer-layer network, or None where none ships."""
+    path = folder / f"{inner}_{outer}"
+    return OuterModel(path) if (path / "manifest.json").exists() else None
 
 
 def load_inner_model(name: str, folder: Path = INNER_MODELS) -> InnerModel | None:
@@ -66,14 +143,14 @@ def load_inner_model(name: str, folder: Path = INNER_MODELS) -> InnerModel | Non
 @dataclass(frozen=True)
 class LayerTemplate:
     """One layer's template: name, role ('inner' | 'outer'), body, vertices (N, 3) float32 m, faces (F, 3) int32;
-    network: the inner-layer network that poses it (None: DeePSD's rig)."""
+    network: the layer network that poses it (None: DeePSD's rig)."""
 
     name: str
     role: str
     body: str
     vertices: np.ndarray
     faces: np.ndarray
-    network: InnerModel | None = field(default=None, compare=False)  # the served inner-layer network, if any
+    network: InnerModel | OuterModel | None = field(default=None, compare=False)  # the served layer network, if any
 
     @property
     def num_vertices(self) -> int:
@@ -86,8 +163,8 @@ class LayerTemplate:
 
     @property
     def model(self) -> str:
-        """What poses this layer: MGN_INNER where its network is served, else DEEPSD."""
-        return MGN_INNER if self.network is not None else DEEPSD
+        """What poses this layer: its network's name (MGN_INNER, MGN_OUTER) where one is served, else DEEPSD."""
+        return self.network.name if self.network is not None else DEEPSD
 
 
 @dataclass(frozen=True)
@@ -104,12 +181,19 @@ class LayerCombination:
         return a if a == b else f"{a}+{b}"
 
 
+def _same_template(network: InnerModel | OuterModel, vertices: np.ndarray, faces: np.ndarray) -> bool:
+    return (network.vertices.shape == vertices.shape and np.allclose(network.vertices, vertices, atol=1e-6)
+            and np.array_equal(network.faces, faces))
+
+
 class LayerCatalog:
     """The served combinations (COMBINATIONS), made on first use; thread-safe."""
 
-    def __init__(self, combinations: tuple[tuple[str, str], ...] = COMBINATIONS, models: Path = INNER_MODELS):
+    def __init__(self, combinations: tuple[tuple[str, str], ...] = COMBINATIONS, models: Path = INNER_MODELS,
+                 outer_models: Path = OUTER_MODELS):
         self._kinds = combinations
         self._models = models
+        self._outer_models = outer_models
         self._made: list[LayerCombination] | None = None
         self._lock = threading.Lock()
 
@@ -120,13 +204,18 @@ class LayerCatalog:
                 for inner, outer in self._kinds:
                     (vi, fi), (vo, fo) = split_outfit(f"{inner},{outer}", VERTICES, seed=SEED, body=BODY)
                     network = load_inner_model(inner, self._models)
-                    if network is not None and not (network.vertices.shape == vi.shape
-                                                    and np.allclose(network.vertices, vi, atol=1e-6)
-                                                    and np.array_equal(network.faces, fi)):
+                    if network is not None and not _same_template(network, vi, fi):
                         raise ValueError(f"the {inner} inner-layer network was trained on another template")
                     served = network if network is not None and network.served else None
+                    top = load_outer_model(inner, outer, self._outer_models)
+                    if top is not None and not _same_template(top, vo, fo):
+                        raise ValueError(f"the {inner}+{outer} outer-layer network was trained on another template")
+                    # the outer network reads the inner network's keys: served only beside the one it was trained with
+                    top = top if top is not None and top.served and served is not None and \
+                        top.inner_sha256 == served.sha256 else None
                     made.append(LayerCombination(LayerTemplate(inner, "inner", BODY, vi, fi, served),
-                                                 LayerTemplate(outer, "outer", BODY, vo, fo)))
+                                                 LayerTemplate(outer, "outer", BODY, vo, fo, top),
+                                                 top.thickness if top is not None else THICKNESS))
                 self._made = made
             return self._made
 

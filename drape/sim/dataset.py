@@ -271,9 +271,13 @@ def build_dataset(
 
     # train items first, so that a dataset stopped part-way (it resumes) can already be trained on, then
     # the test items (held-out parameters x held-out motions: the evaluation's), then the partly held out
+    # within a split, in diagonals of the parameter x motion grid, so that a part-way dataset already has every
+    # parameter set and every motion about equally often
     order = {"train": 0, "test": 1, "test_params": 2, "test_motions": 3}
+    motion_index = {n: i for i, n in enumerate(names)}
     todo = sorted((it for it in items if not finished(it)),
-                  key=lambda it: order[split_of(it.params_index, it.motion.name, s)])
+                  key=lambda it: (order[split_of(it.params_index, it.motion.name, s)],
+                                  (motion_index[it.motion.name] - it.params_index) % len(names), it.params_index))
     timings = _load_timings(out)
     bar = None
     if progress:

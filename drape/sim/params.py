@@ -128,7 +128,13 @@ def thickness_values(n: int, low: float, high: float, held_out: int, seed: int =
 
 
 def sample_layer_params(n: int, seed: int = 0, thickness: tuple[float, float] = (0.004, 0.012),
-                        held_out: int = 2, base: SimParams | None = None) -> list[LayerParams]:
-    """n two-layer parameter sets: `sample_params(n, seed)` plus `thickness_values` for H_in."""
+                        held_out: int = 2, base: SimParams | None = None,
+                        material: str = "sampled") -> list[LayerParams]:
+    """n two-layer parameter sets: `thickness_values` for H_in, with the other parameters
+    `sample_params(n, seed)` (material="sampled") or all `base` (material="fixed": one cloth, as MGN, whose
+    outer network is conditioned on H_in alone)."""
+    if material not in ("sampled", "fixed"):
+        raise ValueError(f"material must be 'sampled' or 'fixed', got {material!r}")
     h = thickness_values(n, thickness[0], thickness[1], held_out, seed)
-    return [LayerParams(**p.model_dump(), inner_thickness=t) for p, t in zip(sample_params(n, seed, base), h, strict=True)]
+    rest = sample_params(n, seed, base) if material == "sampled" else [base or SimParams()] * n
+    return [LayerParams(**p.model_dump(), inner_thickness=t) for p, t in zip(rest, h, strict=True)]

@@ -106,8 +106,8 @@ class Rows:
         return None if n is None else pose_outfit(self.c.inner.vertices, n.rig, n.pose_keys(poses), self.joints,
                                                   poses, trans).astype(np.float64)
 
-    def served(self, poses: np.ndarray, trans: np.ndarray, refine: RefineSettings | None = None) -> Posed:
-        parts = list(self.engine.layer_chunks(self.c, THICKNESS, poses, trans, refine=refine))
+    def served(self, poses: np.ndarray, trans: np.ndarray, fps: float, refine: RefineSettings | None = None) -> Posed:
+        parts = list(self.engine.layer_chunks(self.c, THICKNESS, poses, trans, refine=refine, fps=fps))
         return (np.concatenate([p[0] for p in parts]).astype(np.float64),
                 np.concatenate([p[1] for p in parts]).astype(np.float64))
 
@@ -117,15 +117,15 @@ class Rows:
         layer = self.whole.garment
         return (whole[:, layer == 0], whole[:, layer == 1]), (self._pose(1, poses, trans), self._pose(2, poses, trans))
 
-    def rows(self, poses: np.ndarray, trans: np.ndarray) -> dict[str, Posed]:
+    def rows(self, poses: np.ndarray, trans: np.ndarray, fps: float) -> dict[str, Posed]:
         one, alone = self.deepsd(poses, trans)
         outer = alone[1]
         out = {"deepsd one outfit": one, "deepsd each alone": alone}
         mgn = self.mgn_inner(poses, trans)
         if mgn is not None:
             out["mgn inner"] = (mgn, outer)
-        out["served"] = self.served(poses, trans)
-        out["served + refine"] = self.served(poses, trans, RefineSettings())
+        out["served"] = self.served(poses, trans, fps)
+        out["served + refine"] = self.served(poses, trans, fps, RefineSettings())
         return out
 
     def speed(self, seconds: Callable[[Callable[[], object]], float]) -> dict[str, float]:
@@ -134,7 +134,7 @@ class Rows:
         reps = -(-SPEED_FRAMES // clip.num_frames)
         poses = np.tile(clip.poses, (reps, 1, 1))[:SPEED_FRAMES]
         trans = np.tile(clip.trans, (reps, 1))[:SPEED_FRAMES]
-        return {"served_s": seconds(lambda: self.served(poses, trans)),
+        return {"served_s": seconds(lambda: self.served(poses, trans, clip.fps)),
                 "deepsd_each_alone_s": seconds(lambda: (self._pose(1, poses, trans), self._pose(2, poses, trans)))}
 
 
@@ -162,7 +162,7 @@ def evaluate(frames: int = FRAMES, log: Callable[[str], object] = print) -> dict
                 poses, trans = sim["poses"].astype(np.float64), sim["trans"].astype(np.float64)
                 bodies = body.pose(poses, trans).astype(np.float64)
                 figures = {"simulation": _figures(sim["inner"], sim["outer"], None, bodies, c, body)}
-                for label, posed in rows.rows(poses, trans).items():
+                for label, posed in rows.rows(poses, trans, motion.fps).items():
                     figures[label] = _figures(*posed, sim, bodies, c, body)
                 entry["motions"][motion.name] = figures
                 log(f"{key} {motion.name}: " + ", ".join(f"{k} outer RMSE {v.get('outer_rmse_mm', 0):.1f} mm, "
@@ -208,13 +208,17 @@ def format_table(results: dict) -> str:
 
 
 def write_results(results: dict, models: Path | None = None) -> list[Path]:
-    """Put each combination's figures into its inner network's manifest (`evaluation`), where one ships."""
+    """Put each combination's figures into its inner and outer networks' manifests (`evaluation`), where they
+    ship (models: the folder holding mgn_inner/ and mgn_outer/; default the package's)."""
     from drape.runtime.layers import INNER_MODELS
 
+    root = models or INNER_MODELS.parent
     written = []
     for key, entry in results["combinations"].items():
-        path = (models or INNER_MODELS) / key.split("+")[0] / "manifest.json"
-        if path.exists():
+        inner, outer = key.split("+")
+        for path in (root / "mgn_inner" / inner / "manifest.json", root / "mgn_outer" / f"{inner}_{outer}" / "manifest.json"):
+            if not path.exists():
+                continue
             manifest = json.loads(path.read_text())
             manifest["evaluation"] = {"thickness_m": results["thickness_m"], "frames": results["frames"], **entry}
             path.write_text(json.dumps(manifest, indent=2) + "\n")

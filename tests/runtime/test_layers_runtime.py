@@ -1,5 +1,5 @@
-"""The layer catalog and the engine with an inner-layer network (an untrained one exported on the served tshirt
-template): which model poses each layer, and that the engine's inner stream is that network's."""
+"""The layer catalog and the engine with layer networks (untrained ones exported on the served tshirt and jacket
+templates): which model poses each layer, and that the engine's streams are those networks'."""
 
 import json
 
@@ -10,11 +10,18 @@ import torch
 from drape.assets.body import load_body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import split_outfit
-from drape.export.layers import export_inner
-from drape.models.layers import InnerConfig, InnerPSD
+from drape.export.layers import export_inner, export_outer
+from drape.models.layers import InnerConfig, InnerPSD, OuterConfig, OuterTransformer
 from drape.runtime.deepsd import pose_outfit
 from drape.runtime.engine import Engine
-from drape.runtime.layers import BODY, SEED, VERTICES, LayerCatalog, load_inner_model
+from drape.runtime.layers import (
+    BODY,
+    SEED,
+    VERTICES,
+    LayerCatalog,
+    load_inner_model,
+    load_outer_model,
+)
 from drape.training.layers_inner import body_weights
 
 
@@ -78,5 +85,61 @@ def test_the_engine_s_inner_stream_is_the_network_s(models):
         skinned = pose_outfit(c.inner.vertices, net.rig, np.zeros_like(net.pose_keys(poses)), load_body(BODY).joints,
                               poses, trans)
         assert np.abs(inner - skinned).max() > 1e-3
+    finally:
+        engine.close()
+
+
+def _export_outer(folder, inner_sha256, served="mgn_outer", seed=SEED):
+    torch.manual_seed(2)
+    _, (v, f) = split_outfit("tshirt,jacket", VERTICES, seed=seed, body=BODY)
+    model = OuterTransformer(OuterConfig(num_vertices=len(v), num_inner_keys=8, num_basis=8, d_model=16,
+                                         feedforward=32, window=10, basis_init=0.005))
+    export_outer(model, folder / "tshirt_jacket", vertices=v, faces=f, weights=body_weights(v, load_body(BODY), 4),
+                 manifest={"served": served, "inner_network": {"pose_sha256": inner_sha256},
+                           "config": {"thickness": [0.004, 0.012]}})
+
+
+@pytest.fixture(scope="module")
+def outer_models(tmp_path_factory, models):
+    folder = tmp_path_factory.mktemp("mgn_outer")
+    _export_outer(folder, load_inner_model("tshirt", models).sha256)
+    return folder
+
+
+def test_an_outer_network_is_served_beside_the_inner_network_it_reads(models, outer_models, tmp_path):
+    c = LayerCatalog(models=models, outer_models=outer_models).find("tshirt", "jacket")
+    assert c.outer.model == "mgn_outer" and c.model == "mgn_inner+mgn_outer" and c.thickness == (0.004, 0.012)
+    # trained beside another inner network: not served, the outer is DeePSD's and the thickness range the default
+    _export_outer(tmp_path, "another inner network")
+    c = LayerCatalog(models=models, outer_models=tmp_path).find("tshirt", "jacket")
+    assert c.outer.model == "deepsd" and c.thickness == (0.002, 0.02)
+    # without the inner network it reads: not served either
+    empty = tmp_path / "none"
+    assert LayerCatalog(models=empty, outer_models=outer_models).find("tshirt", "jacket").model == "deepsd"
+    assert load_outer_model("tshirt", "jacket", outer_models).served
+
+
+def test_an_outer_network_of_another_template_is_refused(models, tmp_path):
+    _export_outer(tmp_path, load_inner_model("tshirt", models).sha256, seed=SEED + 1)
+    with pytest.raises(ValueError, match="another template"):
+        LayerCatalog(models=models, outer_models=tmp_path).combinations()
+
+
+def test_the_engine_s_outer_stream_is_the_network_s(models, outer_models):
+    engine = Engine(refine_workers=1)
+    try:
+        engine.layers = LayerCatalog(models=models, outer_models=outer_models)
+        c = engine.layers.find("tshirt", "jacket")
+        clip = load_clip("dance_b")
+        poses, trans = clip.poses[:45].astype(np.float64), clip.trans[:45].astype(np.float64)
+        outer = np.concatenate([p[1] for p in engine.layer_chunks(c, 0.008, poses, trans, chunk=16, fps=30.0)])
+        net, inner = c.outer.network, c.inner.network
+        joints = load_body(BODY).joints
+        keys = net.pose_keys(poses, trans, 30.0, 0.008, inner.pose_keys(poses), joints)
+        ref = pose_outfit(c.outer.vertices, net.rig, keys, joints, poses, trans)
+        assert outer.shape == ref.shape and np.abs(outer - ref).max() <= 1e-5
+        # the thickness reaches the network
+        other = net.pose_keys(poses, trans, 30.0, 0.004, inner.pose_keys(poses), joints)
+        assert np.abs(other - keys).max() > 1e-4
     finally:
         engine.close()

@@ -141,3 +141,15 @@ def test_sim_run_outer_writes_the_two_layer_contract_and_renders(tmp_path):
     r = drape("sim", "run", "--garment", str(inner), "--thickness", "0.008", "--clip", "walk", "--frames", "1",
               "--out", str(tmp_path / "x.npz"))
     assert r.returncode == 1 and "--outer" in r.stderr
+
+
+def test_fixed_material_varies_the_inner_thickness_alone():
+    ps = sample_layer_params(6, seed=3, thickness=(0.004, 0.012), held_out=2, material="fixed")
+    assert len({p.inner_thickness for p in ps}) == 6
+    assert all(p.model_dump(exclude={"inner_thickness"}) == LayerParams().model_dump(exclude={"inner_thickness"})
+               for p in ps)
+    sampled = sample_layer_params(6, seed=3, thickness=(0.004, 0.012), held_out=2)
+    assert [p.inner_thickness for p in sampled] == [p.inner_thickness for p in ps]  # the same H_in either way
+    assert len({p.young for p in sampled}) == 6
+    with pytest.raises(ValueError, match="material"):
+        sample_layer_params(6, seed=3, material="silk")

@@ -70,7 +70,7 @@ async def animate_layers(request: Request) -> Response:
 
     def pairs(p: handlers.LayersPlan) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         return engine.layer_chunks(p.combination, p.thickness, p.poses, p.translation,
-                                   settings.stream_chunk_frames, refine=p.refine)
+                                   settings.stream_chunk_frames, refine=p.refine, fps=p.fps)
 
     if answer in (JSON, NPZ):
         def whole() -> Response:

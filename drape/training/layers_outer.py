@@ -1,0 +1,339 @@
+"""`drape train mgn-outer`: MGN's outer-layer network (drape.models.layers.OuterTransformer) of one served
+combination, trained on its two-layer simulations (`make layers-data`: data/layers/<inner>_<outer>/).
+
+The inner layer the network reads is the one served: the shipped inner-layer network of the inner template
+(drape/assets/models/mgn_inner/<inner>/, through ONNX Runtime as the runtime runs it; its sha256 is recorded, and
+the runtime serves the outer network only beside that inner network). Its pose keys are the decoder's input,
+its posed vertices the surface of the repulsion loss. The outer template's skin weights come from the body
+(layers_inner.body_weights) and stay fixed; the network predicts the coefficients of a learned basis per frame.
+
+Loss per batch of `batch_windows` windows of `window` frames, on `loss_frames` random frames of each (the network
+reads every frame; the body term on `body_frames` of them; lengths in metres):
+    1e3 * (vertex * mean |v - v_sim|^2 + laplacian * mean |L v - L v_sim|^2
+           + repulsion * mean relu(eps - (v - p) . n_p)    (MGN Eq. 12: p the nearest served inner vertex among
+                                                             the `candidates` nearest at rest, n_p its normal;
+                                                             outer vertices within `cover` of the inner at rest)
+           + body * mean relu(eps_body - d_body))           (the posed body's signed distance, as the inner's)
+Data: the dataset's "train" split (training H_in values x procedural motions); the "test" split (held-out H_in
+bins x the held-out DeepMimic clip dance_a) is the validation split: every `validate_every` steps the model is
+run as served (windows at half stride, blended) and measured: outer RMSE against the simulation (mm, the rule)
+and L-Coll against the served inner layer; the lowest RMSE's weights are kept (`best.pt`) and exported. DeePSD's
+served rig of the outer template alone is measured on the same split; the lower RMSE is served.
+Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resumes from the latest.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from drape.assets.body import load_body
+from drape.assets.outfits import split_outfit
+from drape.geometry.character_space import motion_features
+from drape.geometry.mesh import neighbour_table
+from drape.geometry.mesh_io import load_mesh
+from drape.geometry.skeleton import PARENTS
+from drape.models.layers import OuterConfig, OuterTransformer
+from drape.runtime.deepsd import Rig, pose_outfit
+from drape.runtime.layers import INNER_MODELS, InnerModel, blend_windows, window_starts
+from drape.training import physics
+from drape.training.layers_inner import body_weights
+
+CONFIGS = Path(__file__).parent / "configs"
+
+
+def load_config(outer: str, path: str | Path | None = None) -> dict:
+    return json.loads(Path(path or CONFIGS / f"mgn_outer_{outer}.json").read_text())
+
+
+@dataclass
+class Sequence:
+    """One simulated sequence, prepared: T frames; key, motion, thickness (m); features (T, 78); poses (T, 24, 3)
+    rad; trans (T, 3) m; inner_keys (T, Ki) and inner (T, Ni, 3) m (the served inner network's); outer (T, No, 3)
+    m (the simulation's); sim_inner (T, Ni, 3) m."""
+
+    key: str
+    motion: str
+    thickness: float
+    features: np.ndarray
+    poses: np.ndarray
+    trans: np.ndarray
+    inner_keys: np.ndarray
+    inner: np.ndarray
+    outer: np.ndarray
+    sim_inner: np.ndarray
+
+
+class OuterTask:
+    """The combination's templates, the served inner network, the dataset and the losses, built once."""
+
+    def __init__(self, cfg: dict, data_root: str | Path | None = None):
+        self.cfg = cfg
+        (self.inner_vertices, self.inner_faces), (self.vertices, self.faces) = split_outfit(
+            cfg["pair"], cfg["vertices"], seed=cfg["outfit_seed"], body=cfg["body"])
+        self.body = load_body(cfg["body"])
+        self.inner_model = InnerModel(INNER_MODELS / cfg["inner"])
+        if not np.allclose(self.inner_model.vertices, self.inner_vertices, atol=1e-6):
+            raise ValueError(f"the shipped {cfg['inner']} inner network was trained on another template")
+        self.weights = body_weights(self.vertices, self.body, cfg["weights_k"])
+        self.data_dir = Path(data_root or cfg["data"])
+        self._check_templates()
+        # torch constants
+        self.rest = torch.as_tensor(self.vertices)
+        self.w = torch.as_tensor(self.weights)
+        self.joints = torch.as_tensor(np.array(self.body.joints, np.float32))
+        idx, w = neighbour_table(self.faces, len(self.vertices))
+        self.nbr_idx, self.nbr_w = torch.as_tensor(idx), torch.as_tensor(w)
+        self.inner_faces_t = torch.as_tensor(self.inner_faces, dtype=torch.int64)
+        from scipy.spatial import cKDTree
+
+        d, cand = cKDTree(self.inner_vertices).query(self.vertices, k=cfg["candidates"])
+        self.candidates = torch.as_tensor(cand, dtype=torch.int64)  # (No, k)
+        self.covered = torch.as_tensor(d[:, 0] < cfg["cover"])  # (No,)
+        self.collider = physics.BodyCollider(self.body, load_body(cfg["body"], proxy=True), self.vertices)
+
+    def _check_templates(self) -> None:
+        inner, outer = self.cfg["pair"].split(",")
+        for name, (v, f) in ((inner, (self.inner_vertices, self.inner_faces)), (outer, (self.vertices, self.faces))):
+            dv, df = load_mesh(self.data_dir / f"{name}.obj")
+            if dv.shape != v.shape or not np.allclose(dv, v, atol=1e-5) or not np.array_equal(df, f):
+                raise ValueError(f"{self.data_dir / f'{name}.obj'} is not the served {name} template "
+                                 f"(make layers-data makes it with LAYERS_SEED={self.cfg['outfit_seed']})")
+
+    def sequences(self, split: str) -> list[Sequence]:
+        """The dataset's sequences of one split ("train" | "test"), prepared."""
+        manifest = json.loads((self.data_dir / "manifest.json").read_text())
+        out = []
+        for item in manifest["items"]:
+            if item["split"] != split or not (self.data_dir / item["file"]).exists():
+                continue
+            h = float(manifest["params"][item["params"]]["inner_thickness"])
+            low, high = self.cfg["thickness"]
+            if not low <= h <= high:
+                raise ValueError(f"{item['key']}: H_in {h} m outside the config's thickness [{low}, {high}]")
+            with np.load(self.data_dir / item["file"], allow_pickle=False) as z:
+                poses, trans = z["poses"].astype(np.float32), z["trans"].astype(np.float32)
+                fps = float(z["fps"])
+                outer, sim_inner = z["outer_vertices"].astype(np.float32), z["inner_vertices"].astype(np.float32)
+            keys = self.inner_model.pose_keys(poses)
+            inner = pose_outfit(self.inner_vertices, self.inner_model.rig, keys, self.body.joints, poses, trans)
+            out.append(Sequence(item["key"], item["motion"], h, motion_features(poses, trans, self.body.joints,
+                                PARENTS, fps), poses, trans, keys, inner, outer, sim_inner))
+        return out
+
+    def laplacian(self, v: torch.Tensor) -> torch.Tensor:
+        return v - (v[:, self.nbr_idx] * self.nbr_w[None, ..., None]).sum(dim=2)
+
+    def pose(self, offsets: torch.Tensor, poses: torch.Tensor, trans: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """offsets (B, No, 3), poses (B, 24, 3), trans (B, 3) -> (posed (B, No, 3) m, transforms (B, 24, 3, 4))."""
+        transforms = physics.skinning_transforms(poses, self.joints)
+        return physics.lbs(self.rest + offsets, self.w, transforms) + trans[:, None], transforms
+
+    def repulsion_distance(self, v: torch.Tensor, inner: torch.Tensor) -> torch.Tensor:
+        """v (B, No, 3), inner (B, Ni, 3) -> (B, No) m: (v - p) . n_p, p the nearest candidate inner vertex."""
+        normals = physics.vertex_normals(inner, self.inner_faces_t)
+        with torch.no_grad():
+            cand = inner[:, self.candidates]  # (B, No, k, 3)
+            nearest = self.candidates[None].expand(len(v), -1, -1).gather(
+                2, ((cand - v.detach()[:, :, None]) ** 2).sum(-1).argmin(-1, keepdim=True))[..., 0]
+        b = torch.arange(len(v))[:, None]
+        return ((v - inner[b, nearest]) * normals[b, nearest]).sum(-1)
+
+    def loss(self, model: OuterTransformer, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+        lw = self.cfg["loss"]
+        coefficients = model.coefficients(batch["features"], batch["thickness"], batch["inner_keys"])
+        coefficients = coefficients.gather(1, batch["pick"][..., None].expand(-1, -1, coefficients.shape[-1]))
+        offsets = torch.einsum("bk,knc->bnc", coefficients.flatten(0, 1), model.basis)
+        poses, trans = batch["poses"].flatten(0, 1), batch["trans"].flatten(0, 1)
+        v, transforms = self.pose(offsets, poses, trans)
+        gt = batch["outer"].flatten(0, 1)
+        l_vert = ((v - gt) ** 2).sum(-1).mean()
+        l_lap = ((self.laplacian(v) - self.laplacian(gt)) ** 2).sum(-1).mean()
+        sd_inner = self.repulsion_distance(v, batch["inner"].flatten(0, 1))[:, self.covered]
+        l_rep = torch.relu(lw["eps"] - sd_inner).mean()
+        few = torch.linspace(0, len(v) - 1, min(lw["body_frames"], len(v))).long()  # spread over the windows
+        sd_body = self.collider.signed_distance(v[few] - trans[few, None], transforms[few])
+        l_body = physics.collision_loss(sd_body, lw["eps_body"])
+        loss = 1e3 * (lw["vertex"] * l_vert + lw["laplacian"] * l_lap + lw["repulsion"] * l_rep + lw["body"] * l_body)
+        return loss, {"rmse_mm": float(l_vert.detach().sqrt()) * 1e3, "behind": float((sd_inner < 0).float().mean()),
+                      "inside": float((sd_body < 0).float().mean())}
+
+
+def sample_batch(seqs: list[Sequence], window: int, count: int, frames: int, rng: np.random.Generator,
+                 ) -> dict[str, torch.Tensor]:
+    """`count` random windows of `window` frames (sequences drawn in proportion to their windows): the network's
+    inputs of every frame (features, inner_keys (B, W, .), thickness (B, 1)) and, for `frames` random frames of
+    each window (`pick` (B, F)), what the loss compares (poses, trans, outer, inner (B, F, ...))."""
+    sizes = np.array([len(s.poses) - window + 1 for s in seqs])
+    picks = rng.choice(len(seqs), size=count, p=sizes / sizes.sum())
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("features", "inner_keys", "pick", "poses", "trans", "outer",
+                                                          "inner", "thickness")}
+    for i in picks:
+        s = seqs[i]
+        t0 = int(rng.integers(sizes[i]))
+        pick = np.sort(rng.choice(window, size=min(frames, window), replace=False))
+        parts["features"].append(s.features[t0:t0 + window])
+        parts["inner_keys"].append(s.inner_keys[t0:t0 + window])
+        parts["pick"].append(pick)
+        for k in ("poses", "trans", "outer", "inner"):
+            parts[k].append(getattr(s, k)[t0 + pick])
+        parts["thickness"].append(np.array([s.thickness], np.float32))
+    return {k: torch.as_tensor(np.stack(v)) for k, v in parts.items()}
+
+
+def predict_keys(model: OuterTransformer, seq: Sequence, window: int) -> np.ndarray:
+    """The served prediction in torch: windows at half stride, blended (drape.runtime.layers) -> (T, K)."""
+    starts, length = window_starts(len(seq.poses), window)
+    with torch.no_grad():
+        keys = model.coefficients(
+            torch.as_tensor(np.stack([seq.features[s:s + length] for s in starts])),
+            torch.full((len(starts), 1), seq.thickness),
+            torch.as_tensor(np.stack([seq.inner_keys[s:s + length] for s in starts]))).numpy()
+    return blend_windows(keys, starts, len(seq.poses))
+
+
+def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Sequence], np.ndarray]) -> dict:
+    """Outer RMSE against the simulation (mm) and L-Coll (% outer vertices behind the served inner layer) of a
+    poser over sequences; score = RMSE."""
+    from drape.training.layers_eval import l_coll
+
+    sq, behind, per = [], [], {}
+    for s in seqs:
+        v = pose(s)
+        e = ((v - s.outer) ** 2).sum(-1)
+        sq.append(e)
+        share = l_coll(v, s.inner, task.inner_faces)[0]
+        behind.append(share)
+        per[s.key] = {"rmse_mm": round(float(np.sqrt(e.mean())) * 1e3, 2), "l_coll_pct": round(100 * share, 3)}
+    rmse = float(np.sqrt(np.mean(np.concatenate([e.ravel() for e in sq])))) * 1e3
+    return {"score": round(rmse, 3), "rmse_mm": round(rmse, 3), "l_coll_pct": round(100 * float(np.mean(behind)), 3),
+            "sequences": per}
+
+
+def pose_outer(model: OuterTransformer, task: OuterTask, seq: Sequence) -> np.ndarray:
+    """The network as served (numpy posing of the blended keys) -> (T, No, 3) m."""
+    keys = predict_keys(model, seq, model.cfg.window)
+    rig = Rig(weights=task.weights, blend_shapes=model.basis.detach().numpy())
+    return pose_outfit(task.vertices, rig, keys, task.body.joints, seq.poses, seq.trans)
+
+
+def _latest(ckpt_dir: Path) -> Path | None:
+    found = sorted(ckpt_dir.glob("step_*.pt"))
+    return found[-1] if found else None
+
+
+def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print, data_root: str | Path | None = None,
+          ) -> tuple[OuterTransformer, OuterTask, dict]:
+    """Train (or resume) one combination's outer network; returns the validation-chosen model, its task and a
+    summary (steps, seconds, sequences, the validation record)."""
+    from tqdm import tqdm
+
+    ckpt_dir = Path(ckpt_dir)
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg["seed"])
+    task = OuterTask(cfg, data_root)
+    train_seqs, val_seqs = task.sequences("train"), task.sequences("test")
+    if not train_seqs or not val_seqs:
+        raise SystemExit(f"{task.data_dir}: {len(train_seqs)} training and {len(val_seqs)} validation sequences; "
+                         "make layers-data simulates them")
+    model = OuterTransformer(OuterConfig(num_vertices=len(task.vertices),
+                                         num_inner_keys=task.inner_model.rig.blend_shapes.shape[0], **cfg["model"]))
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg["lr"], weight_decay=cfg.get("weight_decay", 0.0))
+    done, elapsed = 0, 0.0
+    record: dict = {"rule": "lowest outer RMSE (mm) against the simulation, validation split", "steps": {}}
+    latest = _latest(ckpt_dir)
+    if latest is not None:
+        state = torch.load(latest, weights_only=True)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        done, elapsed = int(state["done"]), float(state["elapsed"])
+        record = json.loads(state["record"])
+        log(f"resuming from {latest.name}")
+    frames = sum(len(s.poses) for s in train_seqs)
+    log(f"{cfg['pair']}: {len(task.vertices)} outer vertices; {len(train_seqs)} training sequences ({frames} frames), "
+        f"{len(val_seqs)} validation sequences")
+    total, warmup = int(cfg["steps"]), int(cfg.get("warmup", 0))
+
+    def lr_at(step: int) -> float:
+        if step < warmup:
+            return (step + 1) / warmup
+        return 0.05 + 0.95 * 0.5 * (1 + np.cos(np.pi * (step - warmup) / max(total - warmup, 1)))
+
+    bar = tqdm(range(done, total), initial=done, total=total, desc=cfg["pair"])
+    t0 = time.time()
+    model.train()
+    for step in bar:
+        for g in opt.param_groups:
+            g["lr"] = cfg["lr"] * lr_at(step)
+        batch = sample_batch(train_seqs, model.cfg.window, cfg["batch_windows"], cfg["loss_frames"],
+                             np.random.default_rng([cfg["seed"], step]))
+        loss, stats = task.loss(model, batch)
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        bar.set_postfix({k: round(v, 4) for k, v in stats.items()})
+        done = step + 1
+        if done % cfg["validate_every"] == 0 or done == total:
+            model.eval()
+            figures = measure_sequences(task, val_seqs, lambda s: pose_outer(model, task, s))
+            model.train()
+            record["steps"][str(done)] = figures
+            log(f"step {done}: validation RMSE {figures['rmse_mm']:.2f} mm, L-Coll {figures['l_coll_pct']:.2f}%")
+            best = min(record["steps"], key=lambda k: record["steps"][k]["score"])
+            if best == str(done):
+                torch.save({"model": model.state_dict(), "step": done}, ckpt_dir / "best.pt")
+            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "done": done,
+                        "elapsed": elapsed + time.time() - t0, "record": json.dumps(record),
+                        "config": json.dumps(cfg)}, ckpt_dir / f"step_{done:07d}.pt")
+    elapsed += time.time() - t0
+    best = min(record["steps"], key=lambda k: record["steps"][k]["score"])
+    record["chosen"] = int(best)
+    model.load_state_dict(torch.load(ckpt_dir / "best.pt", weights_only=True)["model"])
+    model.eval()
+    (ckpt_dir / "validation.json").write_text(json.dumps(record, indent=2) + "\n")
+    log(f"chosen on validation: step {best} ({record['steps'][best]['score']:.2f} mm)")
+    data = {"train": sorted(s.key for s in train_seqs), "validation": sorted(s.key for s in val_seqs),
+            "train_frames": frames}
+    return model, task, {"steps": total, "seconds": round(elapsed, 1), "data": data, "validation": record,
+                         "val_seqs": val_seqs}
+
+
+def deepsd_validation(task: OuterTask, seqs: list[Sequence]) -> dict:
+    """DeePSD's served rig of the outer template alone (as /v1/layers/animate poses it today) on the same
+    validation sequences."""
+    from drape.runtime.engine import Engine
+
+    engine = Engine(refine_workers=1)
+    try:
+        rig = engine.rig(task.vertices, task.faces, task.cfg["body"])
+        return measure_sequences(task, seqs, lambda s: np.concatenate(list(engine.pose_chunks(rig, s.poses, s.trans))))
+    finally:
+        engine.close()
+
+
+def export_trained(model: OuterTransformer, task: OuterTask, summary: dict, out: str | Path,
+                   log: Callable[[str], object] = print) -> list[Path]:
+    """Measure DeePSD on the validation split beside the chosen model, record which is served (the lower RMSE)
+    and export (drape.export.layers.export_outer) to `out`."""
+    from drape.export.layers import export_outer
+
+    cfg = task.cfg
+    ours = summary["validation"]["steps"][str(summary["validation"]["chosen"])]
+    theirs = deepsd_validation(task, summary["val_seqs"])
+    served = "mgn_outer" if ours["score"] < theirs["score"] else "deepsd"
+    log(f"validation RMSE: mgn_outer {ours['rmse_mm']:.2f} mm, deepsd {theirs['rmse_mm']:.2f} mm -> serving {served}")
+    inner_manifest = task.inner_model.manifest
+    return export_outer(model, out, vertices=task.vertices, faces=task.faces, weights=task.weights, manifest={
+        "template": cfg["outer"], "inner": cfg["inner"], "pair": cfg["pair"], "body": cfg["body"], "served": served,
+        "inner_network": {"version": inner_manifest["version"], "pose_sha256": inner_manifest["files"]["pose"]["sha256"]},
+        "validation": ours, "deepsd_validation": theirs, "config": cfg,
+        "training": {k: v for k, v in summary.items() if k not in ("validation", "val_seqs")},
+        "validation_steps": {k: {m: v[m] for m in ("rmse_mm", "l_coll_pct")}
+                             for k, v in summary["validation"]["steps"].items()}})
