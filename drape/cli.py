@@ -197,6 +197,8 @@ def _render_sim(args: argparse.Namespace) -> None:
     T = len(seq["inner_vertices" if layered else "vertices"])
     frames = _frames_arg(args.frames, T) if args.frames else [int(f) for f in np.linspace(0, T - 1, 6)]
     posed = body.pose(seq["poses"][frames], seq["trans"][frames])
+    if args.served and not layered:
+        raise SystemExit("--served needs a two-layer sequence (drape sim run --outer, make layers-data)")
     if layered:
         if args.keyframes:
             raise SystemExit("--keyframes needs a single-garment sequence")
@@ -229,8 +231,38 @@ def _render_sim(args: argparse.Namespace) -> None:
         titles = [f"frame {f}" + (" (keyframe)" if f in keys else "") for f in frames]
         caption = (f"left: the simulation ({caption.split(': ', 1)[1]}); right: drape's intrinsic space "
                    f"from keyframes at frames {', '.join(map(str, keys))} of it")
+    if args.served:
+        layers, model = _served_layers_beside(seq, frames, body, layers, args.azimuth)
+        caption = (f"left: the simulation ({caption.split(': ', 1)[1]}); right: drape's layers ({model}) "
+                   "along the same motion and H_in, before refinement")
     print(render_frames(layers, list(range(len(frames))), args.out, azimuth=args.azimuth, titles=titles,
-                        caption=caption, follow_all=bool(args.keyframes)))
+                        caption=caption, follow_all=bool(args.keyframes or args.served)))
+
+
+def _served_layers_beside(seq: dict, frames: list[int], body, sim_layers: list, azimuth: float) -> tuple[list, str]:
+    """The simulation's layers moved left, the served combination's (as POST /v1/layers/animate poses them, at
+    the sequence's H_in, no refinement) moved right; and what poses them."""
+    from drape.render import Layer, view_matrix
+    from drape.runtime.engine import Engine
+
+    engine = Engine(refine_workers=1)
+    try:
+        c = engine.layers.find(str(seq["inner_garment"]), str(seq["outer_garment"]))
+        if c is None or c.inner.num_vertices != seq["inner_vertices"].shape[1] \
+                or c.outer.num_vertices != seq["outer_vertices"].shape[1]:
+            raise SystemExit(f"{seq['inner_garment']}+{seq['outer_garment']} is not a served combination's templates")
+        parts = list(engine.layer_chunks(c, float(seq["inner_thickness"]), seq["poses"].astype(np.float64),
+                                         seq["trans"].astype(np.float64), fps=float(seq["fps"])))
+    finally:
+        engine.close()
+    inner = np.concatenate([p[0] for p in parts])[frames]
+    outer = np.concatenate([p[1] for p in parts])[frames]
+    side = 0.45 * view_matrix(azimuth)[0]  # screen x in world space
+    body_layer = sim_layers[0]
+    moved = [Layer(x.vertices - side, x.faces, x.color) for x in sim_layers]
+    return moved + [Layer(body_layer.vertices + side, body_layer.faces, body_layer.color),
+                    Layer(inner + side, c.inner.faces, (0.85, 0.45, 0.2)),
+                    Layer(outer + side, c.outer.faces, (0.25, 0.45, 0.8))], c.model
 
 
 def _train_deepsd(args: argparse.Namespace) -> None:
@@ -692,6 +724,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--sim", help="a simulated sequence npz (drape sim run / dataset item): cloth next to the body")
     r.add_argument("--keyframes", help="with --sim: comma list of frames given to the template's intrinsic model as "
                                        "keyframes; its sequence is drawn beside the simulation")
+    r.add_argument("--served", action="store_true", help="with a two-layer --sim: drape's served layers (as POST "
+                   "/v1/layers/animate poses them, at the sequence's H_in) drawn beside the simulation")
     r.add_argument("--garment-model", help="with --keyframes: the model folder (default the shipped one of the "
                                            "sequence's garment)")
     r.add_argument("--frames", default=None, help="comma list (default 0,10,20,30; six spread frames with --sim)")

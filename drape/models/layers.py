@@ -15,7 +15,8 @@ same batched posing (drape.runtime.deepsd.pose_outfit): the coefficients are the
 Outer layer (`OuterTransformer`): a Transformer encoder-decoder over a window of W frames. The encoder reads the
 motion (drape.geometry.character_space.motion_features, (B, W, 78)) with the inner thickness H_in appended to
 every frame; the decoder reads the inner layer's deformation (its network's pose keys, (B, W, Ki), the inner
-basis' coefficients) with H_in appended; both embedded to d_model with sinusoidal positions. Out: (B, W, K)
+basis' coefficients) with H_in appended; both standardised by the training frames' mean and std, embedded to
+d_model with sinusoidal positions. Out: (B, W, K)
 coefficients of the outer template's own learned basis (K, No, 3), posed as the inner layer is.
 """
 
@@ -105,6 +106,10 @@ class OuterTransformer(nn.Module):
     gives offsets (B, W, No, 3) m in rest space."""
 
     positions: torch.Tensor
+    motion_mean: torch.Tensor
+    motion_std: torch.Tensor
+    keys_mean: torch.Tensor
+    keys_std: torch.Tensor
 
     def __init__(self, cfg: OuterConfig):
         super().__init__()
@@ -115,12 +120,26 @@ class OuterTransformer(nn.Module):
                                           cfg.dropout, batch_first=True)
         self.out = nn.Linear(cfg.d_model, cfg.num_basis)
         self.register_buffer("positions", sinusoid(max(cfg.window, 512), cfg.d_model), persistent=False)
+        # input standardisation, set from the training data (`set_normalization`), saved and exported with it
+        self.register_buffer("motion_mean", torch.zeros(MOTION_FEATURES))
+        self.register_buffer("motion_std", torch.ones(MOTION_FEATURES))
+        self.register_buffer("keys_mean", torch.zeros(cfg.num_inner_keys))
+        self.register_buffer("keys_std", torch.ones(cfg.num_inner_keys))
         self.basis = nn.Parameter(torch.randn(cfg.num_basis, cfg.num_vertices, 3) * cfg.basis_init)
+
+    def set_normalization(self, motion: torch.Tensor, inner_keys: torch.Tensor, floor: float = 1e-3) -> None:
+        """motion (M, 78), inner_keys (M, Ki): the training frames' inputs; std floored at `floor`."""
+        self.motion_mean.copy_(motion.mean(0))
+        self.motion_std.copy_(motion.std(0).clamp_min(floor))
+        self.keys_mean.copy_(inner_keys.mean(0))
+        self.keys_std.copy_(inner_keys.std(0).clamp_min(floor))
 
     def coefficients(self, motion: torch.Tensor, thickness: torch.Tensor, inner_keys: torch.Tensor) -> torch.Tensor:
         w = motion.shape[1]
         h = (thickness * THICKNESS_SCALE)[:, None, :].expand(-1, w, 1)
         pos = self.positions[:w][None]
+        motion = (motion - self.motion_mean) / self.motion_std
+        inner_keys = (inner_keys - self.keys_mean) / self.keys_std
         src = self.motion_in(torch.cat([motion, h], dim=-1)) + pos
         tgt = self.inner_in(torch.cat([inner_keys, h], dim=-1)) + pos
         return self.out(self.transformer(src, tgt))

@@ -14,8 +14,9 @@ reads every frame; the body term on `body_frames` of them; lengths in metres):
                                                              the `candidates` nearest at rest, n_p its normal;
                                                              outer vertices within `cover` of the inner at rest)
            + body * mean relu(eps_body - d_body))           (the posed body's signed distance, as the inner's)
-Data: the dataset's "train" split (training H_in values x procedural motions); the "test" split (held-out H_in
-bins x the held-out DeepMimic clip dance_a) is the validation split: every `validate_every` steps the model is
+Data: the dataset's "train" split (training H_in values x procedural motions; `train_items`, when the config
+names them, those alone); the "test" split (held-out H_in bins x the held-out procedural motion) is the
+validation split: every `validate_every` steps the model is
 run as served (windows at half stride, blended) and measured: outer RMSE against the simulation (mm, the rule)
 and L-Coll against the served inner layer; the lowest RMSE's weights are kept (`best.pt`) and exported. DeePSD's
 served rig of the outer template alone is measured on the same split; the lower RMSE is served.
@@ -239,11 +240,18 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     torch.manual_seed(cfg["seed"])
     task = OuterTask(cfg, data_root)
     train_seqs, val_seqs = task.sequences("train"), task.sequences("test")
+    if cfg.get("train_items"):  # the config names the training sequences: all of them must be there
+        missing = sorted(set(cfg["train_items"]) - {s.key for s in train_seqs})
+        if missing:
+            raise SystemExit(f"{task.data_dir}: missing training sequences {missing}; make layers-data simulates them")
+        train_seqs = [s for s in train_seqs if s.key in set(cfg["train_items"])]
     if not train_seqs or not val_seqs:
         raise SystemExit(f"{task.data_dir}: {len(train_seqs)} training and {len(val_seqs)} validation sequences; "
                          "make layers-data simulates them")
     model = OuterTransformer(OuterConfig(num_vertices=len(task.vertices),
                                          num_inner_keys=task.inner_model.rig.blend_shapes.shape[0], **cfg["model"]))
+    model.set_normalization(torch.as_tensor(np.concatenate([s.features for s in train_seqs])),
+                            torch.as_tensor(np.concatenate([s.inner_keys for s in train_seqs])))
     opt = torch.optim.AdamW(model.parameters(), lr=cfg["lr"], weight_decay=cfg.get("weight_decay", 0.0))
     done, elapsed = 0, 0.0
     record: dict = {"rule": "lowest outer RMSE (mm) against the simulation, validation split", "steps": {}}

@@ -28,6 +28,9 @@ def exported(tmp_path_factory):
     _, (v, f) = split_outfit("tanktop,longsleeve", 1200, seed=3)
     model = OuterTransformer(OuterConfig(num_vertices=len(v), num_inner_keys=KI, num_basis=16, d_model=32,
                                          feedforward=64, window=8, basis_init=0.01))
+    rng = np.random.default_rng(5)
+    model.set_normalization(torch.as_tensor(rng.normal(0.3, 2.0, size=(50, MOTION_FEATURES)), dtype=torch.float32),
+                            torch.as_tensor(rng.normal(0.1, 0.03, size=(50, KI)), dtype=torch.float32))
     model.eval()
     body = load_body("neutral")
     w = body_weights(v, body, 4)

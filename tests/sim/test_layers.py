@@ -153,3 +153,30 @@ def test_fixed_material_varies_the_inner_thickness_alone():
     assert len({p.young for p in sampled}) == 6
     with pytest.raises(ValueError, match="material"):
         sample_layer_params(6, seed=3, material="silk")
+
+
+def test_render_served_layers_beside_a_two_layer_sequence(tmp_path):
+    """`drape render --sim SEQ --served`: the served combination posed along the sequence's motion and H_in,
+    drawn beside it; refused for templates that are not a served combination's."""
+    import subprocess
+    import sys
+
+    from drape.runtime.layers import BODY, SEED, VERTICES
+    from drape.sim.dataset import save_layer_sequence
+
+    (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", VERTICES, seed=SEED, body=BODY)
+    clip = load_clip("walk")
+    seq = {"inner_vertices": np.repeat(vi[None], 3, 0), "inner_faces": fi, "outer_vertices": np.repeat(vo[None], 3, 0),
+           "outer_faces": fo, "poses": clip.poses[:3], "trans": clip.trans[:3], "fps": 30.0,
+           "params": LayerParams(inner_thickness=0.007), "stats": {}, "inner_garment": "tshirt",
+           "outer_garment": "jacket", "body": BODY, "motion": "walk"}
+    save_layer_sequence(tmp_path / "seq.npz", **seq)
+    png = tmp_path / "s.png"
+    run = [sys.executable, "-m", "drape.cli", "render", "--sim", str(tmp_path / "seq.npz"), "--served", "--out", str(png)]
+    r = subprocess.run(run, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    seq["outer_vertices"] = seq["outer_vertices"][:, :100]
+    save_layer_sequence(tmp_path / "seq.npz", **seq)
+    r = subprocess.run(run, capture_output=True, text=True)
+    assert r.returncode != 0 and "not a served combination" in r.stderr
