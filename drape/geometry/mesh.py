@@ -127,6 +127,13 @@ def boundary_edges(faces: np.ndarray) -> np.ndarray:
     return edges[counts == 1]
 
 
+def boundary_vertices(faces: np.ndarray, num_vertices: int) -> np.ndarray:
+    """(N,) bool: the vertices on a boundary edge (hems, cuffs, openings)."""
+    out = np.zeros(num_vertices, dtype=bool)
+    out[boundary_edges(faces).ravel()] = True
+    return out
+
+
 def adjacency_matrix(faces: np.ndarray, num_vertices: int) -> sp.csr_matrix:
     """Symmetric (N, N) 0/1 vertex adjacency."""
     e = unique_edges(faces)

@@ -19,7 +19,9 @@ class LayerInfo(BaseModel):
                                    "both are the same (then, with refine, the post step between layers)")
     inner_model: str = Field(description="what poses the inner layer: 'mgn_inner' (MGN's inner-layer network of "
                                          "the template) or 'deepsd' (DeePSD's rig of the layer alone)")
-    outer_model: str = Field(description="what poses the outer layer: 'deepsd' (DeePSD's rig of the layer alone)")
+    outer_model: str = Field(description="what poses the outer layer: 'mgn_outer' (MGN's outer-layer network of "
+                                         "the combination: a Transformer over the motion reading the inner layer "
+                                         "and the thickness) or 'deepsd' (DeePSD's rig of the layer alone)")
 
 
 class LayerList(BaseModel):

@@ -12,14 +12,15 @@ reads every frame; the body term on `body_frames` of them; lengths in metres):
     1e3 * (vertex * mean |v - v_sim|^2 + laplacian * mean |L v - L v_sim|^2
            + repulsion * mean relu(eps - (v - p) . n_p)    (MGN Eq. 12: p the nearest served inner vertex among
                                                              the `candidates` nearest at rest, n_p its normal;
-                                                             outer vertices within `cover` of the inner at rest)
+                                                             where p is within `cover` and not on a boundary)
            + body * mean relu(eps_body - d_body))           (the posed body's signed distance, as the inner's)
 Data: the dataset's "train" split (training H_in values x procedural motions; `train_items`, when the config
 names them, those alone); the "test" split (held-out H_in bins x the held-out procedural motion) is the
 validation split: every `validate_every` steps the model is
-run as served (windows at half stride, blended) and measured: outer RMSE against the simulation (mm, the rule)
-and L-Coll against the served inner layer; the lowest RMSE's weights are kept (`best.pt`) and exported. DeePSD's
-served rig of the outer template alone is measured on the same split; the lower RMSE is served.
+run as served (windows at half stride, blended) and measured: outer RMSE against the simulation (mm) and L-Coll
+against the served inner layer; the lowest RMSE's weights among the steps with L-Coll <= `max_l_coll_pct` are
+kept (`best.pt`) and exported. DeePSD's served rig of the outer template alone is measured on the same split by
+the same rule; the lower score is served.
 Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resumes from the latest.
 """
 
@@ -37,7 +38,7 @@ import torch
 from drape.assets.body import load_body
 from drape.assets.outfits import split_outfit
 from drape.geometry.character_space import motion_features
-from drape.geometry.mesh import neighbour_table
+from drape.geometry.mesh import boundary_vertices, neighbour_table
 from drape.geometry.mesh_io import load_mesh
 from drape.geometry.skeleton import PARENTS
 from drape.models.layers import OuterConfig, OuterTransformer
@@ -94,9 +95,9 @@ class OuterTask:
         self.inner_faces_t = torch.as_tensor(self.inner_faces, dtype=torch.int64)
         from scipy.spatial import cKDTree
 
-        d, cand = cKDTree(self.inner_vertices).query(self.vertices, k=cfg["candidates"])
+        _, cand = cKDTree(self.inner_vertices).query(self.vertices, k=cfg["candidates"])
         self.candidates = torch.as_tensor(cand, dtype=torch.int64)  # (No, k)
-        self.covered = torch.as_tensor(d[:, 0] < cfg["cover"])  # (No,)
+        self.inner_boundary = torch.as_tensor(boundary_vertices(self.inner_faces, len(self.inner_vertices)))
         self.collider = physics.BodyCollider(self.body, load_body(cfg["body"], proxy=True), self.vertices)
 
     def _check_templates(self) -> None:
@@ -136,15 +137,17 @@ class OuterTask:
         transforms = physics.skinning_transforms(poses, self.joints)
         return physics.lbs(self.rest + offsets, self.w, transforms) + trans[:, None], transforms
 
-    def repulsion_distance(self, v: torch.Tensor, inner: torch.Tensor) -> torch.Tensor:
-        """v (B, No, 3), inner (B, Ni, 3) -> (B, No) m: (v - p) . n_p, p the nearest candidate inner vertex."""
+    def repulsion_distance(self, v: torch.Tensor, inner: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """v (B, No, 3), inner (B, Ni, 3) -> ((v - p) . n_p (B, No) m, judged (B, No) bool): p the nearest of the
+        vertex's candidate inner vertices, n_p its normal; judged where p is not on the inner's boundary (past a
+        hem or an open front no side is defined) and within `cover` m (as L-Coll judges: drape.sim.quality)."""
         normals = physics.vertex_normals(inner, self.inner_faces_t)
         with torch.no_grad():
-            cand = inner[:, self.candidates]  # (B, No, k, 3)
-            nearest = self.candidates[None].expand(len(v), -1, -1).gather(
-                2, ((cand - v.detach()[:, :, None]) ** 2).sum(-1).argmin(-1, keepdim=True))[..., 0]
+            d2, at = ((inner[:, self.candidates] - v.detach()[:, :, None]) ** 2).sum(-1).min(-1)  # (B, No)
+            nearest = self.candidates[None].expand(len(v), -1, -1).gather(2, at[..., None])[..., 0]
+            judged = ~self.inner_boundary[nearest] & (d2 < self.cfg["cover"] ** 2)
         b = torch.arange(len(v))[:, None]
-        return ((v - inner[b, nearest]) * normals[b, nearest]).sum(-1)
+        return ((v - inner[b, nearest]) * normals[b, nearest]).sum(-1), judged
 
     def loss(self, model: OuterTransformer, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
         lw = self.cfg["loss"]
@@ -156,8 +159,9 @@ class OuterTask:
         gt = batch["outer"].flatten(0, 1)
         l_vert = ((v - gt) ** 2).sum(-1).mean()
         l_lap = ((self.laplacian(v) - self.laplacian(gt)) ** 2).sum(-1).mean()
-        sd_inner = self.repulsion_distance(v, batch["inner"].flatten(0, 1))[:, self.covered]
-        l_rep = torch.relu(lw["eps"] - sd_inner).mean()
+        sd_inner, judged = self.repulsion_distance(v, batch["inner"].flatten(0, 1))
+        sd_inner = sd_inner[judged]
+        l_rep = torch.relu(lw["eps"] - sd_inner).sum() / max(len(sd_inner), 1)
         few = torch.linspace(0, len(v) - 1, min(lw["body_frames"], len(v))).long()  # spread over the windows
         sd_body = self.collider.signed_distance(v[few] - trans[few, None], transforms[few])
         l_body = physics.collision_loss(sd_body, lw["eps_body"])
@@ -199,9 +203,13 @@ def predict_keys(model: OuterTransformer, seq: Sequence, window: int) -> np.ndar
     return blend_windows(keys, starts, len(seq.poses))
 
 
-def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Sequence], np.ndarray]) -> dict:
+PENALTY = 1000.0  # mm added to the score of a step whose L-Coll is over the config's max_l_coll_pct
+
+
+def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Sequence], np.ndarray],
+                      max_l_coll_pct: float = 100.0) -> dict:
     """Outer RMSE against the simulation (mm) and L-Coll (% outer vertices behind the served inner layer) of a
-    poser over sequences; score = RMSE."""
+    poser over sequences; score = RMSE, plus PENALTY where L-Coll is over max_l_coll_pct."""
     from drape.training.layers_eval import l_coll
 
     sq, behind, per = [], [], {}
@@ -213,8 +221,9 @@ def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Seq
         behind.append(share)
         per[s.key] = {"rmse_mm": round(float(np.sqrt(e.mean())) * 1e3, 2), "l_coll_pct": round(100 * share, 3)}
     rmse = float(np.sqrt(np.mean(np.concatenate([e.ravel() for e in sq])))) * 1e3
-    return {"score": round(rmse, 3), "rmse_mm": round(rmse, 3), "l_coll_pct": round(100 * float(np.mean(behind)), 3),
-            "sequences": per}
+    l_coll_pct = 100 * float(np.mean(behind))
+    return {"score": round(rmse + (PENALTY if l_coll_pct > max_l_coll_pct else 0.0), 3), "rmse_mm": round(rmse, 3),
+            "l_coll_pct": round(l_coll_pct, 3), "sequences": per}
 
 
 def pose_outer(model: OuterTransformer, task: OuterTask, seq: Sequence) -> np.ndarray:
@@ -254,7 +263,8 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
                             torch.as_tensor(np.concatenate([s.inner_keys for s in train_seqs])))
     opt = torch.optim.AdamW(model.parameters(), lr=cfg["lr"], weight_decay=cfg.get("weight_decay", 0.0))
     done, elapsed = 0, 0.0
-    record: dict = {"rule": "lowest outer RMSE (mm) against the simulation, validation split", "steps": {}}
+    record: dict = {"rule": f"lowest outer RMSE (mm) against the simulation among the steps with L-Coll <= "
+                            f"{cfg['max_l_coll_pct']}%, validation split", "steps": {}}
     latest = _latest(ckpt_dir)
     if latest is not None:
         state = torch.load(latest, weights_only=True)
@@ -290,7 +300,7 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
         done = step + 1
         if done % cfg["validate_every"] == 0 or done == total:
             model.eval()
-            figures = measure_sequences(task, val_seqs, lambda s: pose_outer(model, task, s))
+            figures = measure_sequences(task, val_seqs, lambda s: pose_outer(model, task, s), cfg["max_l_coll_pct"])
             model.train()
             record["steps"][str(done)] = figures
             log(f"step {done}: validation RMSE {figures['rmse_mm']:.2f} mm, L-Coll {figures['l_coll_pct']:.2f}%")
@@ -321,7 +331,8 @@ def deepsd_validation(task: OuterTask, seqs: list[Sequence]) -> dict:
     engine = Engine(refine_workers=1)
     try:
         rig = engine.rig(task.vertices, task.faces, task.cfg["body"])
-        return measure_sequences(task, seqs, lambda s: np.concatenate(list(engine.pose_chunks(rig, s.poses, s.trans))))
+        return measure_sequences(task, seqs, lambda s: np.concatenate(list(engine.pose_chunks(rig, s.poses, s.trans))),
+                                 task.cfg["max_l_coll_pct"])
     finally:
         engine.close()
 
@@ -336,7 +347,8 @@ def export_trained(model: OuterTransformer, task: OuterTask, summary: dict, out:
     ours = summary["validation"]["steps"][str(summary["validation"]["chosen"])]
     theirs = deepsd_validation(task, summary["val_seqs"])
     served = "mgn_outer" if ours["score"] < theirs["score"] else "deepsd"
-    log(f"validation RMSE: mgn_outer {ours['rmse_mm']:.2f} mm, deepsd {theirs['rmse_mm']:.2f} mm -> serving {served}")
+    log(f"validation: mgn_outer {ours['rmse_mm']:.2f} mm RMSE, L-Coll {ours['l_coll_pct']:.2f}%; deepsd "
+        f"{theirs['rmse_mm']:.2f} mm, {theirs['l_coll_pct']:.2f}% -> serving {served}")
     inner_manifest = task.inner_model.manifest
     return export_outer(model, out, vertices=task.vertices, faces=task.faces, weights=task.weights, manifest={
         "template": cfg["outer"], "inner": cfg["inner"], "pair": cfg["pair"], "body": cfg["body"], "served": served,

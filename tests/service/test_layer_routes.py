@@ -23,19 +23,23 @@ MOTION = {"poses": CLIP.poses[:40:8].reshape(5, 72), "translation": CLIP.trans[:
 def test_layers_are_listed_and_their_templates_served(http):
     layers = http.get("/v1/layers").json()["layers"]
     assert [(x["inner"], x["outer"]) for x in layers] == [("tshirt", "jacket"), ("tanktop", "longsleeve")]
-    assert all(x["thickness"] == [0.002, 0.02] and x["body"] == "neutral" for x in layers)
-    served = LayerCatalog()  # what poses each layer: the inner network where one ships and measured better
+    served = LayerCatalog()  # what poses each layer: the networks where they ship and measured better
     for x in layers:
         c = served.find(x["inner"], x["outer"])
-        assert (x["inner_model"], x["outer_model"], x["model"]) == (c.inner.model, "deepsd", c.model)
-        assert x["inner_model"] in ("mgn_inner", "deepsd")
-        assert x["model"] == (x["inner_model"] if x["inner_model"] == "deepsd" else f"{x['inner_model']}+deepsd")
+        assert (x["inner_model"], x["outer_model"], x["model"]) == (c.inner.model, c.outer.model, c.model)
+        assert x["inner_model"] in ("mgn_inner", "deepsd") and x["outer_model"] in ("mgn_outer", "deepsd")
+        models = {x["inner_model"], x["outer_model"]}
+        assert x["model"] == ("deepsd" if models == {"deepsd"} else f"{x['inner_model']}+{x['outer_model']}")
+        # an outer network serves the thicknesses it was trained on; DeePSD's rig the post step's range
+        assert x["thickness"] == list(c.thickness) and x["body"] == "neutral"
+        assert x["thickness"] == ([0.002, 0.02] if x["outer_model"] == "deepsd" else
+                                  list(c.outer.network.manifest["config"]["thickness"]))
     (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 4000, seed=7)
     js = http.get("/v1/garments/jacket").json()
     assert np.allclose(js["vertices"], vo) and js["faces"] == fo.tolist() and js["body"] == "neutral"
     listed = {g["name"]: g for g in http.get("/v1/garments").json()["garments"]}
     assert listed["tshirt"]["num_vertices"] == len(vi) and listed["tshirt"]["models"] == [served.template("tshirt").model]
-    assert listed["jacket"]["models"] == ["deepsd"]
+    assert listed["jacket"]["models"] == [served.template("jacket").model]
     problem(http.post("/v1/garments/jacket/encode", json={"vertices": [[0, 0, 0]], "frame": 0,
                                                           "motion": {"clip": "kick"}}), 404, "layer template")
 
@@ -58,6 +62,12 @@ def test_animate_layers_through_the_client(server_url):
         ref = pose_outfit(vi, net.rig, net.pose_keys(MOTION["poses"]), body.joints, MOTION["poses"],
                           MOTION["translation"])
         assert np.abs(raw.inner_vertices - ref).max() < 1e-5
+    top = LayerCatalog().find("tshirt", "jacket").outer.network
+    if top is not None:  # the shipped outer network poses the outer layer, reading the inner network and H_in
+        poses = MOTION["poses"].reshape(-1, 24, 3)
+        keys = top.pose_keys(poses, MOTION["translation"], 30.0, 0.006, net.pose_keys(poses), body.joints)
+        ref = pose_outfit(vo, top.rig, keys, body.joints, poses, MOTION["translation"])
+        assert np.abs(raw.outer_vertices - ref).max() < 1e-5
     ri, ro, report = refine_layers(raw.inner_vertices, fi, raw.outer_vertices, fo, posed, body.faces, thickness=0.004)
     assert np.abs(fixed.inner_vertices - ri).max() < 1e-5 and np.abs(fixed.outer_vertices - ro).max() < 1e-5
     assert sum(report.outer_in_inner_after) < sum(report.outer_in_inner_before)
@@ -91,7 +101,7 @@ def test_layers_bad_inputs(http):
 
     problem(post(inner="cardigan"), 404, "cardigan", "tshirt")
     problem(post(inner="tanktop"), 422, "tanktop", "not served")
-    problem(post(thickness=0.5), 422, "thickness", "0.02")
+    problem(post(thickness=0.5), 422, "thickness", str(LayerCatalog().find("tshirt", "jacket").thickness[1]))
     problem(post(motion={"poses": [[0.0] * 72] * 201}), 413, "frames")
     nan = json.dumps({**ok, "motion": {"poses": [[float("nan")] * 72]}})  # NaN literals: not JSON
     problem(http.post("/v1/layers/animate", content=nan, headers={"content-type": "application/json"}), 422,

@@ -54,9 +54,10 @@ def list_layers(request: Request) -> LayerList:
         JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateRequest"}}}}})
 async def animate_layers(request: Request) -> Response:
     """An inner and an outer template worn together (a combination of GET /v1/layers), the inner's thickness
-    (m) and a motion (+ refine) -> both layers' vertices, world space, metres. Each layer is posed by DeePSD's
-    served rig (`model`: "deepsd"); `refine` runs the post step between layers: both out of the body, the
-    outer kept thickness + 1 mm outside the inner (drape.geometry.layers)."""
+    (m) and a motion (+ refine) -> both layers' vertices, world space, metres. Each layer is posed by what
+    GET /v1/layers names (`inner_model`, `outer_model`: MGN's inner network, MGN's outer Transformer reading the
+    inner layer and the thickness, or DeePSD's served rig); `refine` runs the post step between layers: both out
+    of the body, the outer kept thickness + 1 mm outside the inner (drape.geometry.layers)."""
     answer = choose(request.headers.get("accept"), STREAM_FORMATS)
     kind = media_type(request)
     if kind not in (JSON, ""):
