@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: serve test test-slow deepsd-model sim-dataset intrinsic-data intrinsic-data-long layers-data mgn-inner-models check-blender lint typecheck clean
+.PHONY: serve test test-slow deepsd-model sim-dataset intrinsic-data intrinsic-data-long layers-data mgn-inner-models mgn-outer-models check-blender lint typecheck clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -131,6 +131,15 @@ layers-data: $(VENV)/.dev-installed
 MGN_INNER ?= tshirt tanktop
 mgn-inner-models: $(VENV)/.dev-installed
 	for i in $(MGN_INNER); do $(BIN)/drape train mgn-inner --inner $$i || exit 1; done
+	$(BIN)/drape eval layers --write
+
+# MGN's outer-layer network of each combination with a config (drape/training/configs/mgn_outer_<outer>.json),
+# one command each: trained on `make layers-data`'s simulations (the sequences the config names) beside the
+# shipped inner network it reads, the checkpoint chosen on the validation sequences, DeePSD's outer rig measured
+# on them decides which one serves; exported into drape/assets/models/mgn_outer/<inner>_<outer>; then measured
+MGN_OUTER ?= jacket
+mgn-outer-models: $(VENV)/.dev-installed
+	for o in $(MGN_OUTER); do $(BIN)/drape train mgn-outer --outer $$o || exit 1; done
 	$(BIN)/drape eval layers --write
 
 # check-blender imports drape's GLB and PC2 answers into Blender and compares the evaluated meshes

@@ -58,7 +58,7 @@ def load_config(outer: str, path: str | Path | None = None) -> dict:
 class Sequence:
     """One simulated sequence, prepared: T frames; key, motion, thickness (m); features (T, 78); poses (T, 24, 3)
     rad; trans (T, 3) m; inner_keys (T, Ki) and inner (T, Ni, 3) m (the served inner network's); outer (T, No, 3)
-    m (the simulation's); sim_inner (T, Ni, 3) m."""
+    m (the simulation's)."""
 
     key: str
     motion: str
@@ -69,7 +69,6 @@ class Sequence:
     inner_keys: np.ndarray
     inner: np.ndarray
     outer: np.ndarray
-    sim_inner: np.ndarray
 
 
 class OuterTask:
@@ -122,11 +121,11 @@ class OuterTask:
             with np.load(self.data_dir / item["file"], allow_pickle=False) as z:
                 poses, trans = z["poses"].astype(np.float32), z["trans"].astype(np.float32)
                 fps = float(z["fps"])
-                outer, sim_inner = z["outer_vertices"].astype(np.float32), z["inner_vertices"].astype(np.float32)
+                outer = z["outer_vertices"].astype(np.float32)
             keys = self.inner_model.pose_keys(poses)
             inner = pose_outfit(self.inner_vertices, self.inner_model.rig, keys, self.body.joints, poses, trans)
             out.append(Sequence(item["key"], item["motion"], h, motion_features(poses, trans, self.body.joints,
-                                PARENTS, fps), poses, trans, keys, inner, outer, sim_inner))
+                                PARENTS, fps), poses, trans, keys, inner, outer))
         return out
 
     def laplacian(self, v: torch.Tensor) -> torch.Tensor:
