@@ -354,5 +354,5 @@ def export_trained(model: OuterTransformer, task: OuterTask, summary: dict, out:
         "inner_network": {"version": inner_manifest["version"], "pose_sha256": inner_manifest["files"]["pose"]["sha256"]},
         "validation": ours, "deepsd_validation": theirs, "config": cfg,
         "training": {k: v for k, v in summary.items() if k not in ("validation", "val_seqs")},
-        "validation_steps": {k: {m: v[m] for m in ("rmse_mm", "l_coll_pct")}
+        "validation_steps": {k: {m: v[m] for m in ("score", "rmse_mm", "l_coll_pct")}
                              for k, v in summary["validation"]["steps"].items()}})
