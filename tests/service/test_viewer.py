@@ -1,7 +1,7 @@
 """GET /viewer/: the page, its vendored three.js, the generated outfits it offers, and the page itself driven
 in headless Chromium against a live server (playwright-core from node, tests/schemas/threejs_player.py):
 pick an outfit and a clip, Play, a frame renders, the slider moves, no console error, nothing loaded from
-outside the service. The screenshot goes to build/viewer.png on every run, and to docs/viewer.png where
+outside the service; then two garments worn together (the layers tab: a combination of GET /v1/layers). The screenshot goes to build/viewer.png on every run, and to docs/viewer.png where
 that is missing or with DRAPE_VIEWER_SCREENSHOT=1 (renders differ in their bytes from run to run, so a
 plain test run leaves the committed one alone)."""
 
@@ -64,6 +64,20 @@ try {
   out.state = await page.evaluate(() => ({...window.drapeViewer}));
   out.status = await page.textContent('#status');
   await page.screenshot({path: shot});
+  // two garments worn together: the first combination of GET /v1/layers, with its thickness input
+  out.layerOptions = await page.$$eval('#outfit optgroup option', (os) => os.map((o) => o.value));
+  await page.selectOption('#outfit', out.layerOptions[0]);
+  out.thickness = {shown: await page.isVisible('#thickness'), min: await page.getAttribute('#thickness', 'min'),
+                   max: await page.getAttribute('#thickness', 'max')};
+  await page.click('#play');
+  await page.waitForFunction(() => (window.drapeViewer.layers && window.drapeViewer.playing
+                                    && window.drapeViewer.framesRendered >= 3) || window.drapeViewer.error,
+                             null, {timeout: 180000});
+  const seen = [];
+  for (let i = 0; i < 4; i++) { seen.push(Number(await page.inputValue('#frame'))); await page.waitForTimeout(400); }
+  out.layers = {state: await page.evaluate(() => ({...window.drapeViewer})), frames: seen,
+                status: await page.textContent('#status')};
+  await page.screenshot({path: shot.replace(/\.png$/, '_layers.png')});
 } finally {
   await browser.close();
 }
@@ -150,6 +164,17 @@ def test_the_page_plays_an_outfit_in_chromium(server_url):
     assert SCREENSHOT.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     if not DOCS_SCREENSHOT.exists() or os.environ.get("DRAPE_VIEWER_SCREENSHOT") == "1":
         shutil.copyfile(SCREENSHOT, DOCS_SCREENSHOT)
+    # the layers tab: the combinations of GET /v1/layers, played from POST /v1/layers/animate's GLB
+    assert out["layerOptions"] == ["layers:tshirt:jacket", "layers:tanktop:longsleeve"]
+    assert out["thickness"]["shown"] and float(out["thickness"]["min"]) < float(out["thickness"]["max"])
+    layers = out["layers"]
+    assert layers["state"]["error"] is None and layers["state"]["frames"] == 47
+    assert layers["state"]["layers"]["inner"] == "tshirt" and layers["state"]["layers"]["thickness"] == 0.006
+    assert "tshirt under jacket" in layers["status"] and len(set(layers["frames"])) >= 2, layers["frames"]
+    shot = SCREENSHOT.with_name("viewer_layers.png")
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    if not DOCS_SCREENSHOT.with_name("viewer_layers.png").exists() or os.environ.get("DRAPE_VIEWER_SCREENSHOT") == "1":
+        shutil.copyfile(shot, DOCS_SCREENSHOT.with_name("viewer_layers.png"))
 
 
 def test_the_page_asks_for_the_api_key_when_the_service_has_one(settings):

@@ -1,6 +1,8 @@
 // drape viewer: rig an outfit (POST /v1/outfits/rig, multipart), animate it (POST /v1/outfits/animate,
 // Accept: model/gltf-binary) and play the GLB with three.js: body and garment, orbit controls, play/pause and
-// a frame slider. Every address is relative to /viewer/, so the page works under any prefix.
+// a frame slider. Or two garments worn together (a combination of GET /v1/layers): POST /v1/layers/animate's
+// GLB (both layers as one vertex-animated mesh, inner first), the inner layer orange, the outer blue.
+// Every address is relative to /viewer/, so the page works under any prefix.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
@@ -9,8 +11,9 @@ const API = new URL('../v1/', window.location.href);
 const $ = (id) => document.getElementById(id);
 // what the page is doing, for people and for tests
 const state = window.drapeViewer = {ready: false, loaded: false, playing: false, frame: 0, frames: 0,
-  framesRendered: 0, error: null, webgl: null};
+  framesRendered: 0, error: null, webgl: null, layers: null};
 const motions = new Map();
+const combinations = new Map();  // "layers:<inner>:<outer>" -> GET /v1/layers entry + the inner's vertex count
 
 // ---- the service ---------------------------------------------------------------------------------------
 
@@ -44,7 +47,8 @@ function option(select, value, text) {
 
 async function loadCatalogue() {
   try {
-    const [bodies, clips] = await Promise.all([api('bodies').then((r) => r.json()), api('motions').then((r) => r.json())]);
+    const [bodies, clips, layers, garments] = await Promise.all(['bodies', 'motions', 'layers', 'garments'].map(
+      (path) => api(path).then((r) => r.json())));
     $('body').replaceChildren();
     for (const b of bodies.bodies) option($('body'), b.name, `${b.name} (${(b.height).toFixed(2)} m)`);
     $('body').value = bodies.bodies.some((b) => b.name === 'neutral') ? 'neutral' : bodies.bodies[0].name;
@@ -55,6 +59,19 @@ async function loadCatalogue() {
       option($('clip'), m.name, `${m.name} (${m.frames} frames)`);
     }
     if (motions.has('walk')) $('clip').value = 'walk';
+    for (const old of $('outfit').querySelectorAll('optgroup')) old.remove();
+    combinations.clear();
+    if (layers.layers.length) {
+      const group = document.createElement('optgroup');
+      group.label = 'two garments worn together';
+      const sizes = new Map(garments.garments.map((g) => [g.name, g.num_vertices]));
+      for (const c of layers.layers) {
+        const value = `layers:${c.inner}:${c.outer}`;
+        combinations.set(value, {...c, innerVertices: sizes.get(c.inner)});
+        option(group, value, `${c.inner} under ${c.outer} (${c.model})`);
+      }
+      $('outfit').append(group);
+    }
     state.ready = true;
     $('play').disabled = false;
     say('Pick a body, an outfit and a motion, then Play.');
@@ -116,9 +133,35 @@ async function outfitMesh() {
   return [await r.blob(), `${choice}.obj`];
 }
 
+function chosenLayers() {
+  return combinations.get($('outfit').value) || null;
+}
+
+async function playLayers(c) {
+  const clip = $('clip').value;
+  const thickness = Number($('thickness').value) / 1000;
+  say(`Animating ${c.inner} under ${c.outer} along ${clip}${$('refine').checked ? ' with refinement' : ''}…`);
+  const t0 = performance.now();
+  const answer = await api('layers/animate', {method: 'POST',
+    headers: {'content-type': 'application/json', accept: 'model/gltf-binary'},
+    body: JSON.stringify({inner: c.inner, outer: c.outer, thickness, motion: {clip}, refine: $('refine').checked})});
+  const glb = await answer.arrayBuffer();
+  await show(glb, motions.get(clip), c);
+  state.layers = {inner: c.inner, outer: c.outer, model: c.model, thickness};
+  say(`${c.inner} under ${c.outer} (${c.model}), ${clip}: ${state.frames} frames, ` +
+      `${(glb.byteLength / 2 ** 20).toFixed(1)} MB GLB in ${((performance.now() - t0) / 1000).toFixed(1)} s.\n` +
+      'Inner layer orange, outer blue. Drag to orbit, scroll to zoom.');
+}
+
 async function play() {
   $('play').disabled = true;
   try {
+    const layers = chosenLayers();
+    if (layers) {
+      await playLayers(layers);
+      return;
+    }
+    state.layers = null;
     say('Rigging the outfit…');
     const [mesh, fileName] = await outfitMesh();
     const form = new FormData();
@@ -173,7 +216,10 @@ controls.enableDamping = true;
 const materials = {
   body: new THREE.MeshStandardMaterial({color: 0xc8b5a6, roughness: 0.75}),
   outfit: new THREE.MeshStandardMaterial({color: 0x3a6fc0, roughness: 0.65, side: THREE.DoubleSide}),
+  layers: new THREE.MeshStandardMaterial({vertexColors: true, roughness: 0.65, side: THREE.DoubleSide}),
 };
+const INNER_COLOUR = new THREE.Color(0xd9733a);
+const OUTER_COLOUR = new THREE.Color(0x3a6fc0);
 const loader = new GLTFLoader();
 let model = null;
 let mixer = null;
@@ -182,7 +228,15 @@ let root = null;
 let fps = 30;
 const followed = new THREE.Vector3();
 
-async function show(buffer, clip) {
+// Two layers as one mesh: the first `innerVertices` vertices are the inner layer's.
+function colourLayers(geometry, innerVertices) {
+  const n = geometry.attributes.position.count;
+  const colours = new Float32Array(3 * n);
+  for (let i = 0; i < n; i++) (i < innerVertices ? INNER_COLOUR : OUTER_COLOUR).toArray(colours, 3 * i);
+  geometry.setAttribute('color', new THREE.BufferAttribute(colours, 3));
+}
+
+async function show(buffer, clip, layers = null) {
   const gltf = await loader.parseAsync(buffer, '');
   if (model) {
     scene.remove(model);
@@ -195,6 +249,7 @@ async function show(buffer, clip) {
     o.frustumCulled = false;  // the bounds of the rest pose do not follow the motion
     o.geometry.computeVertexNormals();
     o.material = materials[o.name] || materials.outfit;
+    if (layers) colourLayers(o.geometry, layers.innerVertices);
     if (o.isSkinnedMesh && !root) root = o.skeleton.bones[0];
   });
   scene.add(model);
@@ -213,6 +268,14 @@ async function show(buffer, clip) {
     root.getWorldPosition(followed);
     controls.target.set(followed.x, 0.95, followed.z);
     camera.position.set(followed.x + 0.6, 1.35, followed.z + 4.2);
+  } else {  // a vertex animation (no skeleton): look at where its first frame (the base positions) is
+    let centre = new THREE.Vector3(0, 0.95, 0);
+    model.traverse((o) => {
+      if (o.isMesh) centre = new THREE.Box3().setFromBufferAttribute(o.geometry.attributes.position)
+        .applyMatrix4(o.matrixWorld).getCenter(new THREE.Vector3());
+    });
+    controls.target.copy(centre);
+    camera.position.set(centre.x + 0.4, centre.y + 0.3, centre.z + 2.6);
   }
   setPlaying(true);
   state.loaded = true;
@@ -239,7 +302,18 @@ $('frame').addEventListener('input', () => {
   showFrame();
 });
 $('play').addEventListener('click', play);
-$('outfit').addEventListener('change', () => { $('mesh').hidden = $('outfit').value !== 'file'; });
+$('outfit').addEventListener('change', () => {
+  $('mesh').hidden = $('outfit').value !== 'file';
+  const c = chosenLayers();
+  $('thicknessLabel').hidden = !c;
+  $('body').disabled = Boolean(c);  // the layer templates are dressed on their own body
+  if (c) {
+    const [low, high] = c.thickness.map((m) => m * 1000);
+    $('thickness').min = String(low);
+    $('thickness').max = String(high);
+    $('thickness').value = String(Math.min(high, Math.max(low, Number($('thickness').value) || 6)));
+  }
+});
 $('key').addEventListener('change', loadCatalogue);
 
 function resize() {
