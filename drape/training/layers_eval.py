@@ -1,16 +1,17 @@
 """`drape eval layers`: the served layer combinations against two-layer simulations, on held-out motions.
 
 Ground truth: drape.sim.layers.simulate_layers (MuJoCo; the outer colliding with the inner and the body) of each
-served combination (drape.runtime.layers) at H_in = THICKNESS along the DeepMimic clip dance_b (held out of
-DeePSD's and the inner networks' training) and the real CMU clip 02_01_walk (30 fps; used by no training;
-skipped without ../shared/data/mocap), FRAMES frames each. Simulations are cached under data/layers_eval/
+served combination (drape.runtime.layers) at H_in = THICKNESS (held out of the outer networks' training) along the
+DeepMimic clip dance_b (held out of DeePSD's, the inner and the outer networks' training) and the real CMU clip
+02_01_walk (30 fps; used by no training; skipped without ../shared/data/mocap), FRAMES frames each. Simulations are cached under data/layers_eval/
 (git-ignored; a missing one is simulated, about 2-3 minutes each on one core).
 
 Rows, each against the simulation's frames of the same motion:
 - `deepsd one outfit`: DeePSD rigs both layers as one outfit (how drape rigged a layered outfit before);
 - `deepsd each alone`: DeePSD rigs each layer alone (its served 4-influence rig);
 - `mgn inner`: the inner posed by the template's inner-layer network (where one ships), the outer as above;
-- `served`: what POST /v1/layers/animate answers without refine (Engine.layer_chunks);
+- `served`: what POST /v1/layers/animate answers without refine (Engine.layer_chunks): the inner and outer
+  networks where they serve (drape's layered model), else DeePSD's rig of the layer;
 - `served + refine`: with refine (the post step against the body and between layers, thickness THICKNESS).
 Columns: RMSE and Hausdorff (mm) of the inner and the outer against the simulation, the outer's STED; H-Coll of
 each layer (share of vertices inside the body, exact closest triangle); L-Coll (outer vertices behind the inner
@@ -38,7 +39,9 @@ from drape.runtime.engine import Engine, RefineSettings
 from drape.runtime.layers import SEED, VERTICES, LayerCombination, load_inner_model
 from drape.sim.quality import INSIDE_BAND, outer_inner_distance
 
-THICKNESS = 0.006  # metres: the inner thickness simulated and refined with
+# metres: the inner thickness simulated, posed and refined with: held out of the outer networks' training (in a
+# held-out H_in bin of `make layers-data`; the nearest training values are 5.71 and 7.66 mm)
+THICKNESS = 0.0067
 FRAMES = 60
 CACHE = Path("data") / "layers_eval"
 REAL = Path("..") / "shared" / "data" / "mocap" / "02_01_walk.bvh"
@@ -72,7 +75,7 @@ def simulated(c: LayerCombination, motion: Motion, frames: int, body: Body, cach
     from drape.sim.layers import simulate_layers
     from drape.sim.params import LayerParams
 
-    path = cache / f"{c.inner.name}+{c.outer.name}_{motion.name}_{frames}.npz"
+    path = cache / f"{c.inner.name}+{c.outer.name}_{motion.name}_{frames}_{1000 * THICKNESS:g}mm.npz"
     if not path.exists():
         r = simulate_layers(c.inner.vertices, c.inner.faces, c.outer.vertices, c.outer.faces, body, motion,
                             LayerParams(inner_thickness=THICKNESS), frames=frames)
