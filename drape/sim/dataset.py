@@ -291,6 +291,9 @@ def build_dataset(
         timings[it.key] = {"seconds": res["stats"]["seconds"], "seconds_per_frame": res["stats"]["seconds_per_frame"]}
         reasons = gate.failures(res["stats"])
         if reasons:
+            # the sequence is kept beside its reasons: a use that does not need the failed check may take it
+            # (e.g. an outer-layer network, which never reads the simulated inner layer)
+            write_item(out / "rejected" / f"{it.key}.npz", it, res)
             _write_json(out / "rejected" / f"{it.key}.json", {"reasons": reasons, "stats": _stable_stats(res["stats"])})
             print(f"rejected {it.key}: {'; '.join(reasons)}")
         else:
@@ -342,7 +345,11 @@ def _manifest(out: Path, items: list[Item], params: Sequence[SimParams], s: dict
                             "split": split_of(it.params_index, it.motion.name, s), "stats": stats,
                             **timings.get(it.key, {})})
         elif rej.exists():
-            rejected.append({"key": it.key, **json.loads(rej.read_text())})
+            kept = out / "rejected" / f"{it.key}.npz"
+            rejected.append({"key": it.key, "params": it.params_index, "motion": it.motion.name,
+                             "split": split_of(it.params_index, it.motion.name, s),
+                             **({"file": f"rejected/{it.key}.npz"} if kept.exists() else {}),
+                             **json.loads(rej.read_text())})
     return {
         "format": "drape-sim-dataset/1",
         "body": body,

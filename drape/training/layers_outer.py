@@ -15,7 +15,9 @@ reads every frame; the body term on `body_frames` of them; lengths in metres):
                                                              where p is within `cover` and not on a boundary)
            + body * mean relu(eps_body - d_body))           (the posed body's signed distance, as the inner's)
 Data: the dataset's "train" split (training H_in values x procedural motions; `train_items`, when the config
-names them, those alone); the "test" split (held-out H_in bins x the held-out procedural motion) is the
+names them, those alone), with the sequences the quality gate rejected only for checks in `tolerated_checks`
+(the simulated inner layer's body penetration: the network never reads the simulated inner layer; the outer
+layer's own checks still apply); the "test" split (held-out H_in bins x the held-out procedural motion) is the
 validation split: every `validate_every` steps the model is
 run as served (windows at half stride, blended) and measured: outer RMSE against the simulation (mm) and L-Coll
 against the served inner layer; the lowest RMSE's weights among the steps with L-Coll <= `max_l_coll_pct` are
@@ -58,7 +60,7 @@ def load_config(outer: str, path: str | Path | None = None) -> dict:
 class Sequence:
     """One simulated sequence, prepared: T frames; key, motion, thickness (m); features (T, 78); poses (T, 24, 3)
     rad; trans (T, 3) m; inner_keys (T, Ki) and inner (T, Ni, 3) m (the served inner network's); outer (T, No, 3)
-    m (the simulation's)."""
+    m (the simulation's); rejected_for: the quality-gate checks it failed (tolerated ones; empty when accepted)."""
 
     key: str
     motion: str
@@ -69,6 +71,7 @@ class Sequence:
     inner_keys: np.ndarray
     inner: np.ndarray
     outer: np.ndarray
+    rejected_for: list[str]
 
 
 class OuterTask:
@@ -110,8 +113,11 @@ class OuterTask:
     def sequences(self, split: str) -> list[Sequence]:
         """The dataset's sequences of one split ("train" | "test"), prepared."""
         manifest = json.loads((self.data_dir / "manifest.json").read_text())
+        tolerated = set(self.cfg.get("tolerated_checks", []))
+        usable = manifest["items"] + [r for r in manifest.get("rejected", []) if "file" in r and
+                                      {reason.split(" ")[0] for reason in r["reasons"]} <= tolerated]
         out = []
-        for item in manifest["items"]:
+        for item in usable:
             if item["split"] != split or not (self.data_dir / item["file"]).exists():
                 continue
             h = float(manifest["params"][item["params"]]["inner_thickness"])
@@ -125,7 +131,8 @@ class OuterTask:
             keys = self.inner_model.pose_keys(poses)
             inner = pose_outfit(self.inner_vertices, self.inner_model.rig, keys, self.body.joints, poses, trans)
             out.append(Sequence(item["key"], item["motion"], h, motion_features(poses, trans, self.body.joints,
-                                PARENTS, fps), poses, trans, keys, inner, outer))
+                                PARENTS, fps), poses, trans, keys, inner, outer,
+                                [reason.split(" ")[0] for reason in item.get("reasons", [])]))
         return out
 
     def laplacian(self, v: torch.Tensor) -> torch.Tensor:
@@ -317,7 +324,8 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     (ckpt_dir / "validation.json").write_text(json.dumps(record, indent=2) + "\n")
     log(f"chosen on validation: step {best} ({record['steps'][best]['score']:.2f} mm)")
     data = {"train": sorted(s.key for s in train_seqs), "validation": sorted(s.key for s in val_seqs),
-            "train_frames": frames}
+            "train_frames": frames,
+            "gate_rejected": {s.key: s.rejected_for for s in train_seqs + val_seqs if s.rejected_for}}
     return model, task, {"steps": total, "seconds": round(elapsed, 1), "data": data, "validation": record,
                          "val_seqs": val_seqs}
 

@@ -73,6 +73,11 @@ def test_failed_sequences_are_reported_and_excluded(tmp_path):
     assert m["items"] == [] and len(m["rejected"]) == 4
     assert all(any("strain_mean" in why for why in r["reasons"]) for r in m["rejected"])
     assert not list((tmp_path / "items").glob("*.npz"))
+    # each rejected sequence is kept beside its reasons, out of items/ (a use that tolerates the check may read it)
+    for r in m["rejected"]:
+        assert r["file"] == f"rejected/{r['key']}.npz" and {"params", "motion", "split"} <= set(r)
+        with np.load(tmp_path / r["file"], allow_pickle=False) as z:
+            assert np.isfinite(z["vertices"]).all() and z["vertices"].shape[0] == m["frames"]
 
 
 def test_process_pool_matches_serial(tmp_path):
