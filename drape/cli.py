@@ -233,8 +233,9 @@ def _render_sim(args: argparse.Namespace) -> None:
                    f"from keyframes at frames {', '.join(map(str, keys))} of it")
     if args.served:
         layers, model = _served_layers_beside(seq, frames, body, layers, args.azimuth)
-        caption = (f"left: the simulation ({caption.split(': ', 1)[1]}); right: drape's layers ({model}) "
-                   "along the same motion and H_in, before refinement")
+        caption = (f"left: MuJoCo ({seq['garment']}, clip {seq['motion']}, inner orange, H_in "
+                   f"{1000 * params['inner_thickness']:.3g} mm); right: drape ({model}), same motion and H_in, "
+                   "no refinement")
     print(render_frames(layers, list(range(len(frames))), args.out, azimuth=args.azimuth, titles=titles,
                         caption=caption, follow_all=bool(args.keyframes or args.served)))
 
