@@ -49,7 +49,7 @@ def test_animate_layers_through_the_client(server_url):
     the unrefined ones; GLB and PC2 of the two as one mesh; the frame stream names the layer ranges."""
     with drape.Client(server_url) as client:
         assert [x["outer"] for x in client.layers()] == ["jacket", "longsleeve"]
-        raw = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION)
+        raw = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, thickness=0.004)
         fixed = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, thickness=0.004, refine=True)
         pc2 = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, format="pc2")
     (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 4000, seed=7)
@@ -65,7 +65,7 @@ def test_animate_layers_through_the_client(server_url):
     top = LayerCatalog().find("tshirt", "jacket").outer.network
     if top is not None:  # the shipped outer network poses the outer layer, reading the inner network and H_in
         poses = MOTION["poses"].reshape(-1, 24, 3)
-        keys = top.pose_keys(poses, MOTION["translation"], 30.0, 0.006, net.pose_keys(poses), body.joints)
+        keys = top.pose_keys(poses, MOTION["translation"], 30.0, 0.004, net.pose_keys(poses), body.joints)
         ref = pose_outfit(vo, top.rig, keys, body.joints, poses, MOTION["translation"])
         assert np.abs(raw.outer_vertices - ref).max() < 1e-5
     ri, ro, report = refine_layers(raw.inner_vertices, fi, raw.outer_vertices, fo, posed, body.faces, thickness=0.004)
@@ -75,7 +75,7 @@ def test_animate_layers_through_the_client(server_url):
 
     async def go():
         async with drape.AsyncClient(server_url) as client:
-            return await client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION)
+            return await client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, thickness=0.004)
 
     assert np.array_equal(asyncio.run(go()).outer_vertices, raw.outer_vertices)
 
