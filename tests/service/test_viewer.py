@@ -184,5 +184,5 @@ def test_the_page_asks_for_the_api_key_when_the_service_has_one(settings):
     assert not out["before"]["ready"] and "401" in out["before"]["status"]
     assert "API key" in out["before"]["status"]
     assert {p for p in out["before"]["problems"] if not p.startswith("console: Failed to load resource")} == {
-        "401 /v1/bodies", "401 /v1/motions"}
+        "401 /v1/bodies", "401 /v1/motions", "401 /v1/layers", "401 /v1/garments"}
     assert out["problems"] == [] and out["clips"] >= 15
