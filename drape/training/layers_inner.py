@@ -34,6 +34,7 @@ from drape.models.layers import InnerConfig, InnerPSD
 from drape.training import physics
 from drape.training.deepsd_data import pose_pool
 from drape.training.deepsd_validation import Poser, measure_poser
+from drape.training.validated_steps import restore_best, resume, save_step
 
 CONFIGS = Path(__file__).parent / "configs"
 
@@ -114,11 +115,6 @@ def measure(cfg: dict, vertices: np.ndarray, faces: np.ndarray, body: Body, pose
     return {"score": figures["inside_triangle_pct"] + figures["edge_error_mm"], **figures}
 
 
-def _latest(ckpt_dir: Path) -> Path | None:
-    found = sorted(ckpt_dir.glob("step_*.pt"))
-    return found[-1] if found else None
-
-
 def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print) -> tuple[InnerPSD, InnerTask, dict]:
     """Train (or resume) one inner template's network; returns the validation-chosen model, its task and a
     summary (steps, seconds, the validation record)."""
@@ -130,16 +126,8 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print)
     task = InnerTask(cfg)
     model = InnerPSD(InnerConfig(num_vertices=len(task.vertices), **cfg["model"]))
     opt = torch.optim.Adam(model.parameters(), lr=cfg["lr"])
-    done, elapsed = 0, 0.0
     record: dict = {"rule": "lowest inside % + edge error mm, validation split", "steps": {}}
-    latest = _latest(ckpt_dir)
-    if latest is not None:
-        state = torch.load(latest, weights_only=True)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["opt"])
-        done, elapsed = int(state["done"]), float(state["elapsed"])
-        record = json.loads(state["record"])
-        log(f"resuming from {latest.name}")
+    done, elapsed, record = resume(ckpt_dir, model, opt, record, log)
     pool = torch.as_tensor(pose_pool(cfg))
     log(f"{cfg['inner']}: {len(task.vertices)} vertices, {len(pool)} training poses")
     total = int(cfg["steps"])
@@ -169,18 +157,9 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print)
             record["steps"][str(done)] = figures
             log(f"step {done}: validation {figures['inside_triangle_pct']:.2f}% inside, "
                 f"{figures['edge_error_mm']:.2f} mm edge error")
-            best = min(record["steps"], key=lambda k: record["steps"][k]["score"])
-            if best == str(done):
-                torch.save({"model": model.state_dict(), "step": done}, ckpt_dir / "best.pt")
-            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "done": done,
-                        "elapsed": elapsed + time.time() - t0, "record": json.dumps(record),
-                        "config": json.dumps(cfg)}, ckpt_dir / f"step_{done:07d}.pt")
+            save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg)
     elapsed += time.time() - t0
-    best = min(record["steps"], key=lambda k: record["steps"][k]["score"])
-    record["chosen"] = int(best)
-    model.load_state_dict(torch.load(ckpt_dir / "best.pt", weights_only=True)["model"])
-    model.eval()
-    (ckpt_dir / "validation.json").write_text(json.dumps(record, indent=2) + "\n")
+    best = restore_best(ckpt_dir, model, record)
     log(f"chosen on validation: step {best} ({record['steps'][best]['score']:.2f})")
     return model, task, {"steps": total, "seconds": round(elapsed, 1), "validation": record}
 

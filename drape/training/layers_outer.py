@@ -48,6 +48,7 @@ from drape.runtime.deepsd import Rig, pose_outfit
 from drape.runtime.layers import INNER_MODELS, InnerModel, blend_windows, window_starts
 from drape.training import physics
 from drape.training.layers_inner import body_weights
+from drape.training.validated_steps import restore_best, resume, save_step
 
 CONFIGS = Path(__file__).parent / "configs"
 
@@ -239,11 +240,6 @@ def pose_outer(model: OuterTransformer, task: OuterTask, seq: Sequence) -> np.nd
     return pose_outfit(task.vertices, rig, keys, task.body.joints, seq.poses, seq.trans)
 
 
-def _latest(ckpt_dir: Path) -> Path | None:
-    found = sorted(ckpt_dir.glob("step_*.pt"))
-    return found[-1] if found else None
-
-
 def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print, data_root: str | Path | None = None,
           ) -> tuple[OuterTransformer, OuterTask, dict]:
     """Train (or resume) one combination's outer network; returns the validation-chosen model, its task and a
@@ -268,17 +264,9 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     model.set_normalization(torch.as_tensor(np.concatenate([s.features for s in train_seqs])),
                             torch.as_tensor(np.concatenate([s.inner_keys for s in train_seqs])))
     opt = torch.optim.AdamW(model.parameters(), lr=cfg["lr"], weight_decay=cfg.get("weight_decay", 0.0))
-    done, elapsed = 0, 0.0
     record: dict = {"rule": f"lowest outer RMSE (mm) against the simulation among the steps with L-Coll <= "
                             f"{cfg['max_l_coll_pct']}%, validation split", "steps": {}}
-    latest = _latest(ckpt_dir)
-    if latest is not None:
-        state = torch.load(latest, weights_only=True)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["opt"])
-        done, elapsed = int(state["done"]), float(state["elapsed"])
-        record = json.loads(state["record"])
-        log(f"resuming from {latest.name}")
+    done, elapsed, record = resume(ckpt_dir, model, opt, record, log)
     frames = sum(len(s.poses) for s in train_seqs)
     log(f"{cfg['pair']}: {len(task.vertices)} outer vertices; {len(train_seqs)} training sequences ({frames} frames), "
         f"{len(val_seqs)} validation sequences")
@@ -310,18 +298,9 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
             model.train()
             record["steps"][str(done)] = figures
             log(f"step {done}: validation RMSE {figures['rmse_mm']:.2f} mm, L-Coll {figures['l_coll_pct']:.2f}%")
-            best = min(record["steps"], key=lambda k: record["steps"][k]["score"])
-            if best == str(done):
-                torch.save({"model": model.state_dict(), "step": done}, ckpt_dir / "best.pt")
-            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "done": done,
-                        "elapsed": elapsed + time.time() - t0, "record": json.dumps(record),
-                        "config": json.dumps(cfg)}, ckpt_dir / f"step_{done:07d}.pt")
+            save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg)
     elapsed += time.time() - t0
-    best = min(record["steps"], key=lambda k: record["steps"][k]["score"])
-    record["chosen"] = int(best)
-    model.load_state_dict(torch.load(ckpt_dir / "best.pt", weights_only=True)["model"])
-    model.eval()
-    (ckpt_dir / "validation.json").write_text(json.dumps(record, indent=2) + "\n")
+    best = restore_best(ckpt_dir, model, record)
     log(f"chosen on validation: step {best} ({record['steps'][best]['score']:.2f} mm)")
     data = {"train": sorted(s.key for s in train_seqs), "validation": sorted(s.key for s in val_seqs),
             "train_frames": frames,
