@@ -29,6 +29,7 @@ Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resume
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -275,7 +276,7 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     def lr_at(step: int) -> float:
         if step < warmup:
             return (step + 1) / warmup
-        return 0.05 + 0.95 * 0.5 * (1 + np.cos(np.pi * (step - warmup) / max(total - warmup, 1)))
+        return 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * (step - warmup) / max(total - warmup, 1)))
 
     bar = tqdm(range(done, total), initial=done, total=total, desc=cfg["pair"])
     t0 = time.time()
