@@ -23,6 +23,7 @@ import json
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -42,19 +43,24 @@ INNER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_
 OUTER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_outer"
 
 
+def _network_folder(folder: str | Path, graph: str, threads: int) -> tuple[dict, Any, np.ndarray, np.ndarray, Rig]:
+    """A layer network's folder (drape.export.layers), checked against its manifest's sha256 -> (manifest, the
+    ONNX Runtime session of <graph>.onnx, template vertices (N, 3) m, faces (F, 3), Rig (weights, basis))."""
+    folder = Path(folder)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    blobs = checked_files(folder, manifest, (graph, "rig"))
+    with np.load(io.BytesIO(blobs["rig"]), allow_pickle=False) as z:
+        rig = Rig(weights=z["weights"], blend_shapes=z["blend_shapes"])
+        return manifest, cpu_session(blobs[graph], threads), z["vertices"], z["faces"], rig
+
+
 class InnerModel:
     """MGN's inner-layer network of one template (drape.export.layers): pose.onnx (poses (T, 72) -> pose_keys
     (T, K)) and rig.npz (vertices (N, 3) m, faces, weights (N, 24), blend_shapes (K, N, 3) m), checked against
     the manifest's sha256. Posed like a DeePSD rig: drape.runtime.deepsd.pose_outfit(vertices, rig, keys, ...)."""
 
     def __init__(self, folder: str | Path, threads: int = 2):
-        folder = Path(folder)
-        self.manifest = json.loads((folder / "manifest.json").read_text())
-        blobs = checked_files(folder, self.manifest, ("pose", "rig"))
-        self.session = cpu_session(blobs["pose"], threads)
-        with np.load(io.BytesIO(blobs["rig"]), allow_pickle=False) as z:
-            self.vertices, self.faces = z["vertices"], z["faces"]
-            self.rig = Rig(weights=z["weights"], blend_shapes=z["blend_shapes"])
+        self.manifest, self.session, self.vertices, self.faces, self.rig = _network_folder(folder, "pose", threads)
         self.served = self.manifest["served"] == MGN_INNER
         self.sha256 = self.manifest["files"]["pose"]["sha256"]
 
@@ -98,13 +104,7 @@ class OuterModel:
     is the inner network's pose.onnx it was trained beside (it reads that network's keys)."""
 
     def __init__(self, folder: str | Path, threads: int = 2):
-        folder = Path(folder)
-        self.manifest = json.loads((folder / "manifest.json").read_text())
-        blobs = checked_files(folder, self.manifest, ("outer", "rig"))
-        self.session = cpu_session(blobs["outer"], threads)
-        with np.load(io.BytesIO(blobs["rig"]), allow_pickle=False) as z:
-            self.vertices, self.faces = z["vertices"], z["faces"]
-            self.rig = Rig(weights=z["weights"], blend_shapes=z["blend_shapes"])
+        self.manifest, self.session, self.vertices, self.faces, self.rig = _network_folder(folder, "outer", threads)
         self.window = int(self.manifest["model_config"]["window"])
         self.inner_sha256 = self.manifest["inner_network"]["pose_sha256"]
         self.served = self.manifest["served"] == MGN_OUTER
