@@ -27,7 +27,8 @@ serve: $(VENV)/.serve-installed
 test: $(VENV)/.dev-installed
 	$(BIN)/ruff check drape tests bench
 	$(BIN)/mypy
-	$(BIN)/pytest
+	$(BIN)/pytest -n 2 -m "not slow and not serial"
+	$(BIN)/pytest -m "not slow and serial"
 
 test-slow: $(VENV)/.dev-installed
 	$(BIN)/pytest -m slow

@@ -2,6 +2,7 @@
 templates): which model poses each layer, and that the engine's streams are those networks'."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -109,8 +110,12 @@ def outer_models(tmp_path_factory, models):
 def test_an_outer_network_is_served_beside_the_inner_network_it_reads(models, outer_models, tmp_path):
     c = LayerCatalog(models=models, outer_models=outer_models).find("tshirt", "jacket")
     assert c.outer.model == "mgn_outer" and c.model == "mgn_inner+mgn_outer" and c.thickness == (0.004, 0.012)
-    # trained beside another inner network: not served, the outer is DeePSD's and the thickness range the default
-    _export_outer(tmp_path, "another inner network")
+    # trained beside another inner network (the same export, its manifest naming another): not served, the outer
+    # is DeePSD's and the thickness range the default
+    shutil.copytree(outer_models / "tshirt_jacket", tmp_path / "tshirt_jacket")
+    manifest = json.loads((tmp_path / "tshirt_jacket" / "manifest.json").read_text())
+    manifest["inner_network"]["pose_sha256"] = "another inner network"
+    (tmp_path / "tshirt_jacket" / "manifest.json").write_text(json.dumps(manifest))
     c = LayerCatalog(models=models, outer_models=tmp_path).find("tshirt", "jacket")
     assert c.outer.model == "deepsd" and c.thickness == (0.002, 0.02)
     # without the inner network it reads: not served either

@@ -9,8 +9,9 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from node_folder import NODE_DIR, installing
+
 VERSION = "2.0.0-dev.3.10"
-NODE_DIR = Path(__file__).resolve().parents[2] / "build" / "node"
 SCRIPT = """
 import fs from 'fs';
 import validator from 'gltf-validator';
@@ -26,13 +27,15 @@ def ensure_validator() -> Path:
     """The validator's script, installed where missing (needs node and npm)."""
     if not shutil.which("node") or not shutil.which("npm"):
         raise RuntimeError("the glTF validator needs node and npm (Debian: apt-get install nodejs npm)")
-    if not (NODE_DIR / "node_modules" / "gltf-validator").exists():
-        NODE_DIR.mkdir(parents=True, exist_ok=True)
-        subprocess.run(["npm", "install", "--silent", "--no-audit", "--no-fund", "--prefix", str(NODE_DIR),
-                        f"gltf-validator@{VERSION}"], check=True, timeout=600)
     script = NODE_DIR / "validate.mjs"
-    if not script.exists() or script.read_text() != SCRIPT:
-        script.write_text(SCRIPT)
+    if (NODE_DIR / "node_modules" / "gltf-validator").exists() and script.exists() and script.read_text() == SCRIPT:
+        return script
+    with installing():
+        if not (NODE_DIR / "node_modules" / "gltf-validator").exists():
+            subprocess.run(["npm", "install", "--silent", "--no-audit", "--no-fund", "--prefix", str(NODE_DIR),
+                            f"gltf-validator@{VERSION}"], check=True, timeout=600)
+        if not script.exists() or script.read_text() != SCRIPT:
+            script.write_text(SCRIPT)
     return script
 
 

@@ -21,11 +21,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from node_folder import NODE_DIR, installing
 
 THREE_VERSION = "0.187.0"
 PLAYWRIGHT_VERSION = "1.65.1"
 CHROMIUM = Path("/usr/bin/chromium")
-NODE_DIR = Path(__file__).resolve().parents[2] / "build" / "node"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--no-first-run", "--enable-unsafe-swiftshader",
                  "--use-angle=swiftshader"]
@@ -139,20 +139,22 @@ def _installed_version(package: str) -> str | None:
 
 def ensure_browser() -> Path:
     """Chromium, node, three and playwright-core, installed where missing -> the node folder (scripts run there)."""
-    if not CHROMIUM.exists():
-        env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-        install = ["apt-get", "install", "-y", "-q", "--no-install-recommends", "chromium"]
-        if subprocess.run(install, env=env, capture_output=True).returncode != 0:
-            subprocess.run(["apt-get", "update", "-q"], env=env, check=True, capture_output=True, timeout=600)
-            subprocess.run(install, env=env, check=True, capture_output=True, timeout=1200)
-    if not shutil.which("node") or not shutil.which("npm"):
-        raise RuntimeError("three.js in Chromium needs node and npm (Debian: apt-get install nodejs npm)")
     wanted = {"three": THREE_VERSION, "playwright-core": PLAYWRIGHT_VERSION}
-    missing = [f"{p}@{v}" for p, v in wanted.items() if _installed_version(p) != v]
-    if missing:
-        NODE_DIR.mkdir(parents=True, exist_ok=True)
-        subprocess.run(["npm", "install", "--silent", "--no-audit", "--no-fund", "--save-exact", "--prefix",
-                        str(NODE_DIR), *missing], check=True, timeout=600)
+    if CHROMIUM.exists() and all(_installed_version(p) == v for p, v in wanted.items()):
+        return NODE_DIR
+    with installing():
+        if not CHROMIUM.exists():
+            env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+            install = ["apt-get", "install", "-y", "-q", "--no-install-recommends", "chromium"]
+            if subprocess.run(install, env=env, capture_output=True).returncode != 0:
+                subprocess.run(["apt-get", "update", "-q"], env=env, check=True, capture_output=True, timeout=600)
+                subprocess.run(install, env=env, check=True, capture_output=True, timeout=1200)
+        if not shutil.which("node") or not shutil.which("npm"):
+            raise RuntimeError("three.js in Chromium needs node and npm (Debian: apt-get install nodejs npm)")
+        missing = [f"{p}@{v}" for p, v in wanted.items() if _installed_version(p) != v]
+        if missing:
+            subprocess.run(["npm", "install", "--silent", "--no-audit", "--no-fund", "--save-exact", "--prefix",
+                            str(NODE_DIR), *missing], check=True, timeout=600)
     return NODE_DIR
 
 

@@ -18,6 +18,8 @@ from bench.soak import served
 from drape.service import handlers
 from drape.service.settings import Settings
 
+pytestmark = pytest.mark.serial  # its latency bars need the machine to itself
+
 V = [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]]
 F = [[0, 1, 2], [1, 3, 2]]
 POST_ROUTES = ["/v1/outfits/rig", "/v1/outfits/animate", "/v1/refine"]

@@ -15,6 +15,8 @@ from test_uploads import TRI_BIN, glb, npy_bytes, png_header, tri_tree
 
 from bench.soak import family_rss_mb, served
 
+pytestmark = pytest.mark.serial  # its latency bars need the machine to itself
+
 MB = 2**20
 
 

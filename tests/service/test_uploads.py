@@ -28,6 +28,8 @@ from drape.schemas.binary import NpzTooLarge, decode_npz, encode_npz
 from drape.service import uploads
 from drape.service.errors import DrapeError, InvalidInput, LimitExceeded, MalformedInput
 
+pytestmark = pytest.mark.serial  # its latency bars need the machine to itself
+
 MAXV, MAXF = 3000, 6000  # the service tests' limits
 MB = 2**20
 

@@ -86,6 +86,7 @@ def test_process_pool_matches_serial(tmp_path):
     _same(_arrays(tmp_path / "serial"), _arrays(tmp_path / "pool"))
 
 
+@pytest.mark.serial  # starts a Ray cluster
 def test_ray_matches_local(tmp_path):
     ray = pytest.importorskip("ray")
     _build(tmp_path / "local", workers=1)
