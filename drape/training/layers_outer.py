@@ -41,8 +41,9 @@ import torch
 from drape.assets.body import load_body
 from drape.assets.outfits import split_outfit
 from drape.geometry.character_space import motion_features
-from drape.geometry.mesh import boundary_vertices, neighbour_table
+from drape.geometry.mesh import boundary_vertices, neighbour_table, unique_edges
 from drape.geometry.mesh_io import load_mesh
+from drape.geometry.metrics import sted
 from drape.geometry.skeleton import PARENTS
 from drape.models.layers import OuterConfig, OuterTransformer
 from drape.runtime.deepsd import Rig, pose_outfit
@@ -102,6 +103,7 @@ class OuterTask:
         _, cand = cKDTree(self.inner_vertices).query(self.vertices, k=cfg["candidates"])
         self.candidates = torch.as_tensor(cand, dtype=torch.int64)  # (No, k)
         self.inner_boundary = torch.as_tensor(boundary_vertices(self.inner_faces, len(self.inner_vertices)))
+        self.edges = torch.as_tensor(unique_edges(self.faces), dtype=torch.int64)  # (E, 2)
         self.collider = physics.BodyCollider(self.body, load_body(cfg["body"], proxy=True), self.vertices)
 
     def _check_templates(self) -> None:
@@ -174,15 +176,41 @@ class OuterTask:
         sd_body = self.collider.signed_distance(v[few] - trans[few, None], transforms[few])
         l_body = physics.collision_loss(sd_body, lw["eps_body"])
         loss = 1e3 * (lw["vertex"] * l_vert + lw["laplacian"] * l_lap + lw["repulsion"] * l_rep + lw["body"] * l_body)
-        return loss, {"rmse_mm": float(l_vert.detach().sqrt()) * 1e3, "behind": float((sd_inner < 0).float().mean()),
-                      "inside": float((sd_body < 0).float().mean())}
+        stats = {"rmse_mm": float(l_vert.detach().sqrt()) * 1e3, "behind": float((sd_inner < 0).float().mean()),
+                 "inside": float((sd_body < 0).float().mean())}
+        if lw.get("edge", 0.0) > 0:  # against a crumpled layer
+            l_edge = edge_length_loss(v, gt, self.edges)
+            loss = loss + 1e3 * lw["edge"] * l_edge
+            stats["edge"] = float(l_edge.detach().sqrt())
+        if lw.get("temporal", 0.0) > 0:  # sample_batch(pairs=True) gives the frames in pairs (t, t + 1)
+            l_step = step_loss(v, gt)
+            loss = loss + 1e3 * lw["temporal"] * l_step
+            stats["step_mm"] = float(l_step.detach().sqrt()) * 1e3
+        return loss, stats
+
+
+def edge_length_loss(v: torch.Tensor, truth: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
+    """Mean squared relative edge-length error (STED's spatial part, squared): v, truth (B, N, 3) m, edges (E, 2)
+    -> scalar, unitless."""
+    def lengths(x: torch.Tensor) -> torch.Tensor:
+        return (x[:, edges[:, 0]] - x[:, edges[:, 1]]).norm(dim=-1)
+
+    lt = lengths(truth)
+    return (((lengths(v) - lt) / lt.clamp_min(1e-6)) ** 2).mean()
+
+
+def step_loss(v: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    """Mean squared error of the per-frame vertex steps: v, truth (2P, N, 3) m holding P pairs of consecutive
+    frames (t, t + 1) in that order -> scalar, m^2 (per frame)."""
+    return ((v.unflatten(0, (-1, 2)).diff(dim=1) - truth.unflatten(0, (-1, 2)).diff(dim=1)) ** 2).sum(-1).mean()
 
 
 def sample_batch(seqs: list[Sequence], window: int, count: int, frames: int, rng: np.random.Generator,
-                 ) -> dict[str, torch.Tensor]:
+                 pairs: bool = False) -> dict[str, torch.Tensor]:
     """`count` random windows of `window` frames (sequences drawn in proportion to their windows): the network's
     inputs of every frame (features, inner_keys (B, W, .), thickness (B, 1)) and, for `frames` random frames of
-    each window (`pick` (B, F)), what the loss compares (poses, trans, outer, inner (B, F, ...))."""
+    each window (`pick` (B, F)), what the loss compares (poses, trans, outer, inner (B, F, ...)). With `pairs`,
+    the frames are frames // 2 random pairs of consecutive frames (t, t + 1), in that order (a temporal loss)."""
     sizes = np.array([len(s.poses) - window + 1 for s in seqs])
     picks = rng.choice(len(seqs), size=count, p=sizes / sizes.sum())
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("features", "inner_keys", "pick", "poses", "trans", "outer",
@@ -190,7 +218,11 @@ def sample_batch(seqs: list[Sequence], window: int, count: int, frames: int, rng
     for i in picks:
         s = seqs[i]
         t0 = int(rng.integers(sizes[i]))
-        pick = np.sort(rng.choice(window, size=min(frames, window), replace=False))
+        if pairs:
+            first = np.sort(rng.choice(window - 1, size=min(frames // 2, window - 1), replace=False))
+            pick = np.stack([first, first + 1], 1).ravel()
+        else:
+            pick = np.sort(rng.choice(window, size=min(frames, window), replace=False))
         parts["features"].append(s.features[t0:t0 + window])
         parts["inner_keys"].append(s.inner_keys[t0:t0 + window])
         parts["pick"].append(pick)
@@ -220,18 +252,20 @@ def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Seq
     poser over sequences; score = RMSE, plus PENALTY where L-Coll is over max_l_coll_pct."""
     from drape.training.layers_eval import l_coll
 
-    sq, behind, per = [], [], {}
+    sq, behind, edges, per = [], [], [], {}
     for s in seqs:
         v = pose(s)
         e = ((v - s.outer) ** 2).sum(-1)
         sq.append(e)
         share = l_coll(v, s.inner, task.inner_faces)[0]
         behind.append(share)
-        per[s.key] = {"rmse_mm": round(float(np.sqrt(e.mean())) * 1e3, 2), "l_coll_pct": round(100 * share, 3)}
+        edges.append(sted(v, s.outer, task.faces)["sted"])
+        per[s.key] = {"rmse_mm": round(float(np.sqrt(e.mean())) * 1e3, 2), "l_coll_pct": round(100 * share, 3),
+                      "sted": round(edges[-1], 4)}
     rmse = float(np.sqrt(np.mean(np.concatenate([e.ravel() for e in sq])))) * 1e3
     l_coll_pct = 100 * float(np.mean(behind))
     return {"score": round(rmse + (PENALTY if l_coll_pct > max_l_coll_pct else 0.0), 3), "rmse_mm": round(rmse, 3),
-            "l_coll_pct": round(l_coll_pct, 3), "sequences": per}
+            "l_coll_pct": round(l_coll_pct, 3), "sted": round(float(np.mean(edges)), 4), "sequences": per}
 
 
 def pose_outer(model: OuterTransformer, task: OuterTask, seq: Sequence) -> np.ndarray:
@@ -285,7 +319,7 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
         for g in opt.param_groups:
             g["lr"] = cfg["lr"] * lr_at(step)
         batch = sample_batch(train_seqs, model.cfg.window, cfg["batch_windows"], cfg["loss_frames"],
-                             np.random.default_rng([cfg["seed"], step]))
+                             np.random.default_rng([cfg["seed"], step]), pairs=cfg["loss"].get("temporal", 0.0) > 0)
         loss, stats = task.loss(model, batch)
         opt.zero_grad()
         loss.backward()
@@ -298,7 +332,8 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
             figures = measure_sequences(task, val_seqs, lambda s: pose_outer(model, task, s), cfg["max_l_coll_pct"])
             model.train()
             record["steps"][str(done)] = figures
-            log(f"step {done}: validation RMSE {figures['rmse_mm']:.2f} mm, L-Coll {figures['l_coll_pct']:.2f}%")
+            log(f"step {done}: validation RMSE {figures['rmse_mm']:.2f} mm, L-Coll {figures['l_coll_pct']:.2f}%, "
+                f"STED {figures['sted']:.3f}")
             save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg)
     elapsed += time.time() - t0
     best = restore_best(ckpt_dir, model, record)
@@ -342,5 +377,5 @@ def export_trained(model: OuterTransformer, task: OuterTask, summary: dict, out:
         "inner_network": {"version": inner_manifest["version"], "pose_sha256": inner_manifest["files"]["pose"]["sha256"]},
         "validation": ours, "deepsd_validation": theirs, "config": cfg,
         "training": {k: v for k, v in summary.items() if k not in ("validation", "val_seqs")},
-        "validation_steps": {k: {m: v[m] for m in ("score", "rmse_mm", "l_coll_pct")}
+        "validation_steps": {k: {m: v[m] for m in ("score", "rmse_mm", "l_coll_pct", "sted") if m in v}
                              for k, v in summary["validation"]["steps"].items()}})

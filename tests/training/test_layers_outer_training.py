@@ -1,0 +1,57 @@
+"""The outer-layer network's training pieces that need no dataset: the batches (pairs of consecutive frames for
+the temporal loss) and the edge and step losses against independent formulations."""
+
+import numpy as np
+import torch
+
+from drape.geometry.mesh import unique_edges
+from drape.geometry.metrics import edge_lengths
+from drape.training.layers_outer import Sequence, edge_length_loss, sample_batch, step_loss
+
+
+def _sequence(frames: int, seed: int) -> Sequence:
+    rng = np.random.default_rng(seed)
+    t = 1000 * seed + np.arange(frames, dtype=np.float32)  # trans says which sequence and frame
+    return Sequence(f"s{seed}", "proc", 0.008, rng.normal(size=(frames, 78)).astype(np.float32),
+                    rng.normal(size=(frames, 24, 3)).astype(np.float32), t[:, None].repeat(3, 1),
+                    rng.normal(size=(frames, 8)).astype(np.float32), rng.normal(size=(frames, 5, 3)).astype(np.float32),
+                    t[:, None, None] + rng.normal(size=(frames, 7, 3)).astype(np.float32), [])
+
+
+def test_pairs_are_consecutive_frames_of_the_window_and_carry_their_truth():
+    seqs = [_sequence(40, 1), _sequence(55, 2)]
+    batch = sample_batch(seqs, 30, 6, 10, np.random.default_rng(0), pairs=True)
+    pick = batch["pick"].numpy()
+    assert pick.shape == (6, 10) and (pick[:, 1::2] - pick[:, 0::2] == 1).all() and pick.max() < 30
+    for b in range(6):  # trans says the sequence and the frame: the window's start + the picked frame
+        seq, start = seqs[int(batch["trans"][b, 0, 0]) // 1000 - 1], int(batch["trans"][b, 0, 0]) % 1000 - pick[b, 0]
+        assert np.array_equal(batch["trans"][b].numpy(), seq.trans[start + pick[b]])
+        assert np.array_equal(batch["outer"][b].numpy(), seq.outer[start + pick[b]])
+        assert np.array_equal(batch["features"][b].numpy(), seq.features[start:start + 30])
+    single = sample_batch(seqs, 30, 6, 10, np.random.default_rng(0))
+    assert (np.diff(single["pick"].numpy(), axis=1) > 0).all()  # distinct frames, sorted
+
+
+def test_edge_length_loss_is_the_relative_edge_error_and_ignores_rigid_motion():
+    rng = np.random.default_rng(3)
+    faces = np.array([[0, 1, 2], [1, 3, 2], [2, 3, 4]])
+    truth = rng.normal(size=(4, 5, 3))
+    v = truth + 0.05 * rng.normal(size=truth.shape)
+    e = unique_edges(faces)
+    want = np.mean(((edge_lengths(v, e) - edge_lengths(truth, e)) / edge_lengths(truth, e)) ** 2)
+    got = edge_length_loss(torch.as_tensor(v), torch.as_tensor(truth), torch.as_tensor(e))
+    assert abs(float(got) - want) < 1e-9
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    moved = torch.as_tensor(truth @ q.T + [1.0, 2.0, 3.0])
+    assert float(edge_length_loss(moved, torch.as_tensor(truth), torch.as_tensor(e))) < 1e-20
+
+
+def test_step_loss_compares_the_steps_of_each_pair_only():
+    rng = np.random.default_rng(4)
+    truth = rng.normal(size=(6, 5, 3))  # three pairs
+    shifted = truth + np.repeat(rng.normal(size=(3, 1, 3)), 2, axis=0)  # each pair moved as a whole
+    assert float(step_loss(torch.as_tensor(shifted), torch.as_tensor(truth))) < 1e-20
+    v = truth.copy()
+    v[1] += [0.0, 0.003, 0.004]  # the first pair's second frame 5 mm off
+    want = 0.005 ** 2 / 3
+    assert abs(float(step_loss(torch.as_tensor(v), torch.as_tensor(truth))) - want) < 1e-12
