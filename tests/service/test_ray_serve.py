@@ -31,8 +31,6 @@ from drape.schemas.binary import NPZ, decode_npz
 from drape.service import ray_serve  # imports without ray
 from drape.service.app import create_app
 
-pytestmark = pytest.mark.serial  # starts Ray clusters and serve processes
-
 ray = pytest.importorskip("ray")
 serve = pytest.importorskip("ray.serve")
 
