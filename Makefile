@@ -24,6 +24,8 @@ $(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
 serve: $(VENV)/.serve-installed
 	$(BIN)/drape serve --host $(HOST) --port $(PORT)
 
+# The tests run in two processes (pytest-xdist), then the ones marked `serial` (latency bars, a Ray cluster)
+# alone; the `slow` ones only with `make test-slow`.
 test: $(VENV)/.dev-installed
 	$(BIN)/ruff check drape tests bench
 	$(BIN)/mypy
