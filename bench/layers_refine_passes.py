@@ -17,8 +17,7 @@ import argparse
 import numpy as np
 
 from drape.assets.body import load_body
-from drape.geometry.layers import LayerRefiner
-from drape.geometry.refine import RefineReport
+from drape.geometry.layers import LayerRefiner, LayerReport
 from drape.runtime.engine import Engine, posed_body
 from drape.training import layers_eval as le
 
@@ -45,16 +44,11 @@ def main() -> None:
             bodies = posed_body("neutral", poses, trans)
             stages: list[list[np.ndarray]] = [[] for _ in PASSES]
             inners = []
-            for i, o, b in zip(inner, outer, bodies, strict=True):  # LayerRefiner.refine_frame, pass by pass
-                report = RefineReport()
-                i = r.inner.refine_frame(i, b, r.body_surface, report)
-                stages[0].append(o)
-                o = r.outer.refine_frame(o, b, r.body_surface, report)
-                stages[1].append(o)
-                o = r.between.refine_frame(o, i, r.layer_surface, report)
-                stages[2].append(o)
-                o = r.outer.refine_frame(o, b, r.body_surface, report)
-                stages[3].append(o)
+            for i, o, b in zip(inner, outer, bodies, strict=True):
+                passes = [o]
+                i, _ = r.refine_frame(i, o, b, LayerReport(), stages=passes)
+                for stage, x in zip(stages, passes, strict=True):
+                    stage.append(x)
                 inners.append(i)
             ri = np.stack(inners)
             cells = [f"{100 * le.l_coll(np.stack(s), ri, c.inner.faces)[0]:.2f} / "

@@ -93,15 +93,22 @@ class LayerRefiner:
         self.body_surface = BodySurface(body_faces, body_vertices)
         self.layer_surface = LayerSurface(inner_faces, num_inner, thickness)
 
-    def refine_frame(self, inner: np.ndarray, outer: np.ndarray, body: np.ndarray,
-                     report: LayerReport) -> tuple[np.ndarray, np.ndarray]:
-        """inner (Ni, 3), outer (No, 3), body (M, 3) -> (inner, outer) refined, float64; appends to `report`."""
+    def refine_frame(self, inner: np.ndarray, outer: np.ndarray, body: np.ndarray, report: LayerReport,
+                     stages: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """inner (Ni, 3), outer (No, 3), body (M, 3) -> (inner, outer) refined, float64; appends to `report`, and
+        to `stages` (where given) the outer after each of its three passes (bench.layers_refine_passes)."""
         r = RefineReport()
         inner = self.inner.refine_frame(inner, body, self.body_surface, r)
         outer = self.outer.refine_frame(outer, body, self.body_surface, r)
+        if stages is not None:
+            stages.append(outer)
         outer = self.between.refine_frame(outer, inner, self.layer_surface, r)
+        if stages is not None:
+            stages.append(outer)
         # pushed along the inner's normals, where the inner folds (the armpit) the outer can meet the body again
         outer = self.outer.refine_frame(outer, body, self.body_surface, r)
+        if stages is not None:
+            stages.append(outer)
         report.inner_in_body_before.append(r.inside_before[0])
         report.inner_in_body_after.append(r.inside_after[0])
         report.outer_in_body_before.append(r.inside_before[1])

@@ -192,11 +192,8 @@ class OuterTask:
 def edge_length_loss(v: torch.Tensor, truth: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
     """Mean squared relative edge-length error (STED's spatial part, squared): v, truth (B, N, 3) m, edges (E, 2)
     -> scalar, unitless."""
-    def lengths(x: torch.Tensor) -> torch.Tensor:
-        return (x[:, edges[:, 0]] - x[:, edges[:, 1]]).norm(dim=-1)
-
-    lt = lengths(truth)
-    return (((lengths(v) - lt) / lt.clamp_min(1e-6)) ** 2).mean()
+    lt = physics.edge_lengths(truth, edges)
+    return (((physics.edge_lengths(v, edges) - lt) / lt.clamp_min(1e-6)) ** 2).mean()
 
 
 def step_loss(v: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:

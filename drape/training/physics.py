@@ -59,10 +59,14 @@ def vertex_normals(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     return vn / vn.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
+def edge_lengths(v: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
+    """v (B, N, 3) m, edges (E, 2) -> lengths (B, E) m."""
+    return (v[:, edges[:, 0]] - v[:, edges[:, 1]]).norm(dim=-1)
+
+
 def edge_loss(v: torch.Tensor, edges: torch.Tensor, rest_len: torch.Tensor) -> torch.Tensor:
     """Mean |edge length - template length| (m)."""
-    length = (v[:, edges[:, 0]] - v[:, edges[:, 1]]).norm(dim=-1)
-    return (length - rest_len).abs().mean()
+    return (edge_lengths(v, edges) - rest_len).abs().mean()
 
 
 def bending_loss(v: torch.Tensor, faces: torch.Tensor, nbr_idx: torch.Tensor, nbr_w: torch.Tensor) -> torch.Tensor:
