@@ -272,7 +272,7 @@ def _train_deepsd(args: argparse.Namespace) -> None:
     from drape.training.deepsd import load_config, train
 
     config = load_config(args.config)
-    _, _, summary = train(config, args.checkpoints)
+    _, _, summary = train(config, args.checkpoints, device=args.device)
     if config.get("validation"):  # the checkpoint `drape export deepsd` exports is chosen on the validation split
         from drape.training.deepsd_validation import choose_checkpoint
 
@@ -623,6 +623,8 @@ def build_parser() -> argparse.ArgumentParser:
     td = t.add_parser("deepsd", help="train DeePSD by physics on generated outfits (resumes from checkpoints)")
     td.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     td.add_argument("--checkpoints", default="checkpoints/deepsd")
+    td.add_argument("--device", default="auto",
+                    help="where the training steps run: auto (a CUDA GPU if torch sees one, else the CPU), cpu, cuda")
     td.set_defaults(func=_train_deepsd)
     e = sub.add_parser("export", help="export a network to ONNX, or a stream to an engine format").add_subparsers(
         dest="what", required=True)

@@ -107,11 +107,33 @@ def _latest(ckpt_dir: Path) -> Path | None:
     return found[-1] if found else None
 
 
-def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) -> tuple[OutfitNet, PoseNet, dict]:
-    """Train (or resume) and return the networks and a summary."""
+def training_device(name: str = "auto") -> torch.device:
+    """`auto`: the CUDA GPU when torch sees one, else the CPU; or `cpu` / `cuda` / `cuda:N` as named."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    return torch.device(name)
+
+
+def _to_cpu(value):
+    """A checkpoint's nested dicts / lists of tensors, every tensor on the CPU (checkpoints load anywhere)."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
+    if isinstance(value, dict):
+        return {k: _to_cpu(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_to_cpu(v) for v in value)
+    return value
+
+
+def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
+          device: str = "auto") -> tuple[OutfitNet, PoseNet, dict]:
+    """Train (or resume) and return the networks (on the CPU) and a summary. `device`: where the steps run
+    (`training_device`); the recipe and its random draws are the same on every device, the arithmetic is not
+    bit-identical between CPU and GPU."""
     from tqdm import tqdm
 
     torch.set_num_threads(max(1, torch.get_num_threads()))
+    dev = training_device(device)
     ckpt_dir = Path(ckpt_dir)
     ckpt_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config["seed"])
@@ -120,18 +142,20 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) 
     elapsed = 0.0
     latest = _latest(ckpt_dir)
     state = None
+    ran_on = None
     if latest is not None:
-        state = torch.load(latest, weights_only=True)
+        state = torch.load(latest, weights_only=True, map_location="cpu")
         net.load_state_dict(state["outfit"])
         pose.load_state_dict(state["pose"])
         done = dict(zip(PHASES, state["done"].tolist(), strict=True))
         elapsed = float(state["elapsed"])
         log(f"resuming from {latest.name}: {done}")
+        ran_on = state.get("device", "unknown")  # where the steps so far ran (checkpoints before 0.7: unknown)
     elif config.get("init_checkpoints"):
         base = _latest(Path(config["init_checkpoints"]))
         if base is None:
             raise FileNotFoundError(f"init_checkpoints: no step_*.pt in {config['init_checkpoints']}")
-        init = torch.load(base, weights_only=True)
+        init = torch.load(base, weights_only=True, map_location="cpu")
         net.load_state_dict(init["outfit"])
         pose.load_state_dict(init["pose"])
         log(f"fine-tuning from {base} ({float(init['elapsed']):.0f} s of training)")
@@ -139,8 +163,11 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) 
     loss_weights = {p: phase_loss_weights(config, p) for p in PHASES}
     specs = train_specs(config)
     prepare_outfits(specs)
-    outfits = [TrainOutfit(s) for s in specs]
-    pool = torch.as_tensor(pose_pool(config))
+    outfits = [TrainOutfit(s).to(dev) for s in specs]
+    pool = torch.as_tensor(pose_pool(config)).to(dev)
+    net.to(dev)
+    pose.to(dev)
+    log(f"training on {dev}")
     summary: dict = {"phases": {}}
     if config.get("init_checkpoints"):
         summary["init_checkpoints"] = config["init_checkpoints"]
@@ -148,6 +175,7 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) 
         total = int(config["steps"][phase])
         if done[phase] >= total:
             continue
+        ran_on = str(dev)
         params = _trainable(phase, net, pose)
         opt = torch.optim.Adam(params, lr=config["lr"])
         if state is not None and state.get("opt_phase") == phase:
@@ -163,26 +191,31 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print) 
         for step in bar:
             rng = np.random.default_rng([config["seed"], PHASES.index(phase), step])
             outfit = outfits[int(rng.integers(len(outfits)))]
-            poses = pool[torch.as_tensor(rng.integers(len(pool), size=config["batch_frames"]))]
+            poses = pool[torch.as_tensor(rng.integers(len(pool), size=config["batch_frames"]), device=dev)]
             if phase == "chi":
-                noise = torch.as_tensor(rng.normal(0, config["pose_noise"], poses.shape), dtype=torch.float32)
+                noise = torch.as_tensor(rng.normal(0, config["pose_noise"], poses.shape), dtype=torch.float32,
+                                        device=dev)
                 noise[:, 0] = 0.0
                 poses = poses + noise
             loss, stats = step_loss(phase, outfit, poses, net, pose, loss_weights[phase])
             opt.zero_grad()
             loss.backward()
             opt.step()
-            bar.set_postfix({k: round(v, 4) for k, v in stats.items()})
+            bar.set_postfix({k: round(v, 4) for k, v in stats.items()}, refresh=False)
             done[phase] = step + 1
             if done[phase] % config["checkpoint_every"] == 0 or done[phase] == total:
-                torch.save(
+                torch.save(_to_cpu(
                     {"outfit": net.state_dict(), "pose": pose.state_dict(), "opt": opt.state_dict(),
                      "opt_phase": phase, "done": torch.tensor([done[p] for p in PHASES]),
-                     "elapsed": torch.tensor(elapsed + time.time() - t0), "config": json.dumps(config)},
+                     "elapsed": torch.tensor(elapsed + time.time() - t0), "config": json.dumps(config),
+                     "device": str(dev)}),
                     ckpt_dir / f"step_{sum(done.values()):07d}.pt",
                 )
         elapsed += time.time() - t0
         summary["phases"][phase] = {"steps": total, "last": stats}
         state = None
     summary["seconds"] = round(elapsed, 1)
-    return net, pose, summary
+    summary["device"] = ran_on or str(dev)  # where the last steps ran (a rerun with nothing to do: the checkpoint's)
+    if dev.type == "cuda" and ran_on == str(dev):
+        summary["device_name"] = torch.cuda.get_device_name(dev)
+    return net.cpu(), pose.cpu(), summary

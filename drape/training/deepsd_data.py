@@ -76,8 +76,9 @@ def _generate(spec: OutfitSpec) -> str:
     return spec.key
 
 
-def prepare_outfits(specs: list[OutfitSpec], workers: int = 2) -> None:
-    """Generate every missing outfit, in parallel, with a progress bar."""
+def prepare_outfits(specs: list[OutfitSpec], workers: int | None = None) -> None:
+    """Generate every missing outfit, in parallel (`workers`, default one per CPU core), with a progress bar."""
+    import os
     from concurrent.futures import ProcessPoolExecutor
 
     from tqdm import tqdm
@@ -85,7 +86,7 @@ def prepare_outfits(specs: list[OutfitSpec], workers: int = 2) -> None:
     missing = [s for s in specs if not (CACHE / f"{s.key}.npz").exists()]
     if not missing:
         return
-    with ProcessPoolExecutor(workers) as pool:
+    with ProcessPoolExecutor(workers or os.cpu_count() or 1) as pool:
         for _ in tqdm(pool.map(_generate, missing), total=len(missing), desc="outfits"):
             pass
 
@@ -116,6 +117,14 @@ class TrainOutfit:
 
         rest = skinning_transforms(identity, self.joints)
         self.rest_distance = self.collider.signed_distance(self.rest[None], rest)[0]  # (N,) m
+
+    def to(self, device: torch.device | str) -> TrainOutfit:
+        """Move every tensor (and the collider's) to `device` (in place); returns self."""
+        for name, value in vars(self).items():
+            if isinstance(value, torch.Tensor):
+                setattr(self, name, value.to(device))
+        self.collider.to(device)
+        return self
 
 
 def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:

@@ -20,7 +20,7 @@ def axis_angle_to_matrix(aa: torch.Tensor) -> torch.Tensor:
     k = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(aa.shape[:-1] + (3, 3))
     s = torch.sin(angle)[..., None]
     c = torch.cos(angle)[..., None]
-    eye = torch.eye(3, dtype=aa.dtype).expand_as(k)
+    eye = torch.eye(3, dtype=aa.dtype, device=aa.device).expand_as(k)
     return eye + s * k + (1 - c) * (k @ k)
 
 
@@ -98,6 +98,13 @@ class BodyCollider:
         self.rest_cand = torch.as_tensor(tree.query(garment_rest, k=k_rest)[1], dtype=torch.int64)  # (N, k)
         self.proxy_nbrs = torch.as_tensor(tree.query(proxy.vertices, k=k_proxy)[1], dtype=torch.int64)  # (G, k)
 
+    def to(self, device: torch.device | str) -> BodyCollider:
+        """Move every tensor to `device` (in place); returns self."""
+        for name, value in vars(self).items():
+            if isinstance(value, torch.Tensor):
+                setattr(self, name, value.to(device))
+        return self
+
     def signed_distance(self, garment: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """garment (B, N, 3) posed; transforms (B, 24, 3, 4) -> (B, N) metres (negative inside)."""
         with torch.no_grad():
@@ -106,10 +113,10 @@ class BodyCollider:
             proxy = lbs(self.proxy_rest, self.proxy_weights, transforms)
             near_proxy = torch.cdist(garment.detach(), proxy).argmin(dim=-1)  # (B, N)
             cand = torch.cat([self.rest_cand.expand(garment.shape[0], -1, -1), self.proxy_nbrs[near_proxy]], dim=-1)
-            bidx = torch.arange(garment.shape[0])[:, None, None]
+            bidx = torch.arange(garment.shape[0], device=garment.device)[:, None, None]
             d2 = ((body[bidx, cand] - garment.detach()[:, :, None]) ** 2).sum(-1)
             nearest = cand.gather(2, d2.argmin(-1, keepdim=True))[..., 0]  # (B, N)
-            b = torch.arange(garment.shape[0])[:, None]
+            b = torch.arange(garment.shape[0], device=garment.device)[:, None]
             p, n = body[b, nearest], normals[b, nearest]
         return ((garment - p) * n).sum(dim=-1)
 

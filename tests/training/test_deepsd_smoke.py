@@ -20,9 +20,14 @@ def test_train_export_parity(tmp_path, monkeypatch):
     net, pose, summary = train(cfg, tmp_path / "ckpt", log=lambda *_: None)
     assert set(summary["phases"]) == {"prior", "physics", "chi"}
     assert len(list((tmp_path / "ckpt").glob("step_*.pt"))) == 3
+    assert summary["device"] == "cpu" and next(net.parameters()).device.type == "cpu"
+    # checkpoints hold CPU tensors only and say where their steps ran (a GPU run's checkpoints load anywhere)
+    state = torch.load(sorted((tmp_path / "ckpt").glob("step_*.pt"))[-1], weights_only=True)
+    assert state["device"] == "cpu"
+    assert all(t.device.type == "cpu" for t in state["outfit"].values())
     # a rerun resumes from the last checkpoint and does no more steps
     _, _, again = train(cfg, tmp_path / "ckpt", log=lambda *_: None)
-    assert again["phases"] == {}
+    assert again["phases"] == {} and again["device"] == "cpu"
     paths = export_deepsd(net, pose, tmp_path / "onnx")
     spec = deepsd_data.train_specs(cfg)[0]
     v, f = deepsd_data.load_outfit(spec)
@@ -57,3 +62,40 @@ def test_phase_loss_override():
         phase_loss_weights({"loss": {"edge": 6.0}, "loss_phase": {"phisics": {"edge": 8.0}}}, "chi")
     with pytest.raises(ValueError, match="unknown loss weights"):
         phase_loss_weights({"loss": {"edge": 6.0}, "loss_phase": {"physics": {"edg": 8.0}}}, "physics")
+
+
+def test_training_device_and_cpu_checkpoints():
+    from drape.training.deepsd import _to_cpu, training_device
+
+    assert training_device("cpu") == torch.device("cpu")
+    assert training_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    nested = {"a": torch.ones(2), "b": [torch.zeros(1), 3], "c": {"d": (torch.ones(1),)}, "e": "text"}
+    out = _to_cpu(nested)
+    assert out["b"][1] == 3 and out["e"] == "text" and isinstance(out["c"]["d"], tuple)
+    assert torch.equal(out["a"], nested["a"])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (the device machine)")
+def test_step_loss_same_on_gpu(tmp_path, monkeypatch):
+    """One physics step's loss and gradients agree between the CPU and the GPU (float32 tolerance)."""
+    from drape.models.deepsd import OutfitNet, PoseNet
+    from drape.training.deepsd import phase_loss_weights, step_loss
+
+    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
+    cfg = load_config()
+    spec = deepsd_data.OutfitSpec("tshirt", 600, 1000, "neutral")
+    torch.manual_seed(0)
+    net, pose = OutfitNet(), PoseNet()
+    poses = torch.randn(4, 24, 3, generator=torch.Generator().manual_seed(1)) * 0.3
+    lw = phase_loss_weights(cfg, "physics")
+    results = []
+    for dev in ("cpu", "cuda"):
+        outfit = deepsd_data.TrainOutfit(spec).to(dev)
+        net.to(dev).zero_grad()
+        pose.to(dev).zero_grad()
+        loss, _ = step_loss("physics", outfit, poses.to(dev), net, pose, lw)
+        loss.backward()
+        results.append((float(loss), next(net.parameters()).grad.detach().cpu().clone()))
+    (l_cpu, g_cpu), (l_gpu, g_gpu) = results
+    assert abs(l_cpu - l_gpu) <= 1e-3 * abs(l_cpu) + 1e-5
+    assert torch.allclose(g_cpu, g_gpu, rtol=1e-2, atol=1e-4)
