@@ -90,7 +90,7 @@ def _latest_run(ckpt_dir: str | Path) -> tuple[dict, dict] | None:
     chosen = ckpt_dir / "best.pt" if (ckpt_dir / "best.pt").exists() else found[-1]
     state = torch.load(chosen, weights_only=True)
     record = {"config": json.loads(state["config"]), "file": chosen.name, "steps_done": state["done"].tolist(),
-              "train_seconds": round(float(state["elapsed"]), 1)}
+              "train_seconds": round(float(state["elapsed"]), 1), "device": state.get("device", "unknown")}
     if chosen.name == "best.pt" and (ckpt_dir / "validation.json").exists():
         record["validation"] = json.loads((ckpt_dir / "validation.json").read_text())
     return state, record
@@ -143,4 +143,4 @@ def export_deepsd_from_checkpoints(ckpt_dir: str | Path, out_dir: str | Path, in
     return [paths["outfit"], paths["pose"], manifest]
 
 
-VERSION = "0.6.0"
+VERSION = "0.7.0"
