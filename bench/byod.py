@@ -13,7 +13,9 @@ a real CMU mocap file, a garment made for no body of ours, and a user's own body
    share of garment vertices inside the posed body (exact signed distance to its triangles; median and
    largest over frames), the largest edge length over its rest length, and the wall time of each call.
 
-Run: .venv/bin/python -m bench.byod  (about 3 minutes on the 2-core machine)
+Run: .venv/bin/python -m bench.byod [CLIP.bvh]  (about 3 minutes on the 2-core machine). The default clip, CMU 01_01,
+is also ../shared/data/mocap/01_01_jump.bvh, one of DeePSD 0.7.0's training clips; pass a held-out one
+(../shared/data/mocap/02_01_walk.bvh, 05_02_dance.bvh, 06_02_sports.bvh) to see a motion it never saw.
 """
 
 from __future__ import annotations
@@ -66,9 +68,10 @@ def largest_stretch(frames: np.ndarray, rest: np.ndarray, faces: np.ndarray) -> 
     return float((lengths / np.maximum(rest_len, 1e-9)).max())
 
 
-def main() -> None:
-    if not BVH.exists() or not GARMENT.exists():
-        sys.exit(f"needs {BVH} and {GARMENT} (../shared/data/external)")
+def main(bvh: Path = BVH) -> None:
+    if not bvh.exists() or not GARMENT.exists():
+        sys.exit(f"needs {bvh} and {GARMENT} (../shared/data)")
+    print(f"clip: {bvh}")
     with loopback_server() as url, drape.Client(url, timeout=600) as client:
         t = time.perf_counter()
         reg = client.register_body(user_body_glb())
@@ -79,7 +82,7 @@ def main() -> None:
                     arrays["parents"], tuple(str(n) for n in arrays["joint_names"]))
 
         t = time.perf_counter()
-        motion = import_motion(BVH.read_bytes(), body, fps=30.0, name="cmu_01_01")
+        motion = import_motion(bvh.read_bytes(), body, fps=30.0, name=bvh.stem)
         clip = motion.motion
         poses, trans = clip.poses[::EVERY].astype(np.float64), clip.trans[::EVERY].astype(np.float64)
         lowest = body.pose(clip.poses, clip.trans)[:, :, 1].min(axis=1)
@@ -101,7 +104,7 @@ def main() -> None:
         print(f"{'':10} {'inside median':>14} {'inside max':>11} {'stretch max':>12} {'s':>6}")
         for refine in (False, True):
             t = time.perf_counter()
-            frames = client.animate(outfit_id=rig.outfit_id, motion=BVH, refine=refine)
+            frames = client.animate(outfit_id=rig.outfit_id, motion=bvh, refine=refine)
             seconds = time.perf_counter() - t
             assert len(frames) == clip.num_frames, (len(frames), clip.num_frames)
             frames = frames[::EVERY]
@@ -112,4 +115,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(Path(sys.argv[1]) if len(sys.argv) > 1 else BVH)
