@@ -35,12 +35,12 @@ test: $(VENV)/.dev-installed
 test-slow: $(VENV)/.dev-installed
 	$(BIN)/pytest -m slow
 
-# DeePSD from scratch in one command (drape/training/configs/deepsd_longer.json: generated outfits, procedural
-# motions, the DeepMimic clips and 31 real CMU clips of ../shared/data/mocap, 29,100 steps; the checkpoint
-# chosen on the validation split), exported into the package; then `drape eval deepsd --write` measures it once.
-# The steps run on a CUDA GPU when torch sees one (7.5 min on an H100), else on the CPU (hours)
-DEEPSD_CONFIG ?= drape/training/configs/deepsd_longer.json
-DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_longer
+# DeePSD from scratch in one command (drape/training/configs/deepsd_wide.json: generated outfits, procedural
+# motions, the DeepMimic clips and 31 real CMU clips of ../shared/data/mocap; the checkpoint chosen on the
+# validation split), exported into the package; then `drape eval deepsd --write` measures it once. The steps run
+# on a CUDA GPU when torch sees one (`drape train deepsd --device`), else on the CPU
+DEEPSD_CONFIG ?= drape/training/configs/deepsd_wide.json
+DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_wide
 deepsd-model: $(VENV)/.dev-installed
 	$(BIN)/drape train deepsd --config $(DEEPSD_CONFIG) --checkpoints $(DEEPSD_CHECKPOINTS)
 	$(BIN)/drape export deepsd --checkpoints $(DEEPSD_CHECKPOINTS) --out drape/assets/models/deepsd

@@ -14,8 +14,9 @@ a real CMU mocap file, a garment made for no body of ours, and a user's own body
    largest over frames), the largest edge length over its rest length, and the wall time of each call.
 
 Run: .venv/bin/python -m bench.byod [CLIP.bvh]  (about 3 minutes on the 2-core machine). The default clip, CMU 01_01,
-is also ../shared/data/mocap/01_01_jump.bvh, one of DeePSD 0.7.0's training clips; pass a held-out one
-(../shared/data/mocap/02_01_walk.bvh, 05_02_dance.bvh, 06_02_sports.bvh) to see a motion it never saw.
+is also ../shared/data/mocap/01_01_jump.bvh, a training clip of the one-command configs (deepsd_wide.json and
+later; not of the shipped 0.6.0); pass a clip every config holds out (../shared/data/mocap/02_01_walk.bvh,
+05_02_dance.bvh, 06_02_sports.bvh) to see a motion no model saw.
 """
 
 from __future__ import annotations

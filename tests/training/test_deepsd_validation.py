@@ -55,3 +55,19 @@ def test_the_checkpoint_is_chosen_on_validation_and_exported(cfg, tmp_path):
     taken = manifest["training"]["config"]["_checkpoint"]
     assert taken["file"] == "best.pt" and taken["validation"]["chosen"] == record["chosen"]
     assert taken["steps_done"] == chosen["done"].tolist()
+
+
+def test_weights_off_prior_counts_vertices_skinned_away_from_their_body_joints():
+    from drape.training.deepsd_validation import weights_off_prior
+
+    rng = np.random.default_rng(0)
+    prior = rng.dirichlet(np.ones(24) * 0.3, size=50)
+    assert weights_off_prior(prior, prior) == 0.0
+    second = np.zeros_like(prior)
+    second[np.arange(50), np.argsort(-prior, axis=1)[:, 1]] = 1.0  # the prior's second joint still counts as on
+    assert weights_off_prior(second, prior) == 0.0
+    away = np.zeros_like(prior)
+    away[np.arange(50), np.argsort(-prior, axis=1)[:, -1]] = 1.0  # the prior's weakest joint: off
+    assert weights_off_prior(away, prior) == 100.0
+    mixed = np.concatenate([prior[:40], away[40:]])
+    assert weights_off_prior(mixed, prior) == 20.0
