@@ -133,10 +133,20 @@ def validate_baseline(cfg: dict, log: Callable[[str], object] = print) -> dict:
     return _measure(cfg, rig, log)
 
 
+def best_candidate(candidates: dict[str, dict], max_weights_off_prior_pct: float | None = None) -> str | None:
+    """The lowest-score candidate among those whose weights_off_prior_pct is at most the limit (every candidate
+    when the limit is None); None when none qualifies."""
+    eligible = {k: c for k, c in candidates.items()
+                if max_weights_off_prior_pct is None or c["weights_off_prior_pct"] <= max_weights_off_prior_pct}
+    return min(eligible, key=lambda k: eligible[k]["score"]) if eligible else None
+
+
 def choose_checkpoint(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print) -> dict:
     """Validate the checkpoints at the config's `validation.steps` (summed steps of every phase), copy the
     best to `ckpt_dir/best.pt` (what `drape export deepsd` exports when present) and write every figure to
-    `ckpt_dir/validation.json`. Returns that record."""
+    `ckpt_dir/validation.json`. Returns that record. With `validation.max_weights_off_prior_pct` in the config,
+    only candidates whose weights stay on the body's joints that far qualify (`best_candidate`); when none does,
+    ValueError after the record is written (so `make deepsd-model` stops before it exports)."""
     import torch
 
     from drape.export.deepsd import export_deepsd, write_manifest
@@ -163,9 +173,17 @@ def choose_checkpoint(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], obje
     record["shipped"] = {"version": shipped, **validate(cfg, MODEL_DIR, log)}
     log("the nearest-body-weights baseline:")
     record["baseline"] = validate_baseline(cfg, log)
-    best = min(record["candidates"], key=lambda k: record["candidates"][k]["score"])
+    limit = cfg["validation"].get("max_weights_off_prior_pct")
+    best = best_candidate(record["candidates"], limit)
     record["chosen"] = best
-    shutil.copyfile(ckpt_dir / best, ckpt_dir / "best.pt")
+    if limit is not None:
+        record["rule"] += f", among candidates with weights_off_prior_pct <= {limit}"
     (ckpt_dir / "validation.json").write_text(json.dumps(record, indent=2) + "\n")
+    if best is None:
+        (ckpt_dir / "best.pt").unlink(missing_ok=True)
+        raise ValueError(f"no candidate has its weights on the body's joints (weights_off_prior_pct <= {limit}: "
+                         f"{ {k: round(c['weights_off_prior_pct'], 1) for k, c in record['candidates'].items()} }); "
+                         f"nothing to export ({ckpt_dir / 'validation.json'} has every figure)")
+    shutil.copyfile(ckpt_dir / best, ckpt_dir / "best.pt")
     log(f"chosen on validation: {best}")
     return record

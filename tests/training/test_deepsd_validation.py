@@ -42,6 +42,16 @@ def test_real_mocap_widens_the_pose_pool(cfg):
 @pytest.mark.slow  # about 25 s: `make test-slow`
 def test_the_checkpoint_is_chosen_on_validation_and_exported(cfg, tmp_path):
     train(cfg, tmp_path / "ckpt", log=lambda *_: None)
+    # a few steps from random weights put most vertices on joints far from the body's: the weights limit
+    # refuses every candidate, keeps the record and leaves nothing to export
+    strict = {**cfg, "validation": {**cfg["validation"], "max_weights_off_prior_pct": 8.0}}
+    with pytest.raises(ValueError, match="no candidate has its weights on the body's joints"):
+        choose_checkpoint(strict, tmp_path / "ckpt", log=lambda *_: None)
+    refused = json.loads((tmp_path / "ckpt" / "validation.json").read_text())
+    assert refused["chosen"] is None and not (tmp_path / "ckpt" / "best.pt").exists()
+    assert all(c["weights_off_prior_pct"] > 8.0 for c in refused["candidates"].values())
+
+    cfg = {**cfg, "validation": {k: v for k, v in cfg["validation"].items() if k != "max_weights_off_prior_pct"}}
     record = choose_checkpoint(cfg, tmp_path / "ckpt", log=lambda *_: None)
     scores = {k: v["score"] for k, v in record["candidates"].items()}
     assert set(scores) == {"step_0000008.pt", "step_0000012.pt"}
@@ -71,3 +81,14 @@ def test_weights_off_prior_counts_vertices_skinned_away_from_their_body_joints()
     assert weights_off_prior(away, prior) == 100.0
     mixed = np.concatenate([prior[:40], away[40:]])
     assert weights_off_prior(mixed, prior) == 20.0
+
+
+def test_best_candidate_keeps_to_the_weights_limit():
+    from drape.training.deepsd_validation import best_candidate
+
+    cands = {"a": {"score": 2.0, "weights_off_prior_pct": 12.0}, "b": {"score": 3.0, "weights_off_prior_pct": 5.0},
+             "c": {"score": 3.5, "weights_off_prior_pct": 4.0}}
+    assert best_candidate(cands) == "a"
+    assert best_candidate(cands, 8.0) == "b"
+    assert best_candidate(cands, 4.5) == "c"
+    assert best_candidate(cands, 1.0) is None
