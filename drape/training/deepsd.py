@@ -150,7 +150,7 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
         done = dict(zip(PHASES, state["done"].tolist(), strict=True))
         elapsed = float(state["elapsed"])
         log(f"resuming from {latest.name}: {done}")
-        ran_on = state.get("device", "unknown")  # where the steps so far ran (checkpoints before 0.7: unknown)
+        ran_on = state.get("device", "unknown")  # where the steps so far ran (older checkpoints: unknown)
     elif config.get("init_checkpoints"):
         base = _latest(Path(config["init_checkpoints"]))
         if base is None:
