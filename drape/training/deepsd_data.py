@@ -120,11 +120,10 @@ class TrainOutfit:
 
     def to(self, device: torch.device | str) -> TrainOutfit:
         """Move every tensor (and the collider's) to `device` (in place); returns self."""
-        for name, value in vars(self).items():
-            if isinstance(value, torch.Tensor):
-                setattr(self, name, value.to(device))
+        from drape.training.physics import move_tensors
+
         self.collider.to(device)
-        return self
+        return move_tensors(self, device)
 
 
 def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:

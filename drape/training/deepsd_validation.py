@@ -105,18 +105,18 @@ def validate(cfg: dict, model_dir: str | Path, log: Callable[[str], object] = pr
     keys_fit = model.pose_keys(poses_fit)
     influences = cfg["validation"]["influences"]
 
+    off_prior: list[float] = []  # per validation outfit, in _measure's order (validation_specs)
+
     def rig(verts: np.ndarray, faces: np.ndarray, body: Body) -> Poser:
-        r = sparse_rig(verts, model.rig(verts, faces), body.joints, influences, poses_fit, keys_fit)
+        dense = model.rig(verts, faces)
+        off_prior.append(weights_off_prior(dense.weights, nearest_vertex_weights(verts, body.vertices, body.weights)))
+        r = sparse_rig(verts, dense, body.joints, influences, poses_fit, keys_fit)
         return lambda poses, trans: pose_outfit(verts, r, model.pose_keys(poses), body.joints, poses, trans)
 
     record = _measure(cfg, rig, log)
-    off = {}
-    for spec in validation_specs(cfg):
-        verts, faces = load_outfit(spec)
-        body = load_body(spec.body)
-        off[spec.key] = weights_off_prior(model.rig(verts, faces).weights,
-                                          nearest_vertex_weights(verts, body.vertices, body.weights))
-        record["outfits"][spec.key]["weights_off_prior_pct"] = off[spec.key]
+    off = dict(zip(record["outfits"], off_prior, strict=True))
+    for key, share in off.items():
+        record["outfits"][key]["weights_off_prior_pct"] = share
     record["weights_off_prior_pct"] = float(np.mean(list(off.values())))
     record["weights_off_prior_worst_pct"] = max(off.values())
     log(f"weights off the body's nearest two joints: {record['weights_off_prior_pct']:.1f}% of vertices "

@@ -76,6 +76,14 @@ def bending_loss(v: torch.Tensor, faces: torch.Tensor, nbr_idx: torch.Tensor, nb
     return ((n - mean) ** 2).sum(dim=-1).mean()
 
 
+def move_tensors(obj, device: torch.device | str):  # noqa: ANN001, ANN201
+    """Move every tensor attribute of `obj` to `device` (in place); returns obj."""
+    for name, value in vars(obj).items():
+        if isinstance(value, torch.Tensor):
+            setattr(obj, name, value.to(device))
+    return obj
+
+
 class BodyCollider:
     """Signed distance of garment vertices to the posed body, DeePSD style.
 
@@ -100,10 +108,7 @@ class BodyCollider:
 
     def to(self, device: torch.device | str) -> BodyCollider:
         """Move every tensor to `device` (in place); returns self."""
-        for name, value in vars(self).items():
-            if isinstance(value, torch.Tensor):
-                setattr(self, name, value.to(device))
-        return self
+        return move_tensors(self, device)
 
     def signed_distance(self, garment: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """garment (B, N, 3) posed; transforms (B, 24, 3, 4) -> (B, N) metres (negative inside)."""
