@@ -4,8 +4,8 @@ For tshirt + jacket posed by the served layer networks along `drape eval layers`
 dance_b and of the real CMU clip 02_01_walk, H_in 6.7 mm), the outer layer's L-Coll (behind the inner layer,
 the simulation's measure) and H-Coll (inside the body, exact closest triangle) after each pass of the refiner:
 the inner against the body, the outer against the body, the outer against the inner, the outer against the
-body again (the refiner's order); L-Coll always against the inner layer as refined by the first pass. It shows
-what each pass costs the one before it.
+body and the inner as one collider (the refiner's order); L-Coll always against the inner layer as refined by
+the first pass. It shows what each pass costs the one before it.
 
 Run: .venv/bin/python -m bench.layers_refine_passes [--iterations 3]   (about 2 minutes on 2 cores)
 """
@@ -21,7 +21,7 @@ from drape.geometry.layers import LayerRefiner, LayerReport
 from drape.runtime.engine import Engine, posed_body
 from drape.training import layers_eval as le
 
-PASSES = ("posed", "outer vs body", "outer vs inner", "outer vs body again")
+PASSES = ("posed", "outer vs body", "outer vs inner", "outer vs body and inner")
 
 
 def main() -> None:

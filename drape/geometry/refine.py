@@ -44,6 +44,7 @@ Shapes: garment (T, N, 3) m; faces (F, 3); body (T, M, 3) m; body_faces (G, 3).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -75,6 +76,16 @@ def body_tree(body: np.ndarray) -> cKDTree:
     """KD-tree over one posed body's vertices (M, 3). Leaves of 32, unbalanced: on a ~14k-vertex
     body this builds faster than scipy's default and answers a garment's queries no slower."""
     return cKDTree(body, leafsize=32, balanced_tree=False)
+
+
+class Collider(Protocol):
+    """What the refinement pushes a garment out of: the body (`BodySurface`), another garment layer
+    (drape.geometry.layers). `normals(body)` is called once per frame, before any `query` on the same array."""
+
+    def normals(self, body: np.ndarray) -> np.ndarray: ...
+
+    def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
+              tree: cKDTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
 
 class BodySurface:
@@ -231,7 +242,7 @@ class Refiner:
         out[region] += splu(a).solve(rhs)
         return out, region
 
-    def _progressive_targets(self, v: np.ndarray, sd: np.ndarray, surface: BodySurface, body: np.ndarray,
+    def _progressive_targets(self, v: np.ndarray, sd: np.ndarray, surface: Collider, body: np.ndarray,
                              normals: np.ndarray, tree: cKDTree,
                              only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Targets for inside vertices (those in the (N,) mask `only`, if given), placed front by
@@ -265,7 +276,7 @@ class Refiner:
         return idx[order], placed[order]
 
     def _untorn_targets(self, v: np.ndarray, inside: np.ndarray, direct: np.ndarray, sd: np.ndarray,
-                        surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                        surface: Collider, body: np.ndarray, normals: np.ndarray,
                         tree: cKDTree) -> np.ndarray | None:
         """Targets (K, 3) for `inside` with front-by-front placement where it tears less, or None.
 
@@ -293,7 +304,7 @@ class Refiner:
         targets[ordered[use]] = placed[use]
         return targets[inside]
 
-    def _hold_outside(self, xm: np.ndarray, cp: np.ndarray, nn: np.ndarray, query: bool, surface: BodySurface,
+    def _hold_outside(self, xm: np.ndarray, cp: np.ndarray, nn: np.ndarray, query: bool, surface: Collider,
                       body: np.ndarray, normals: np.ndarray, tree: cKDTree,
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """One round's collision step of the relief and edge-limit passes, on moved points xm (P, 3), in place:
@@ -312,7 +323,7 @@ class Refiner:
         return s, cp, nn, inside
 
     def _settle(self, xm: np.ndarray, s: np.ndarray, inside: np.ndarray, refined: np.ndarray,
-                refined_sd: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                refined_sd: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
                 tree: cKDTree) -> None:
         """After the last round, in place on xm (P, 3) and s (P,): a point placed off one part's surface can land
         inside another (the armpit, between the thighs), so what was just put out (`inside`) is put out once
@@ -329,7 +340,7 @@ class Refiner:
         s[check[q >= 0]] = q[q >= 0]
 
     def _relieve(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, closest: np.ndarray,
-                 closest_normal: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                 closest_normal: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
                  tree: cKDTree) -> tuple[np.ndarray, int]:
         """Stretch relief: v0, v (N, 3) input and refined garment -> (relieved garment (N, 3), vertices worked on).
 
@@ -395,7 +406,7 @@ class Refiner:
         return out, int(np.count_nonzero(~worse))
 
     def _limit_stretch(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, closest: np.ndarray,
-                       closest_normal: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+                       closest_normal: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
                        tree: cKDTree) -> tuple[np.ndarray, int]:
         """Edge-length limits solved together with the collisions (needs `rest`): v0, v (N, 3) input and
         refined garment -> (garment (N, 3), vertices worked on).
@@ -451,7 +462,7 @@ class Refiner:
         sd[verts[moving]] = s
         return out, len(moving)
 
-    def _put_out(self, x: np.ndarray, surface: BodySurface, body: np.ndarray, normals: np.ndarray,
+    def _put_out(self, x: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
                  tree: cKDTree) -> tuple[np.ndarray, np.ndarray]:
         """Points x (P, 3) -> (placed (P, 3), signed distance (P,) there, by the `verify_k` query).
 
@@ -480,7 +491,7 @@ class Refiner:
             sd[todo] = np.minimum(sd[todo], -1e-9)
         return out, sd
 
-    def _verify(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, surface: BodySurface, body: np.ndarray,
+    def _verify(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, surface: Collider, body: np.ndarray,
                 normals: np.ndarray, tree: cKDTree) -> tuple[np.ndarray, int]:
         """The last check: v0, v (N, 3) input and refined garment -> (garment (N, 3), vertices it put out).
 
@@ -523,7 +534,7 @@ class Refiner:
             put += int(np.count_nonzero(best_out))
         return v, put
 
-    def refine_frame(self, garment: np.ndarray, body: np.ndarray, surface: BodySurface,
+    def refine_frame(self, garment: np.ndarray, body: np.ndarray, surface: Collider,
                      report: RefineReport) -> np.ndarray:
         """garment (N, 3), body (M, 3) -> refined garment (N, 3) float64; appends to `report`."""
         v0 = np.asarray(garment, dtype=np.float64)
@@ -605,7 +616,7 @@ def refine(garment: np.ndarray, faces: np.ndarray, body: np.ndarray, body_faces:
     return out.astype(np.float32), report
 
 
-def naive_push(garment: np.ndarray, body: np.ndarray, surface: BodySurface, eps: float = EPS) -> np.ndarray:
+def naive_push(garment: np.ndarray, body: np.ndarray, surface: Collider, eps: float = EPS) -> np.ndarray:
     """The baseline: move each inside vertex to its closest body point + eps n, nothing else."""
     body = np.asarray(body, dtype=np.float64)
     v = np.asarray(garment, dtype=np.float64).copy()

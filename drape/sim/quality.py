@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from drape.assets.body import Body
 from drape.geometry.mesh import unique_edges, vertex_normals
-from drape.geometry.queries import MeshDistance
+from drape.geometry.queries import MeshDistance, OpenSurfaceDistance
 
 
 class QualityGate(BaseModel):
@@ -96,26 +96,6 @@ LAYER_KEYS = ("penetration_p99_m", "penetration_max_m", "inside_share", "strain_
               "mean_height_m")
 
 
-def _pseudo_normals(vertices: np.ndarray, faces: np.ndarray, edge_key: np.ndarray, edge_index: np.ndarray,
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Face unit normals (F, 3), edge normals (E, 3: the sum of the adjacent faces'), angle-weighted vertex
-    normals (N, 3): the normals whose side test is exact at a closest point in a face, on an edge, at a vertex
-    (Baerentzen and Aanaes 2005). edge_index (F, 3): the edge opposite each corner, into edge_key."""
-    tri = vertices[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-20)
-    en = np.zeros((len(edge_key), 3))
-    for j in range(3):
-        np.add.at(en, edge_index[:, j], fn)
-    vn = np.zeros_like(vertices)
-    for j in range(3):
-        a = tri[:, (j + 1) % 3] - tri[:, j]
-        b = tri[:, (j + 2) % 3] - tri[:, j]
-        cos = np.einsum("fc,fc->f", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-20)
-        np.add.at(vn, faces[:, j], np.arccos(np.clip(cos, -1.0, 1.0))[:, None] * fn)
-    return fn, en, vn
-
-
 def outer_inner_distance(outer: np.ndarray, inner: np.ndarray, inner_faces: np.ndarray,
                          reach: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance of each outer vertex to the inner layer, frame by frame.
@@ -129,37 +109,12 @@ def outer_inner_distance(outer: np.ndarray, inner: np.ndarray, inner_faces: np.n
     below a t-shirt's) sees that edge as its closest point, where no side is defined, so only covered vertices
     are judged. Points farther than `reach` are not judged either (MeshDistance is exact within it).
     """
-    F = np.asarray(inner_faces, dtype=np.int64)
-    n = int(inner.shape[1])
-    # edge opposite corner j of each face, as a key into the unique edges
-    a_, b_ = F[:, [1, 2, 0]], F[:, [2, 0, 1]]
-    keys = np.minimum(a_, b_) * n + np.maximum(a_, b_)  # (F, 3)
-    edge_key, edge_index, counts = np.unique(keys.ravel(), return_inverse=True, return_counts=True)
-    edge_index = edge_index.reshape(F.shape)
-    boundary_edge = counts == 1
-    boundary_vertex = np.zeros(n, dtype=bool)
-    boundary_vertex[(edge_key[boundary_edge] // n)] = True
-    boundary_vertex[(edge_key[boundary_edge] % n)] = True
+    surface = OpenSurfaceDistance(inner_faces, inner.shape[1], reach=reach)
     sd = np.empty(outer.shape[:2])
     covered = np.empty(outer.shape[:2], dtype=bool)
-    eps = 1e-9
     for t in range(len(outer)):
-        v = np.asarray(inner[t], dtype=np.float64)
-        fn, en, vn = _pseudo_normals(v, F, edge_key, edge_index)
-        md = MeshDistance(v, F, exact_within=reach)
-        x = np.asarray(outer[t], dtype=np.float64)
-        face, bary = md.project(x)
-        zero = bary < eps
-        nz = zero.sum(axis=1)
-        cp = np.einsum("pk,pkc->pc", bary, v[F[face]])
-        diff = x - cp
-        dist = np.linalg.norm(diff, axis=1)
-        edge = edge_index[face, zero.argmax(axis=1)]  # the edge opposite the zero corner (nz == 1)
-        corner = F[face, bary.argmax(axis=1)]  # the vertex (nz == 2)
-        nrm = np.where((nz == 0)[:, None], fn[face], np.where((nz == 1)[:, None], en[edge], vn[corner]))
-        sd[t] = np.where(np.einsum("pc,pc->p", diff, nrm) < 0, -dist, dist)
-        on_boundary = ((nz == 1) & boundary_edge[edge]) | ((nz >= 2) & boundary_vertex[corner])
-        covered[t] = ~on_boundary & (dist <= reach)
+        s, _, _, c = surface.frame(inner[t]).query(outer[t])
+        sd[t], covered[t] = s, c
     return sd, covered
 
 

@@ -4,9 +4,10 @@ import numpy as np
 
 from drape.assets.body import load_body
 from drape.assets.motion import load_clip
-from drape.geometry.layers import LayerSurface, refine_layers
+from drape.geometry.layers import LAYER_EPS, BodyAndLayerSurface, LayerSurface, refine_layers
 from drape.geometry.lbs import pose_mesh
 from drape.geometry.queries import nearest_vertex_weights, signed_distance_to_mesh
+from drape.geometry.refine import BodySurface
 from drape.sim.layers import split_outfit
 from drape.sim.quality import INSIDE_BAND, outer_inner_distance
 
@@ -37,12 +38,32 @@ def test_the_inner_layer_is_a_collider_offset_by_its_thickness():
     assert np.allclose(cp[0], [0.01, 0.02, 0.006])
 
 
+def test_body_and_layer_collider_answers_for_the_deeper_surface():
+    """A 'body' sheet at z = 0 and an inner sheet at z = 1 cm (H_in 6 mm) as one collider: each point gets the
+    smaller of the body's distance less (3 mm - LAYER_EPS) and the offset inner's, and that surface's closest point
+    and normal; the body's part keeps 3 mm from it once the refiner adds LAYER_EPS."""
+    v, f = sheet()
+    inner = v + [0, 0, 0.01]
+    surface = BodyAndLayerSurface(BodySurface(f, len(v)), len(v), f, len(v), thickness=0.006, body_eps=0.003)
+    both = np.concatenate([v, inner])
+    normals = surface.normals(both)
+    assert normals.shape == both.shape
+    shift = 0.003 - LAYER_EPS
+    pts = np.array([[0.01, 0.02, 0.012], [0.01, 0.02, 0.001], [0.01, 0.02, -0.004], [0.01, 0.02, 0.05]])
+    sd, cp, n = surface.query(both, normals, pts)
+    body_sd, layer_sd = pts[:, 2] - shift, pts[:, 2] - 0.01 - 0.006
+    layer_sd[2] = -0.014 - 0.006  # 14 mm behind the inner: within the 3 cm band
+    assert np.allclose(sd, np.minimum(body_sd, layer_sd), atol=1e-9)
+    assert np.allclose(cp[:, 2], np.where(layer_sd < body_sd, 0.016, shift), atol=1e-9)
+    assert np.allclose(n, [0, 0, 1])
+
+
 def test_refine_layers_pushes_the_outer_out_of_the_inner_and_both_out_of_the_body():
     """A t-shirt under a jacket, each posed by the nearest-body-weights LBS baseline on a held-out clip: they
     penetrate the body and each other. After refine_layers: <= 0.1% of either inside the body, the outer
-    behind the inner (the simulation's L-Coll measure) cut at least 5x and under 0.5%, and the refiners'
-    own count of outer vertices closer to the inner than H_in zero after the layer pass. Measured: L-Coll
-    1.72% -> 0.13%, H-Coll 2.1% / 3.6% -> 0.07% / 0.03%."""
+    behind the inner (the simulation's L-Coll measure) under 0.1% (the issue's bar after refinement), and the
+    refiners' own count of outer vertices closer to the inner than H_in at most 0.1% after the last pass.
+    Measured: L-Coll 1.72% -> 0.00%, H-Coll 2.1% / 3.6% -> 0.04% / 0.02%."""
     (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 1500, seed=3)
     clip = load_clip("dance_b")
     frames = np.arange(0, clip.num_frames, 30)
@@ -65,5 +86,6 @@ def test_refine_layers_pushes_the_outer_out_of_the_inner_and_both_out_of_the_bod
     assert ri.shape == inner.shape and ro.shape == outer.shape and ri.dtype == np.float32
     assert h_coll(ri) <= 0.001 and h_coll(ro) <= 0.001
     after = l_coll(ro, ri)
-    assert after <= before / 5 and after <= 0.005, (before, after)
-    assert sum(report.outer_in_inner_before) > 0 and sum(report.outer_in_inner_after) == 0
+    assert after <= 0.001, (before, after)
+    assert sum(report.outer_in_inner_before) > 0
+    assert sum(report.outer_in_inner_after) <= 0.001 * outer.shape[0] * outer.shape[1]
