@@ -94,23 +94,36 @@ class InnerStream:
 
 @lru_cache(maxsize=4)
 def cached_layer_refiner(settings: RefineSettings, inner_faces: bytes, num_inner: int, outer_faces: bytes,
-                         num_outer: int, thickness: float, body: str) -> LayerRefiner:
-    """This process's LayerRefiner for two topologies (faces: (F, 3) int32 as bytes), a thickness and a body."""
-    b = load_body(body)
+                         num_outer: int, thickness: float, body: tuple[str, bytes | None, int]) -> LayerRefiner:
+    """This process's LayerRefiner for two topologies (faces: (F, 3) int32 as bytes), a thickness and a body
+    (`_surface_arguments`: a worker process knows only the presets by name)."""
+    name, faces, count = body
+    if faces is None:
+        b = load_body(name)
+        body_faces, count = b.faces, len(b.vertices)
+    else:
+        body_faces = np.frombuffer(faces, dtype=np.int32).reshape(-1, 3)
     return LayerRefiner(np.frombuffer(inner_faces, dtype=np.int32).reshape(-1, 3), num_inner,
                         np.frombuffer(outer_faces, dtype=np.int32).reshape(-1, 3), num_outer, thickness,
-                        b.faces, len(b.vertices), eps=settings.eps, max_iterations=settings.max_iterations,
+                        body_faces, count, eps=settings.eps, max_iterations=settings.max_iterations,
                         relief_iterations=settings.relief_iterations)
 
 
-def refine_layer_frames(refiner: LayerRefiner, inner: np.ndarray, outer: np.ndarray, body: str, poses: np.ndarray,
-                        translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two layers' frames inner (n, Ni, 3), outer (n, No, 3) through the post step between layers against `body`
-    posed by (poses, translation) -> (inner, outer) float32."""
+def refine_layer_frames(refiner: LayerRefiner, inner: np.ndarray, outer: np.ndarray, body_vertices: np.ndarray,
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Two layers' frames inner (n, Ni, 3), outer (n, No, 3) through the post step between layers against the
+    posed body's vertices (n, M, 3) -> (inner, outer) float32."""
     report = LayerReport()
-    pairs = [refiner.refine_frame(i, o, b, report)
-             for i, o, b in zip(inner, outer, posed_body(body, poses, translation), strict=True)]
+    pairs = [refiner.refine_frame(i, o, b, report) for i, o, b in zip(inner, outer, body_vertices, strict=True)]
     return np.stack([p[0] for p in pairs]).astype(np.float32), np.stack([p[1] for p in pairs]).astype(np.float32)
+
+
+def _refine_layers_in_worker(inner: np.ndarray, inner_faces: bytes, outer: np.ndarray, outer_faces: bytes,
+                             thickness: float, body: tuple[str, bytes | None, int], body_vertices: np.ndarray,
+                             settings: RefineSettings) -> tuple[np.ndarray, np.ndarray]:
+    """`refine_layer_frames` in a worker process (body: `_surface_arguments`)."""
+    refiner = cached_layer_refiner(settings, inner_faces, inner.shape[1], outer_faces, outer.shape[1], thickness, body)
+    return refine_layer_frames(refiner, inner, outer, body_vertices)
 
 
 @lru_cache(maxsize=8)
@@ -218,6 +231,29 @@ class RefinePool:
             except BrokenProcessPool:
                 self.close()
         return refine_against(frames, body_surface(body), vertices, cached_refiner(settings, f, frames.shape[1]))
+
+    def refine_layers(self, inner: np.ndarray, inner_faces: np.ndarray, outer: np.ndarray, outer_faces: np.ndarray,
+                      thickness: float, body: str, poses: np.ndarray, translation: np.ndarray,
+                      settings: RefineSettings) -> tuple[np.ndarray, np.ndarray]:
+        """Two layers' frames, inner (n, Ni, 3) and outer (n, No, 3) with their faces, through the post step
+        between layers (drape.geometry.layers; thickness: H_in, m) against `body` posed by (poses, translation),
+        split over the workers as `refine` splits a garment's frames -> (inner, outer) float32."""
+        vertices = posed_body(body, poses, translation)
+        fi = np.ascontiguousarray(inner_faces, dtype=np.int32).tobytes()
+        fo = np.ascontiguousarray(outer_faces, dtype=np.int32).tobytes()
+        surface = _surface_arguments(body)
+        parts = min(self.workers, len(outer) // self.min_frames)
+        if parts >= 2:
+            pool = self.start()
+            split = np.array_split(np.arange(len(outer)), parts)
+            try:
+                futures = [pool.submit(_refine_layers_in_worker, inner[i], fi, outer[i], fo, thickness, surface,
+                                       vertices[i], settings) for i in split]
+                done = [fut.result() for fut in futures]
+                return np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])
+            except BrokenProcessPool:
+                self.close()
+        return _refine_layers_in_worker(inner, fi, outer, fo, thickness, surface, vertices, settings)
 
     def start(self) -> Executor:
         """Start the worker processes now if they are not running (each loads the geometry code and the
@@ -353,8 +389,9 @@ class Engine:
                       translation: np.ndarray, options: RefineSettings, chunk: int = 32,
                       inner: InnerStream | None = None) -> Iterator[np.ndarray]:
         """A given garment stream (T, N, 3), refined against the body in chunks: (n, N, 3) float32 each. With
-        an inner layer, in this process: the inner is refined against the body, then the stream against the
-        body, the refined inner and the body again (drape.geometry.layers); seams welded as in RefinePool."""
+        an inner layer, the post step between layers (drape.geometry.layers: the inner against the body, then the
+        stream against the body, the refined inner, and both at once), frames split over the refinement workers
+        (`RefinePool.refine_layers`); seams welded as in RefinePool."""
         if inner is not None:
             yield from self._refine_layers(vertices, faces, body, poses, translation, options, chunk, inner)
             return
@@ -374,14 +411,12 @@ class Engine:
 
         first, outer_faces, group = welded(np.asarray(vertices), faces)
         inner_first, inner_faces, _ = welded(inner.vertices, inner.faces)
-        refiner = cached_layer_refiner(options, np.ascontiguousarray(inner_faces, dtype=np.int32).tobytes(),
-                                       len(inner_first), np.ascontiguousarray(outer_faces, dtype=np.int32).tobytes(),
-                                       len(first), inner.thickness, body)
         for start in range(0, len(vertices), chunk):
             t = time.perf_counter()
             s = slice(start, start + chunk)
-            out = refine_layer_frames(refiner, inner.vertices[s][:, inner_first], vertices[s][:, first], body,
-                                      poses[s], translation[s])[1]
+            out = self.refine_pool.refine_layers(inner.vertices[s][:, inner_first], inner_faces, vertices[s][:, first],
+                                                 outer_faces, inner.thickness, body, poses[s], translation[s],
+                                                 options)[1]
             yield out[:, group]
             self._observe("refine", time.perf_counter() - t)
 
@@ -392,8 +427,9 @@ class Engine:
         outer (n, No, 3)) float32 m in chunks of up to `chunk` frames. The inner layer is posed by its template's
         inner-layer network where one is served (`inner_chunks`), else by its own served DeePSD rig; the outer by
         the combination's outer-layer network where one is served (`outer_chunks`: the inner's thickness m), else
-        by its DeePSD rig; with `refine`, the post step between layers (drape.geometry.layers, the thickness) in
-        this process: the inner and the outer out of the body, the outer out of the inner, then of the body again."""
+        by its DeePSD rig; with `refine`, the post step between layers (drape.geometry.layers, the thickness) over
+        the refinement workers (`RefinePool.refine_layers`): the inner and the outer out of the body, the outer out
+        of the inner, then of both at once."""
         inner_t, outer_t = combination.inner, combination.outer
         if outer_t.network is not None:
             outer_chunks = self.outer_chunks(combination, thickness, poses, translation, fps, chunk)
@@ -405,16 +441,13 @@ class Engine:
         else:
             inner_chunks = self.pose_chunks(self.rig(inner_t.vertices, inner_t.faces, inner_t.body), poses,
                                             translation, chunk)
-        refiner = None
-        if refine is not None:
-            refiner = cached_layer_refiner(refine, inner_t.faces.tobytes(), inner_t.num_vertices,
-                                           outer_t.faces.tobytes(), outer_t.num_vertices, thickness, inner_t.body)
         start = 0
         for inner, outer in zip(inner_chunks, outer_chunks, strict=True):
-            if refiner is not None:
+            if refine is not None:
                 t = time.perf_counter()
                 at = slice(start, start + len(inner))
-                inner, outer = refine_layer_frames(refiner, inner, outer, inner_t.body, poses[at], translation[at])
+                inner, outer = self.refine_pool.refine_layers(inner, inner_t.faces, outer, outer_t.faces, thickness,
+                                                              inner_t.body, poses[at], translation[at], refine)
                 self._observe("refine", time.perf_counter() - t)
             start += len(inner)
             yield inner, outer

@@ -13,6 +13,7 @@ from drape.assets.outfits import generate_outfit
 from drape.geometry.lbs import pose_mesh
 from drape.geometry.queries import nearest_vertex_weights
 from drape.runtime.engine import RefinePool, RefineSettings
+from drape.sim.layers import split_outfit
 
 
 @pytest.fixture(scope="module")
@@ -40,6 +41,28 @@ def test_two_workers_equal_one_process(stream, relief_iterations):
     finally:
         pool.close()
     assert split.dtype == np.float32 and np.array_equal(split, alone)
+
+
+def test_two_layers_over_two_workers_equal_one_process():
+    """The post step between layers (a t-shirt under a jacket, the nearest-weights baseline on 6 frames) gives
+    the same inner and outer split over two workers as in the serving process."""
+    body = load_body("neutral")
+    (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 1500, seed=3)
+    clip = load_clip("dance_b")
+    frames = np.arange(0, clip.num_frames, 25)[:6]
+    p, t = clip.poses[frames].astype(float), clip.trans[frames].astype(float)
+    inner, outer = (pose_mesh(x, nearest_vertex_weights(x, body.vertices, body.weights), body.joints, p, t
+                              ).astype(np.float32) for x in (vi, vo))
+    settings = RefineSettings()
+    alone = RefinePool(1).refine_layers(inner, fi, outer, fo, 0.006, "neutral", p, t, settings)
+    assert np.abs(alone[1] - outer).max() > 1e-3, "the test input should need refining"
+    pool = RefinePool(2)
+    try:
+        split = pool.refine_layers(inner, fi, outer, fo, 0.006, "neutral", p, t, settings)
+        assert pool._pool is not None, "6 frames over 2 workers should go to the worker processes"
+    finally:
+        pool.close()
+    assert all(x.dtype == np.float32 and np.array_equal(x, y) for x, y in zip(split, alone, strict=True))
 
 
 def test_a_short_chunk_stays_in_process(stream):
