@@ -5,7 +5,8 @@ dance_b and of the real CMU clip 02_01_walk, H_in 6.7 mm), the outer layer's L-C
 the simulation's measure) and H-Coll (inside the body, exact closest triangle) after each pass of the refiner:
 the inner against the body, the outer against the body, the outer against the inner, the outer against the
 body and the inner as one collider (the refiner's order); L-Coll always against the inner layer as refined by
-the first pass. It shows what each pass costs the one before it.
+the first pass. It shows what each pass costs the one before it; ms/frame: the whole refinement of a frame, one
+process.
 
 Run: .venv/bin/python -m bench.layers_refine_passes [--iterations 3]   (about 2 minutes on 2 cores)
 """
@@ -13,6 +14,7 @@ Run: .venv/bin/python -m bench.layers_refine_passes [--iterations 3]   (about 2 
 from __future__ import annotations
 
 import argparse
+import time
 
 import numpy as np
 
@@ -35,7 +37,7 @@ def main() -> None:
         rows = le.Rows(engine, c)
         print(f"tshirt + jacket ({c.model}), H_in {le.THICKNESS * 1e3:g} mm, {le.FRAMES} frames, "
               f"max_iterations {args.iterations}: outer L-Coll % / H-Coll % after each pass")
-        print("| motion | " + " | ".join(PASSES) + " |\n| --- |" + " --: |" * len(PASSES))
+        print("| motion | " + " | ".join(PASSES) + " | ms/frame |\n| --- |" + " --: |" * (len(PASSES) + 1))
         for m in le.heldout_motions(body):
             poses, trans = m.poses[:le.FRAMES].astype(np.float64), m.trans[:le.FRAMES].astype(np.float64)
             inner, outer = rows.served(poses, trans, m.fps)
@@ -43,17 +45,19 @@ def main() -> None:
                              body.faces, len(body.vertices), max_iterations=args.iterations)
             bodies = posed_body("neutral", poses, trans)
             stages: list[list[np.ndarray]] = [[] for _ in PASSES]
-            inners = []
+            inners, seconds = [], 0.0
             for i, o, b in zip(inner, outer, bodies, strict=True):
                 passes = [o]
+                t = time.perf_counter()
                 i, _ = r.refine_frame(i, o, b, LayerReport(), stages=passes)
+                seconds += time.perf_counter() - t
                 for stage, x in zip(stages, passes, strict=True):
                     stage.append(x)
                 inners.append(i)
             ri = np.stack(inners)
             cells = [f"{100 * le.l_coll(np.stack(s), ri, c.inner.faces)[0]:.2f} / "
                      f"{100 * le.h_coll(np.stack(s), bodies, body.faces):.2f}" for s in stages]
-            print(f"| {m.name} | " + " | ".join(cells) + " |", flush=True)
+            print(f"| {m.name} | " + " | ".join(cells) + f" | {1e3 * seconds / len(inner):.0f} |", flush=True)
     finally:
         engine.close()
 

@@ -186,7 +186,8 @@ class Refiner:
                  relief_threshold: float = 0.005, relief_iterations: int = RELIEF_ITERATIONS,
                  relief_query_every: int = 5, rest: np.ndarray | None = None, stretch_ratio: float = STRETCH_RATIO,
                  stretch_iterations: int = STRETCH_ITERATIONS, stretch_query_every: int = 5, stretch_omega: float = 1.5,
-                 verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN):
+                 verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
+                 verify_stretch: float = np.inf):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
         self.eps, self.weight, self.mu, self.rings, self.max_iterations = eps, weight, mu, rings, max_iterations
@@ -195,7 +196,7 @@ class Refiner:
         self.relief_query_every = relief_query_every
         self.stretch_ratio, self.stretch_iterations = stretch_ratio, stretch_iterations
         self.stretch_query_every, self.stretch_omega = stretch_query_every, stretch_omega
-        self.verify_k, self.verify_within = verify_k, verify_within
+        self.verify_k, self.verify_within, self.verify_stretch = verify_k, verify_within, verify_stretch
         lap = uniform_laplacian(self.faces, num_vertices)
         self.system = (lap.T @ lap + mu * sp.identity(num_vertices)).tocsr()  # L^T L + mu I, fixed
         self.adjacency = adjacency_matrix(self.faces, num_vertices).tocsr()
@@ -519,7 +520,11 @@ class Refiner:
             deg = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)[:, None]
             anchored = (adj @ v) / deg + v0[bad] - (adj @ v0) / deg
             rows, cols = adj.nonzero()
-            best, best_out, best_len = v[bad].copy(), np.zeros(len(bad), dtype=bool), np.full(len(bad), np.inf)
+            # a place whose edges to the neighbours exceed `verify_stretch` x the longest in the input is not taken:
+            # put out of a crease, a vertex can land centimetres from its neighbours (a spike)
+            limit = np.zeros(len(bad))
+            np.maximum.at(limit, rows, np.linalg.norm(v0[bad][rows] - v0[cols], axis=1))
+            best, best_out, best_len = v[bad].copy(), np.zeros(len(bad), dtype=bool), self.verify_stretch * limit
             for start in (v[bad], anchored):
                 x, q = self._put_out(start, surface, body, normals, tree)
                 longest = np.zeros(len(bad))
