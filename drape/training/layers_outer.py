@@ -19,9 +19,9 @@ names them, those alone), with the sequences the quality gate rejected only for 
 (the simulated inner layer's body penetration: the network never reads the simulated inner layer; the outer
 layer's own checks still apply); the "test" split (held-out H_in bins x the held-out procedural motion) is the
 validation split: every `validate_every` steps the model is
-run as served (windows at half stride, blended) and measured: outer RMSE against the simulation (mm) and L-Coll
-against the served inner layer; the lowest RMSE's weights among the steps with L-Coll <= `max_l_coll_pct` are
-kept (`best.pt`) and exported. DeePSD's served rig of the outer template alone is measured on the same split by
+run as served (windows at half stride, blended) and measured: outer RMSE against the simulation (mm), L-Coll
+against the served inner layer and H-Coll (inside the body); the lowest RMSE's weights among the steps with
+L-Coll <= `max_l_coll_pct` (and H-Coll <= `max_h_coll_pct` where the config sets one) are kept (`best.pt`) and exported. DeePSD's served rig of the outer template alone is measured on the same split by
 the same rule; the lower score is served.
 Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resumes from the latest.
 """
@@ -240,29 +240,38 @@ def predict_keys(model: OuterTransformer, seq: Sequence, window: int) -> np.ndar
     return blend_windows(keys, starts, len(seq.poses))
 
 
-PENALTY = 1000.0  # mm added to the score of a step whose L-Coll is over the config's max_l_coll_pct
+PENALTY = 1000.0  # mm added to the score of a step whose L-Coll (or H-Coll) is over the config's cap
 
 
 def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Sequence], np.ndarray],
-                      max_l_coll_pct: float = 100.0) -> dict:
-    """Outer RMSE against the simulation (mm) and L-Coll (% outer vertices behind the served inner layer) of a
-    poser over sequences; score = RMSE, plus PENALTY where L-Coll is over max_l_coll_pct."""
-    from drape.training.layers_eval import l_coll
+                      max_l_coll_pct: float = 100.0, max_h_coll_pct: float = 100.0) -> dict:
+    """Outer RMSE against the simulation (mm), L-Coll (% outer vertices behind the served inner layer) and H-Coll
+    (% outer vertices inside the body, exact closest triangle) of a poser over sequences; score = RMSE, plus
+    PENALTY where L-Coll is over max_l_coll_pct or H-Coll over max_h_coll_pct."""
+    from drape.training.layers_eval import h_coll, l_coll
 
-    sq, behind, edges, per = [], [], [], {}
+    sq, behind, inside, edges, per = [], [], [], [], {}
     for s in seqs:
         v = pose(s)
         e = ((v - s.outer) ** 2).sum(-1)
         sq.append(e)
         share = l_coll(v, s.inner, task.inner_faces)[0]
         behind.append(share)
+        inside.append(h_coll(v, task.body.pose(s.poses, s.trans), task.body.faces))
         edges.append(sted(v, s.outer, task.faces)["sted"])
         per[s.key] = {"rmse_mm": round(float(np.sqrt(e.mean())) * 1e3, 2), "l_coll_pct": round(100 * share, 3),
-                      "sted": round(edges[-1], 4)}
+                      "h_coll_pct": round(100 * inside[-1], 3), "sted": round(edges[-1], 4)}
     rmse = float(np.sqrt(np.mean(np.concatenate([e.ravel() for e in sq])))) * 1e3
-    l_coll_pct = 100 * float(np.mean(behind))
-    return {"score": round(rmse + (PENALTY if l_coll_pct > max_l_coll_pct else 0.0), 3), "rmse_mm": round(rmse, 3),
-            "l_coll_pct": round(l_coll_pct, 3), "sted": round(float(np.mean(edges)), 4), "sequences": per}
+    l_coll_pct, h_coll_pct = 100 * float(np.mean(behind)), 100 * float(np.mean(inside))
+    over = l_coll_pct > max_l_coll_pct or h_coll_pct > max_h_coll_pct
+    return {"score": round(rmse + (PENALTY if over else 0.0), 3), "rmse_mm": round(rmse, 3),
+            "l_coll_pct": round(l_coll_pct, 3), "h_coll_pct": round(h_coll_pct, 3),
+            "sted": round(float(np.mean(edges)), 4), "sequences": per}
+
+
+def collision_caps(cfg: dict) -> dict[str, float]:
+    """The validation rule's caps of a config: max_l_coll_pct, and max_h_coll_pct where it sets one."""
+    return {"max_l_coll_pct": float(cfg["max_l_coll_pct"]), "max_h_coll_pct": float(cfg.get("max_h_coll_pct", 100.0))}
 
 
 def pose_outer(model: OuterTransformer, task: OuterTask, seq: Sequence) -> np.ndarray:
@@ -296,8 +305,11 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     model.set_normalization(torch.as_tensor(np.concatenate([s.features for s in train_seqs])),
                             torch.as_tensor(np.concatenate([s.inner_keys for s in train_seqs])))
     opt = torch.optim.AdamW(model.parameters(), lr=cfg["lr"], weight_decay=cfg.get("weight_decay", 0.0))
+    caps = collision_caps(cfg)
     record: dict = {"rule": f"lowest outer RMSE (mm) against the simulation among the steps with L-Coll <= "
-                            f"{cfg['max_l_coll_pct']}%, validation split", "steps": {}}
+                            f"{caps['max_l_coll_pct']}%" + (f" and H-Coll <= {caps['max_h_coll_pct']}%"
+                                                             if "max_h_coll_pct" in cfg else "") + ", validation split",
+                    "steps": {}}
     done, elapsed, record = resume(ckpt_dir, model, opt, record, log)
     frames = sum(len(s.poses) for s in train_seqs)
     log(f"{cfg['pair']}: {len(task.vertices)} outer vertices; {len(train_seqs)} training sequences ({frames} frames), "
@@ -326,11 +338,11 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
         done = step + 1
         if done % cfg["validate_every"] == 0 or done == total:
             model.eval()
-            figures = measure_sequences(task, val_seqs, lambda s: pose_outer(model, task, s), cfg["max_l_coll_pct"])
+            figures = measure_sequences(task, val_seqs, lambda s: pose_outer(model, task, s), **caps)
             model.train()
             record["steps"][str(done)] = figures
             log(f"step {done}: validation RMSE {figures['rmse_mm']:.2f} mm, L-Coll {figures['l_coll_pct']:.2f}%, "
-                f"STED {figures['sted']:.3f}")
+                f"H-Coll {figures['h_coll_pct']:.2f}%, STED {figures['sted']:.3f}")
             save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg)
     elapsed += time.time() - t0
     best = restore_best(ckpt_dir, model, record)
@@ -351,7 +363,7 @@ def deepsd_validation(task: OuterTask, seqs: list[Sequence]) -> dict:
     try:
         rig = engine.rig(task.vertices, task.faces, task.cfg["body"])
         return measure_sequences(task, seqs, lambda s: np.concatenate(list(engine.pose_chunks(rig, s.poses, s.trans))),
-                                 task.cfg["max_l_coll_pct"])
+                                 **collision_caps(task.cfg))
     finally:
         engine.close()
 
@@ -374,5 +386,5 @@ def export_trained(model: OuterTransformer, task: OuterTask, summary: dict, out:
         "inner_network": {"version": inner_manifest["version"], "pose_sha256": inner_manifest["files"]["pose"]["sha256"]},
         "validation": ours, "deepsd_validation": theirs, "config": cfg,
         "training": {k: v for k, v in summary.items() if k not in ("validation", "val_seqs")},
-        "validation_steps": {k: {m: v[m] for m in ("score", "rmse_mm", "l_coll_pct", "sted") if m in v}
+        "validation_steps": {k: {m: v[m] for m in ("score", "rmse_mm", "l_coll_pct", "h_coll_pct", "sted") if m in v}
                              for k, v in summary["validation"]["steps"].items()}})
