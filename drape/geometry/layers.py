@@ -76,8 +76,7 @@ class LayerSurface:
     def normals(self, body: np.ndarray) -> np.ndarray:
         """Posed inner vertices (Ni, 3) -> unit angle-weighted vertex normals (Ni, 3); sets the frame `query` uses."""
         self._frame(body)
-        vn = self.distance.normals[2]
-        return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-20)
+        return self.distance.normals[2]
 
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
               tree: cKDTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -171,10 +170,11 @@ class LayerRefiner:
         self.both_surface = BodyAndLayerSurface(self.body_surface, body_vertices, inner_faces, num_inner, thickness,
                                                 body_eps=eps)
 
-    def refine_frame(self, inner: np.ndarray, outer: np.ndarray, body: np.ndarray, report: LayerReport,
+    def refine_frame(self, inner: np.ndarray, outer: np.ndarray, body: np.ndarray, report: LayerReport | None,
                      stages: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """inner (Ni, 3), outer (No, 3), body (M, 3) -> (inner, outer) refined, float64; appends to `report`, and
-        to `stages` (where given) the outer after each of its three passes (bench.layers_refine_passes)."""
+        """inner (Ni, 3), outer (No, 3), body (M, 3) -> (inner, outer) refined, float64; appends to `report` (None:
+        no report, and the outer's two counts after the last pass are not queried), and to `stages` (where given)
+        the outer after each of its three passes (bench.layers_refine_passes)."""
         r = RefineReport()
         body = np.asarray(body, dtype=np.float64)
         inner = self.inner.refine_frame(inner, body, self.body_surface, r)
@@ -190,6 +190,8 @@ class LayerRefiner:
         outer = self.last.refine_frame(outer, both, self.both_surface, r)
         if stages is not None:
             stages.append(outer)
+        if report is None:
+            return inner, outer
         b, bn, bt, i, ln = self.both_surface.parts(both)
         report.inner_in_body_before.append(r.inside_before[0])
         report.inner_in_body_after.append(r.inside_after[0])

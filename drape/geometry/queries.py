@@ -198,7 +198,7 @@ class OpenSurfaceDistance:
 
     def pseudo_normals(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """vertices (N, 3) -> face unit normals (F, 3), edge normals (E, 3: the sum of the adjacent faces'),
-        angle-weighted vertex normals (N, 3)."""
+        angle-weighted unit vertex normals (N, 3)."""
         tri = vertices[self.faces]
         fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-20)
@@ -212,7 +212,7 @@ class OpenSurfaceDistance:
             cos = np.einsum("fc,fc->f", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1),
                                                            1e-20)
             np.add.at(vn, self.faces[:, j], np.arccos(np.clip(cos, -1.0, 1.0))[:, None] * fn)
-        return fn, en, vn
+        return fn, en, vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-20)
 
     def frame(self, vertices: np.ndarray) -> OpenSurfaceDistance:
         """Set the pose the next queries measure against: vertices (N, 3) m. Returns self."""

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.assets.body import is_registered, load_body
-from drape.geometry.layers import LayerRefiner, LayerReport
+from drape.geometry.layers import LayerRefiner
 from drape.geometry.lbs import rest_space_offsets
 from drape.geometry.mesh import coincident_groups, regroup_faces
 from drape.geometry.refine import (
@@ -113,8 +113,7 @@ def refine_layer_frames(refiner: LayerRefiner, inner: np.ndarray, outer: np.ndar
                         ) -> tuple[np.ndarray, np.ndarray]:
     """Two layers' frames inner (n, Ni, 3), outer (n, No, 3) through the post step between layers against the
     posed body's vertices (n, M, 3) -> (inner, outer) float32."""
-    report = LayerReport()
-    pairs = [refiner.refine_frame(i, o, b, report) for i, o, b in zip(inner, outer, body_vertices, strict=True)]
+    pairs = [refiner.refine_frame(i, o, b, None) for i, o, b in zip(inner, outer, body_vertices, strict=True)]
     return np.stack([p[0] for p in pairs]).astype(np.float32), np.stack([p[1] for p in pairs]).astype(np.float32)
 
 
@@ -216,20 +215,15 @@ class RefinePool:
         if len(first) < frames.shape[1]:
             return self.refine(frames[:, first], regroup_faces(faces, group), body, poses, translation,
                                settings)[:, group]
-        parts = min(self.workers, len(frames) // self.min_frames)
         # the body is posed here, for the whole chunk, in every case: posing in smaller batches would
         # change its vertices in the last float bit, and the refinement's discrete choices with them
         vertices = posed_body(body, poses, translation)
         f = np.ascontiguousarray(faces, dtype=np.int32).tobytes()
-        if parts >= 2:
-            pool = self.start()
-            split = np.array_split(np.arange(len(frames)), parts)
-            try:
-                surface = _surface_arguments(body)
-                futures = [pool.submit(_refine_in_worker, frames[i], f, surface, vertices[i], settings) for i in split]
-                return np.concatenate([fut.result() for fut in futures])
-            except BrokenProcessPool:
-                self.close()
+        surface = _surface_arguments(body)
+        done = self._over_workers(len(frames), lambda i: (_refine_in_worker, frames[i], f, surface, vertices[i],
+                                                          settings))
+        if done is not None:
+            return np.concatenate(done)
         return refine_against(frames, body_surface(body), vertices, cached_refiner(settings, f, frames.shape[1]))
 
     def refine_layers(self, inner: np.ndarray, inner_faces: np.ndarray, outer: np.ndarray, outer_faces: np.ndarray,
@@ -242,18 +236,26 @@ class RefinePool:
         fi = np.ascontiguousarray(inner_faces, dtype=np.int32).tobytes()
         fo = np.ascontiguousarray(outer_faces, dtype=np.int32).tobytes()
         surface = _surface_arguments(body)
-        parts = min(self.workers, len(outer) // self.min_frames)
-        if parts >= 2:
-            pool = self.start()
-            split = np.array_split(np.arange(len(outer)), parts)
-            try:
-                futures = [pool.submit(_refine_layers_in_worker, inner[i], fi, outer[i], fo, thickness, surface,
-                                       vertices[i], settings) for i in split]
-                done = [fut.result() for fut in futures]
-                return np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])
-            except BrokenProcessPool:
-                self.close()
+        done = self._over_workers(len(outer), lambda i: (_refine_layers_in_worker, inner[i], fi, outer[i], fo,
+                                                         thickness, surface, vertices[i], settings))
+        if done is not None:
+            return np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])
         return _refine_layers_in_worker(inner, fi, outer, fo, thickness, surface, vertices, settings)
+
+    def _over_workers(self, frames: int, task: Callable[[np.ndarray], tuple]) -> list | None:
+        """Split `frames` frame indices over the workers: task(indices) -> (function, *arguments) for one part;
+        -> each part's result in order, or None where the frames stay in this process (fewer than `min_frames`
+        per worker, one worker, or a worker died: the pool is closed and the next call starts new ones)."""
+        parts = min(self.workers, frames // self.min_frames)
+        if parts < 2:
+            return None
+        pool = self.start()
+        try:
+            futures = [pool.submit(*task(i)) for i in np.array_split(np.arange(frames), parts)]
+            return [fut.result() for fut in futures]
+        except BrokenProcessPool:
+            self.close()
+            return None
 
     def start(self) -> Executor:
         """Start the worker processes now if they are not running (each loads the geometry code and the
