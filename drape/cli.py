@@ -321,7 +321,7 @@ def _train_mgn_outer(args: argparse.Namespace) -> None:
     model, task, summary = train(cfg, args.checkpoints or f"checkpoints/mgn_outer_{args.outer}")
     summary["wall_seconds"] = round(time.time() - t0, 1)
     summary["machine"] = f"{platform.machine()}, {os.cpu_count()} CPUs"
-    print(json.dumps({k: v for k, v in summary.items() if k not in ("validation", "val_seqs")}, indent=2))
+    print(json.dumps({k: v for k, v in summary.items() if k not in ("validation", "val_seqs", "clip_val_seqs")}, indent=2))
     out = args.out or ASSETS / "models" / "mgn_outer" / f"{cfg['inner']}_{args.outer}"
     for path in export_trained(model, task, summary, out):
         print(path)

@@ -23,6 +23,12 @@ run as served (windows at half stride, blended) and measured: outer RMSE against
 against the served inner layer and H-Coll (inside the body); the lowest RMSE's weights among the steps with
 L-Coll <= `max_l_coll_pct` (and H-Coll <= `max_h_coll_pct` where the config sets one) are kept (`best.pt`) and exported. DeePSD's served rig of the outer template alone is measured on the same split by
 the same rule; the lower score is served.
+Real motion without simulation (`mocap`, where the config has it): the network is also trained on
+`mocap.windows` windows per step of the real CMU clips `mocap.train` (imported at `mocap.fps`, cached under
+data/layers/mocap/), H_in drawn uniformly in the config's range, by the terms that need no simulation: repulsion,
+body and the relative edge-length error against the outer template at rest (weights `mocap.loss`); and it is
+validated on the real clips `mocap.validation` (`mocap.validation_frames` frames each, no training or evaluation
+uses them): their L-Coll and H-Coll are capped by `max_clip_l_coll_pct` / `max_clip_h_coll_pct` in the rule.
 Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resumes from the latest.
 """
 
@@ -63,7 +69,8 @@ def load_config(outer: str, path: str | Path | None = None) -> dict:
 class Sequence:
     """One simulated sequence, prepared: T frames; key, motion, thickness (m); features (T, 78); poses (T, 24, 3)
     rad; trans (T, 3) m; inner_keys (T, Ki) and inner (T, Ni, 3) m (the served inner network's); outer (T, No, 3)
-    m (the simulation's); rejected_for: the quality-gate checks it failed (tolerated ones; empty when accepted)."""
+    m (the simulation's; None for a real clip nobody simulated); rejected_for: the quality-gate checks it failed
+    (tolerated ones; empty when accepted)."""
 
     key: str
     motion: str
@@ -73,7 +80,7 @@ class Sequence:
     trans: np.ndarray
     inner_keys: np.ndarray
     inner: np.ndarray
-    outer: np.ndarray
+    outer: np.ndarray | None
     rejected_for: list[str]
 
 
@@ -132,11 +139,27 @@ class OuterTask:
                 poses, trans = z["poses"].astype(np.float32), z["trans"].astype(np.float32)
                 fps = float(z["fps"])
                 outer = z["outer_vertices"].astype(np.float32)
-            keys = self.inner_model.pose_keys(poses)
-            inner = pose_outfit(self.inner_vertices, self.inner_model.rig, keys, self.body.joints, poses, trans)
-            out.append(Sequence(item["key"], item["motion"], h, motion_features(poses, trans, self.body.joints,
-                                PARENTS, fps), poses, trans, keys, inner, outer,
-                                [reason.split(" ")[0] for reason in item.get("reasons", [])]))
+            out.append(self.prepared(item["key"], item["motion"], h, poses, trans, fps, outer,
+                                     [reason.split(" ")[0] for reason in item.get("reasons", [])]))
+        return out
+
+    def prepared(self, key: str, motion: str, thickness: float, poses: np.ndarray, trans: np.ndarray, fps: float,
+                 outer: np.ndarray | None, rejected_for: list[str]) -> Sequence:
+        """A Sequence of a motion: the features, the served inner network's keys and posed inner layer."""
+        keys = self.inner_model.pose_keys(poses)
+        inner = pose_outfit(self.inner_vertices, self.inner_model.rig, keys, self.body.joints, poses, trans)
+        return Sequence(key, motion, thickness, motion_features(poses, trans, self.body.joints, PARENTS, fps), poses,
+                        trans, keys, inner, outer, rejected_for)
+
+    def clip_sequences(self, names: list[str], thickness: float, max_frames: int | None = None) -> list[Sequence]:
+        """The config's real clips (`mocap`: dir, fps) as Sequences without simulation (outer None): imported on
+        the body (cached under data/layers/mocap/), the first `max_frames` frames, at `thickness` m."""
+        mocap = self.cfg["mocap"]
+        out = []
+        for name in names:
+            poses, trans = clip_motion(mocap["dir"], name, float(mocap["fps"]), self.cfg["body"])
+            poses, trans = poses[:max_frames], trans[:max_frames]
+            out.append(self.prepared(f"clip:{name}", name, thickness, poses, trans, float(mocap["fps"]), None, []))
         return out
 
     def laplacian(self, v: torch.Tensor) -> torch.Tensor:
@@ -159,25 +182,50 @@ class OuterTask:
         b = torch.arange(len(v))[:, None]
         return ((v - inner[b, nearest]) * normals[b, nearest]).sum(-1), judged
 
-    def loss(self, model: OuterTransformer, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
-        lw = self.cfg["loss"]
+    def posed_batch(self, model: OuterTransformer, batch: dict[str, torch.Tensor],
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The network on a batch's windows, posed on its picked frames -> (v (B*F, No, 3) m, trans (B*F, 3),
+        transforms (B*F, 24, 3, 4))."""
         coefficients = model.coefficients(batch["features"], batch["thickness"], batch["inner_keys"])
         coefficients = coefficients.gather(1, batch["pick"][..., None].expand(-1, -1, coefficients.shape[-1]))
         offsets = torch.einsum("bk,knc->bnc", coefficients.flatten(0, 1), model.basis)
-        poses, trans = batch["poses"].flatten(0, 1), batch["trans"].flatten(0, 1)
-        v, transforms = self.pose(offsets, poses, trans)
-        gt = batch["outer"].flatten(0, 1)
-        l_vert = ((v - gt) ** 2).sum(-1).mean()
-        l_lap = ((self.laplacian(v) - self.laplacian(gt)) ** 2).sum(-1).mean()
-        sd_inner, judged = self.repulsion_distance(v, batch["inner"].flatten(0, 1))
+        trans = batch["trans"].flatten(0, 1)
+        v, transforms = self.pose(offsets, batch["poses"].flatten(0, 1), trans)
+        return v, trans, transforms
+
+    def collision_terms(self, v: torch.Tensor, inner: torch.Tensor, trans: torch.Tensor, transforms: torch.Tensor,
+                        lw: dict) -> tuple[torch.Tensor, torch.Tensor, dict[str, float]]:
+        """MGN Eq. 12's repulsion from the inner layer and the body term on `lw["body_frames"]` of the frames:
+        v (B, No, 3), inner (B, Ni, 3) m -> (repulsion, body, stats: shares behind the inner / inside the body)."""
+        sd_inner, judged = self.repulsion_distance(v, inner)
         sd_inner = sd_inner[judged]
         l_rep = torch.relu(lw["eps"] - sd_inner).sum() / max(len(sd_inner), 1)
         few = torch.linspace(0, len(v) - 1, min(lw["body_frames"], len(v))).long()  # spread over the windows
         sd_body = self.collider.signed_distance(v[few] - trans[few, None], transforms[few])
         l_body = physics.collision_loss(sd_body, lw["eps_body"])
+        return l_rep, l_body, {"behind": float((sd_inner < 0).float().mean()),
+                               "inside": float((sd_body < 0).float().mean())}
+
+    def clip_loss(self, model: OuterTransformer, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+        """The terms that need no simulation, on windows of real clips (`mocap.loss`: repulsion, body, edge; eps,
+        eps_body, body_frames from `loss`): 1e3 * (repulsion + body + edge * mean relative edge-length error^2
+        against the outer template at rest)."""
+        lw = {**self.cfg["loss"], **self.cfg["mocap"]["loss"]}
+        v, trans, transforms = self.posed_batch(model, batch)
+        l_rep, l_body, stats = self.collision_terms(v, batch["inner"].flatten(0, 1), trans, transforms, lw)
+        l_edge = edge_length_loss(v, self.rest[None], self.edges)
+        loss = 1e3 * (lw["repulsion"] * l_rep + lw["body"] * l_body + lw["edge"] * l_edge)
+        return loss, {"clip_" + k: v for k, v in stats.items()} | {"clip_edge": float(l_edge.detach().sqrt())}
+
+    def loss(self, model: OuterTransformer, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+        lw = self.cfg["loss"]
+        v, trans, transforms = self.posed_batch(model, batch)
+        gt = batch["outer"].flatten(0, 1)
+        l_vert = ((v - gt) ** 2).sum(-1).mean()
+        l_lap = ((self.laplacian(v) - self.laplacian(gt)) ** 2).sum(-1).mean()
+        l_rep, l_body, collisions = self.collision_terms(v, batch["inner"].flatten(0, 1), trans, transforms, lw)
         loss = 1e3 * (lw["vertex"] * l_vert + lw["laplacian"] * l_lap + lw["repulsion"] * l_rep + lw["body"] * l_body)
-        stats = {"rmse_mm": float(l_vert.detach().sqrt()) * 1e3, "behind": float((sd_inner < 0).float().mean()),
-                 "inside": float((sd_body < 0).float().mean())}
+        stats = {"rmse_mm": float(l_vert.detach().sqrt()) * 1e3, **collisions}
         if lw.get("edge", 0.0) > 0:  # against a crumpled layer
             l_edge = edge_length_loss(v, gt, self.edges)
             loss = loss + 1e3 * lw["edge"] * l_edge
@@ -190,8 +238,8 @@ class OuterTask:
 
 
 def edge_length_loss(v: torch.Tensor, truth: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
-    """Mean squared relative edge-length error (STED's spatial part, squared): v, truth (B, N, 3) m, edges (E, 2)
-    -> scalar, unitless."""
+    """Mean squared relative edge-length error (STED's spatial part, squared): v (B, N, 3), truth (B or 1, N, 3)
+    m, edges (E, 2) -> scalar, unitless."""
     lt = physics.edge_lengths(truth, edges)
     return (((physics.edge_lengths(v, edges) - lt) / lt.clamp_min(1e-6)) ** 2).mean()
 
@@ -203,11 +251,13 @@ def step_loss(v: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
 
 
 def sample_batch(seqs: list[Sequence], window: int, count: int, frames: int, rng: np.random.Generator,
-                 pairs: bool = False) -> dict[str, torch.Tensor]:
+                 pairs: bool = False, thickness: tuple[float, float] | None = None) -> dict[str, torch.Tensor]:
     """`count` random windows of `window` frames (sequences drawn in proportion to their windows): the network's
     inputs of every frame (features, inner_keys (B, W, .), thickness (B, 1)) and, for `frames` random frames of
     each window (`pick` (B, F)), what the loss compares (poses, trans, outer, inner (B, F, ...)). With `pairs`,
-    the frames are frames // 2 random pairs of consecutive frames (t, t + 1), in that order (a temporal loss)."""
+    the frames are frames // 2 random pairs of consecutive frames (t, t + 1), in that order (a temporal loss).
+    With `thickness` (low, high) m, each window's H_in is drawn uniformly there instead of its sequence's. "outer"
+    only where every sequence has a simulation."""
     sizes = np.array([len(s.poses) - window + 1 for s in seqs])
     picks = rng.choice(len(seqs), size=count, p=sizes / sizes.sum())
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("features", "inner_keys", "pick", "poses", "trans", "outer",
@@ -223,10 +273,13 @@ def sample_batch(seqs: list[Sequence], window: int, count: int, frames: int, rng
         parts["features"].append(s.features[t0:t0 + window])
         parts["inner_keys"].append(s.inner_keys[t0:t0 + window])
         parts["pick"].append(pick)
-        for k in ("poses", "trans", "outer", "inner"):
+        for k in ("poses", "trans", "inner"):
             parts[k].append(getattr(s, k)[t0 + pick])
-        parts["thickness"].append(np.array([s.thickness], np.float32))
-    return {k: torch.as_tensor(np.stack(v)) for k, v in parts.items()}
+        if s.outer is not None:
+            parts["outer"].append(s.outer[t0 + pick])
+        h = s.thickness if thickness is None else rng.uniform(*thickness)
+        parts["thickness"].append(np.array([h], np.float32))
+    return {k: torch.as_tensor(np.stack(v)) for k, v in parts.items() if len(v) == count}
 
 
 def predict_keys(model: OuterTransformer, seq: Sequence, window: int) -> np.ndarray:
@@ -241,6 +294,54 @@ def predict_keys(model: OuterTransformer, seq: Sequence, window: int) -> np.ndar
 
 
 PENALTY = 1000.0  # mm added to the score of a step whose L-Coll (or H-Coll) is over the config's cap
+CLIP_CACHE = Path("data") / "layers" / "mocap"
+
+
+def clip_motion(directory: str | Path, name: str, fps: float, body: str) -> tuple[np.ndarray, np.ndarray]:
+    """The real clip `directory/name.bvh` imported onto `body` at `fps` (drape.assets.motion.import_motion: on
+    the floor) -> (poses (T, 24, 3) rad, trans (T, 3) m) float32; cached under data/layers/mocap/ (git-ignored)."""
+    from drape.assets.motion import import_motion
+
+    cache = CLIP_CACHE / f"{name}_{body}_{fps:g}.npz"
+    if not cache.exists():
+        path = Path(directory) / f"{name}.bvh"
+        if not path.exists():
+            raise FileNotFoundError(f"the config's mocap clip {path} is missing (../shared/data/mocap holds them)")
+        motion = import_motion(path.read_bytes(), load_body(body), fps=fps, name=name).motion
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(cache, poses=motion.poses, trans=motion.trans)
+    with np.load(cache, allow_pickle=False) as z:
+        return z["poses"].astype(np.float32), z["trans"].astype(np.float32)
+
+
+def measure_clips(task: OuterTask, seqs: list[Sequence], pose: Callable[[Sequence], np.ndarray]) -> dict:
+    """L-Coll and H-Coll (%, as measure_sequences) of a poser over real clips nobody simulated."""
+    from drape.training.layers_eval import h_coll, l_coll
+
+    per = {}
+    for s in seqs:
+        v = pose(s)
+        per[s.key] = {"l_coll_pct": round(100 * l_coll(v, s.inner, task.inner_faces)[0], 3),
+                      "h_coll_pct": round(100 * h_coll(v, task.body.pose(s.poses, s.trans), task.body.faces), 3)}
+    return {"clip_l_coll_pct": round(float(np.mean([p["l_coll_pct"] for p in per.values()])), 3),
+            "clip_h_coll_pct": round(float(np.mean([p["h_coll_pct"] for p in per.values()])), 3),
+            "clip_sequences": per}
+
+
+def measure_all(task: OuterTask, seqs: list[Sequence], clips: list[Sequence], pose: Callable[[Sequence], np.ndarray],
+                ) -> dict:
+    """measure_sequences on the simulated validation sequences with the config's caps, and where there are real
+    validation clips, measure_clips on them: PENALTY added once where their L-Coll or H-Coll is over
+    max_clip_l_coll_pct / max_clip_h_coll_pct."""
+    caps = collision_caps(task.cfg)
+    figures = measure_sequences(task, seqs, pose, **caps)
+    if clips:
+        figures |= measure_clips(task, clips, pose)
+        over = (figures["clip_l_coll_pct"] > float(task.cfg.get("max_clip_l_coll_pct", 100.0))
+                or figures["clip_h_coll_pct"] > float(task.cfg.get("max_clip_h_coll_pct", 100.0)))
+        if over and figures["score"] < PENALTY:
+            figures["score"] = round(figures["score"] + PENALTY, 3)
+    return figures
 
 
 def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Sequence], np.ndarray],
@@ -252,6 +353,8 @@ def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Seq
 
     sq, behind, inside, edges, per = [], [], [], [], {}
     for s in seqs:
+        if s.outer is None:
+            raise ValueError(f"{s.key} has no simulation to measure against (measure_clips measures real clips)")
         v = pose(s)
         e = ((v - s.outer) ** 2).sum(-1)
         sq.append(e)
@@ -300,20 +403,27 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     if not train_seqs or not val_seqs:
         raise SystemExit(f"{task.data_dir}: {len(train_seqs)} training and {len(val_seqs)} validation sequences; "
                          "make layers-data simulates them")
+    mocap = cfg.get("mocap")
+    low, high = cfg["thickness"]
+    clip_train = task.clip_sequences(mocap["train"], (low + high) / 2, mocap.get("max_frames")) if mocap else []
+    clip_val = task.clip_sequences(mocap["validation"], (low + high) / 2, mocap["validation_frames"]) if mocap else []
     model = OuterTransformer(OuterConfig(num_vertices=len(task.vertices),
                                          num_inner_keys=task.inner_model.rig.blend_shapes.shape[0], **cfg["model"]))
-    model.set_normalization(torch.as_tensor(np.concatenate([s.features for s in train_seqs])),
-                            torch.as_tensor(np.concatenate([s.inner_keys for s in train_seqs])))
+    model.set_normalization(torch.as_tensor(np.concatenate([s.features for s in train_seqs + clip_train])),
+                            torch.as_tensor(np.concatenate([s.inner_keys for s in train_seqs + clip_train])))
     opt = torch.optim.AdamW(model.parameters(), lr=cfg["lr"], weight_decay=cfg.get("weight_decay", 0.0))
     caps = collision_caps(cfg)
     record: dict = {"rule": f"lowest outer RMSE (mm) against the simulation among the steps with L-Coll <= "
                             f"{caps['max_l_coll_pct']}%" + (f" and H-Coll <= {caps['max_h_coll_pct']}%"
-                                                             if "max_h_coll_pct" in cfg else "") + ", validation split",
+                                                             if "max_h_coll_pct" in cfg else "") + ", validation split"
+                            + (f"; on the real validation clips L-Coll <= {cfg.get('max_clip_l_coll_pct', 100.0)}% "
+                               f"and H-Coll <= {cfg.get('max_clip_h_coll_pct', 100.0)}%" if clip_val else ""),
                     "steps": {}}
     done, elapsed, record = resume(ckpt_dir, model, opt, record, log)
     frames = sum(len(s.poses) for s in train_seqs)
     log(f"{cfg['pair']}: {len(task.vertices)} outer vertices; {len(train_seqs)} training sequences ({frames} frames), "
-        f"{len(val_seqs)} validation sequences")
+        f"{len(val_seqs)} validation sequences; {len(clip_train)} real training clips "
+        f"({sum(len(s.poses) for s in clip_train)} frames), {len(clip_val)} real validation clips")
     total, warmup = int(cfg["steps"]), int(cfg.get("warmup", 0))
 
     def lr_at(step: int) -> float:
@@ -330,6 +440,11 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
         batch = sample_batch(train_seqs, model.cfg.window, cfg["batch_windows"], cfg["loss_frames"],
                              np.random.default_rng([cfg["seed"], step]), pairs=cfg["loss"].get("temporal", 0.0) > 0)
         loss, stats = task.loss(model, batch)
+        if mocap and clip_train:
+            clip_batch = sample_batch(clip_train, model.cfg.window, mocap["windows"], mocap["loss_frames"],
+                                      np.random.default_rng([cfg["seed"], step, 1]), thickness=(low, high))
+            clip_loss, clip_stats = task.clip_loss(model, clip_batch)
+            loss, stats = loss + clip_loss, stats | clip_stats
         opt.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -338,11 +453,13 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
         done = step + 1
         if done % cfg["validate_every"] == 0 or done == total:
             model.eval()
-            figures = measure_sequences(task, val_seqs, lambda s: pose_outer(model, task, s), **caps)
+            figures = measure_all(task, val_seqs, clip_val, lambda s: pose_outer(model, task, s))
             model.train()
             record["steps"][str(done)] = figures
             log(f"step {done}: validation RMSE {figures['rmse_mm']:.2f} mm, L-Coll {figures['l_coll_pct']:.2f}%, "
-                f"H-Coll {figures['h_coll_pct']:.2f}%, STED {figures['sted']:.3f}")
+                f"H-Coll {figures['h_coll_pct']:.2f}%, STED {figures['sted']:.3f}"
+                + (f"; real clips L-Coll {figures['clip_l_coll_pct']:.2f}%, H-Coll {figures['clip_h_coll_pct']:.2f}%"
+                   if clip_val else ""))
             save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg)
     elapsed += time.time() - t0
     best = restore_best(ckpt_dir, model, record)
@@ -350,20 +467,23 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     data = {"train": sorted(s.key for s in train_seqs), "validation": sorted(s.key for s in val_seqs),
             "train_frames": frames,
             "gate_rejected": {s.key: s.rejected_for for s in train_seqs + val_seqs if s.rejected_for}}
+    if clip_train:
+        data |= {"clips": [s.motion for s in clip_train], "clip_frames": sum(len(s.poses) for s in clip_train),
+                 "clip_validation": [s.motion for s in clip_val]}
     return model, task, {"steps": total, "seconds": round(elapsed, 1), "data": data, "validation": record,
-                         "val_seqs": val_seqs}
+                         "val_seqs": val_seqs, "clip_val_seqs": clip_val}
 
 
-def deepsd_validation(task: OuterTask, seqs: list[Sequence]) -> dict:
+def deepsd_validation(task: OuterTask, seqs: list[Sequence], clips: list[Sequence] | None = None) -> dict:
     """DeePSD's served rig of the outer template alone (as /v1/layers/animate poses it today) on the same
-    validation sequences."""
+    validation sequences (and real validation clips)."""
     from drape.runtime.engine import Engine
 
     engine = Engine(refine_workers=1)
     try:
         rig = engine.rig(task.vertices, task.faces, task.cfg["body"])
-        return measure_sequences(task, seqs, lambda s: np.concatenate(list(engine.pose_chunks(rig, s.poses, s.trans))),
-                                 **collision_caps(task.cfg))
+        return measure_all(task, seqs, clips or [],
+                           lambda s: np.concatenate(list(engine.pose_chunks(rig, s.poses, s.trans))))
     finally:
         engine.close()
 
@@ -376,7 +496,7 @@ def export_trained(model: OuterTransformer, task: OuterTask, summary: dict, out:
 
     cfg = task.cfg
     ours = summary["validation"]["steps"][str(summary["validation"]["chosen"])]
-    theirs = deepsd_validation(task, summary["val_seqs"])
+    theirs = deepsd_validation(task, summary["val_seqs"], summary.get("clip_val_seqs"))
     served = "mgn_outer" if ours["score"] < theirs["score"] else "deepsd"
     log(f"validation: mgn_outer {ours['rmse_mm']:.2f} mm RMSE, L-Coll {ours['l_coll_pct']:.2f}%; deepsd "
         f"{theirs['rmse_mm']:.2f} mm, {theirs['l_coll_pct']:.2f}% -> serving {served}")
@@ -385,6 +505,7 @@ def export_trained(model: OuterTransformer, task: OuterTask, summary: dict, out:
         "template": cfg["outer"], "inner": cfg["inner"], "pair": cfg["pair"], "body": cfg["body"], "served": served,
         "inner_network": {"version": inner_manifest["version"], "pose_sha256": inner_manifest["files"]["pose"]["sha256"]},
         "validation": ours, "deepsd_validation": theirs, "config": cfg,
-        "training": {k: v for k, v in summary.items() if k not in ("validation", "val_seqs")},
-        "validation_steps": {k: {m: v[m] for m in ("score", "rmse_mm", "l_coll_pct", "h_coll_pct", "sted") if m in v}
+        "training": {k: v for k, v in summary.items() if k not in ("validation", "val_seqs", "clip_val_seqs")},
+        "validation_steps": {k: {m: v[m] for m in ("score", "rmse_mm", "l_coll_pct", "h_coll_pct", "sted",
+                                                   "clip_l_coll_pct", "clip_h_coll_pct") if m in v}
                              for k, v in summary["validation"]["steps"].items()}})

@@ -32,6 +32,17 @@ def test_pairs_are_consecutive_frames_of_the_window_and_carry_their_truth():
     assert (np.diff(single["pick"].numpy(), axis=1) > 0).all()  # distinct frames, sorted
 
 
+def test_clip_batches_draw_thickness_in_the_range_and_carry_no_truth():
+    clip = _sequence(50, 3)
+    clip.outer = None  # a real clip nobody simulated
+    batch = sample_batch([clip], 30, 64, 6, np.random.default_rng(1), thickness=(0.004, 0.012))
+    h = batch["thickness"].numpy().ravel()
+    assert "outer" not in batch and batch["inner"].shape == (64, 6, 5, 3)
+    assert (h >= 0.004).all() and (h <= 0.012).all() and h.std() > 0.001  # drawn per window, not the clip's 8 mm
+    mixed = sample_batch([clip, _sequence(40, 1)], 30, 8, 6, np.random.default_rng(2))
+    assert "outer" not in mixed  # no truth for some windows: none is given
+
+
 def test_edge_length_loss_is_the_relative_edge_error_and_ignores_rigid_motion():
     rng = np.random.default_rng(3)
     faces = np.array([[0, 1, 2], [1, 3, 2], [2, 3, 4]])
