@@ -29,8 +29,8 @@ serve: $(VENV)/.serve-installed
 test: $(VENV)/.dev-installed
 	$(BIN)/ruff check drape tests bench
 	$(BIN)/mypy
-	$(BIN)/pytest -n 2 -m "not slow and not serial"
-	$(BIN)/pytest -m "not slow and serial"
+	$(BIN)/pytest -n 2 -m "not slow and not serial" --durations=15
+	$(BIN)/pytest -m "not slow and serial" --durations=5
 
 test-slow: $(VENV)/.dev-installed
 	$(BIN)/pytest -m slow

@@ -14,6 +14,9 @@ reads every frame; the body term on `body_frames` of them; lengths in metres):
                                                              the `candidates` nearest at rest, n_p its normal;
                                                              where p is within `cover` and not on a boundary)
            + body * mean relu(eps_body - d_body))           (the posed body's signed distance, as the inner's)
+With `target_follows_inner` [full, zero] (m), the target of the vertex and Laplacian terms is the simulated outer
+layer moved with the served inner layer (follow_inner: the simulation's inner layer is not the one served, and
+the outer layer is judged against the served one); validation still measures against the simulation.
 Data: the dataset's "train" split (training H_in values x procedural motions; `train_items`, when the config
 names them, those alone), with the sequences the quality gate rejected only for checks in `tolerated_checks`
 (the simulated inner layer's body penetration: the network never reads the simulated inner layer; the outer
@@ -70,7 +73,7 @@ class Sequence:
     """One simulated sequence, prepared: T frames; key, motion, thickness (m); features (T, 78); poses (T, 24, 3)
     rad; trans (T, 3) m; inner_keys (T, Ki) and inner (T, Ni, 3) m (the served inner network's); outer (T, No, 3)
     m (the simulation's; None for a real clip nobody simulated); rejected_for: the quality-gate checks it failed
-    (tolerated ones; empty when accepted)."""
+    (tolerated ones; empty when accepted); target: the training target where it is not `outer` (follow_inner)."""
 
     key: str
     motion: str
@@ -82,6 +85,7 @@ class Sequence:
     inner: np.ndarray
     outer: np.ndarray | None
     rejected_for: list[str]
+    target: np.ndarray | None = None  # (T, No, 3) m: what training compares with, where not `outer` (follow_inner)
 
 
 class OuterTask:
@@ -139,8 +143,13 @@ class OuterTask:
                 poses, trans = z["poses"].astype(np.float32), z["trans"].astype(np.float32)
                 fps = float(z["fps"])
                 outer = z["outer_vertices"].astype(np.float32)
-            out.append(self.prepared(item["key"], item["motion"], h, poses, trans, fps, outer,
-                                     [reason.split(" ")[0] for reason in item.get("reasons", [])]))
+                sim_inner = z["inner_vertices"].astype(np.float32)
+            seq = self.prepared(item["key"], item["motion"], h, poses, trans, fps, outer,
+                                [reason.split(" ")[0] for reason in item.get("reasons", [])])
+            if self.cfg.get("target_follows_inner"):
+                full, zero = self.cfg["target_follows_inner"]
+                seq.target = follow_inner(outer, sim_inner, seq.inner, full, zero)
+            out.append(seq)
         return out
 
     def prepared(self, key: str, motion: str, thickness: float, poses: np.ndarray, trans: np.ndarray, fps: float,
@@ -237,6 +246,22 @@ class OuterTask:
         return loss, stats
 
 
+def follow_inner(outer: np.ndarray, sim_inner: np.ndarray, served_inner: np.ndarray, full: float, zero: float,
+                 ) -> np.ndarray:
+    """The simulated outer layer moved with the inner layer the network reads: each outer vertex plus w times the
+    served-minus-simulated displacement of its nearest simulated inner vertex, w = 1 within `full` m of it, 0
+    beyond `zero` m, linear between (what lies on the t-shirt moves with it; what hangs free does not).
+    outer (T, No, 3), sim_inner and served_inner (T, Ni, 3) m -> (T, No, 3) float32 m."""
+    from scipy.spatial import cKDTree
+
+    moved = np.array(outer, np.float32, copy=True)
+    for t in range(len(outer)):
+        d, j = cKDTree(sim_inner[t]).query(outer[t])
+        w = np.clip((zero - d) / (zero - full), 0.0, 1.0)
+        moved[t] += (w[:, None] * (served_inner[t, j] - sim_inner[t, j])).astype(np.float32)
+    return moved
+
+
 def edge_length_loss(v: torch.Tensor, truth: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
     """Mean squared relative edge-length error (STED's spatial part, squared): v (B, N, 3), truth (B or 1, N, 3)
     m, edges (E, 2) -> scalar, unitless."""
@@ -257,7 +282,7 @@ def sample_batch(seqs: list[Sequence], window: int, count: int, frames: int, rng
     each window (`pick` (B, F)), what the loss compares (poses, trans, outer, inner (B, F, ...)). With `pairs`,
     the frames are frames // 2 random pairs of consecutive frames (t, t + 1), in that order (a temporal loss).
     With `thickness` (low, high) m, each window's H_in is drawn uniformly there instead of its sequence's. "outer"
-    only where every sequence has a simulation."""
+    (a sequence's `target` where it has one) only where every sequence has a simulation."""
     sizes = np.array([len(s.poses) - window + 1 for s in seqs])
     picks = rng.choice(len(seqs), size=count, p=sizes / sizes.sum())
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("features", "inner_keys", "pick", "poses", "trans", "outer",
@@ -276,7 +301,7 @@ def sample_batch(seqs: list[Sequence], window: int, count: int, frames: int, rng
         for k in ("poses", "trans", "inner"):
             parts[k].append(getattr(s, k)[t0 + pick])
         if s.outer is not None:
-            parts["outer"].append(s.outer[t0 + pick])
+            parts["outer"].append((s.outer if s.target is None else s.target)[t0 + pick])
         h = s.thickness if thickness is None else rng.uniform(*thickness)
         parts["thickness"].append(np.array([h], np.float32))
     return {k: torch.as_tensor(np.stack(v)) for k, v in parts.items() if len(v) == count}

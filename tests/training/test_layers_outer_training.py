@@ -6,7 +6,13 @@ import torch
 
 from drape.geometry.mesh import unique_edges
 from drape.geometry.metrics import edge_lengths
-from drape.training.layers_outer import Sequence, edge_length_loss, sample_batch, step_loss
+from drape.training.layers_outer import (
+    Sequence,
+    edge_length_loss,
+    follow_inner,
+    sample_batch,
+    step_loss,
+)
 
 
 def _sequence(frames: int, seed: int) -> Sequence:
@@ -41,6 +47,18 @@ def test_clip_batches_draw_thickness_in_the_range_and_carry_no_truth():
     assert (h >= 0.004).all() and (h <= 0.012).all() and h.std() > 0.001  # drawn per window, not the clip's 8 mm
     mixed = sample_batch([clip, _sequence(40, 1)], 30, 8, 6, np.random.default_rng(2))
     assert "outer" not in mixed  # no truth for some windows: none is given
+
+
+def test_follow_inner_moves_what_lies_on_the_inner_layer_and_not_what_hangs_free():
+    rng = np.random.default_rng(4)
+    sim_inner = rng.uniform(-0.1, 0.1, size=(3, 50, 3)).astype(np.float32) * [1, 1, 0]  # a sheet at z = 0
+    served = sim_inner + np.array([0.0, 0.0, 0.02], np.float32)  # the served layer 2 cm further out
+    outer = np.concatenate([sim_inner[:, :10] + [0, 0, 0.005], sim_inner[:, :10] + [0, 0, 0.02],
+                            sim_inner[:, :10] + [0, 0, 0.5]], axis=1).astype(np.float32)
+    moved = follow_inner(outer, sim_inner, served, 0.01, 0.03)
+    step = (moved - outer)[..., 2]
+    assert np.allclose(step[:, :10], 0.02) and np.allclose(step[:, 10:20], 0.01) and np.allclose(step[:, 20:], 0)
+    assert np.allclose((moved - outer)[..., :2], 0)
 
 
 def test_edge_length_loss_is_the_relative_edge_error_and_ignores_rigid_motion():
