@@ -126,22 +126,26 @@ class TrainOutfit:
         return move_tensors(self, device)
 
 
-def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:
-    """(T, 24, 3) float32 poses of the real clip `directory/name.bvh`, imported onto the neutral body at
-    `fps` (drape.assets.motion.import_motion), cached under data/deepsd/mocap/ (git-ignored)."""
+def mocap_motion(directory: str | Path, name: str, fps: float, body: str = "neutral") -> tuple[np.ndarray, np.ndarray]:
+    """The real clip `directory/name.bvh` imported onto the `body` preset at `fps` (drape.assets.motion.import_motion:
+    on the floor) -> (poses (T, 24, 3) rad, trans (T, 3) m) float32; cached under data/deepsd/mocap/ (git-ignored)."""
     from drape.assets.motion import import_motion
 
-    cache = CACHE.parent / "mocap" / f"{name}_{fps:g}.npz"
-    if cache.exists():
-        with np.load(cache, allow_pickle=False) as z:
-            return z["poses"]
-    path = Path(directory) / f"{name}.bvh"
-    if not path.exists():
-        raise FileNotFoundError(f"the config's mocap clip {path} is missing (../shared/data/mocap holds them)")
-    poses = import_motion(path.read_bytes(), load_body("neutral"), fps=fps, name=name).motion.poses
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(cache, poses=poses)
-    return poses
+    cache = CACHE.parent / "mocap" / f"{name}_{body}_{fps:g}.npz"
+    if not cache.exists():
+        path = Path(directory) / f"{name}.bvh"
+        if not path.exists():
+            raise FileNotFoundError(f"the config's mocap clip {path} is missing (../shared/data/mocap holds them)")
+        motion = import_motion(path.read_bytes(), load_body(body), fps=fps, name=name).motion
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(cache, poses=motion.poses, trans=motion.trans)
+    with np.load(cache, allow_pickle=False) as z:
+        return z["poses"].astype(np.float32), z["trans"].astype(np.float32)
+
+
+def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:
+    """(T, 24, 3) float32 poses of the real clip `directory/name.bvh` on the neutral body at `fps` (mocap_motion)."""
+    return mocap_motion(directory, name, fps)[0]
 
 
 def pose_pool(cfg: dict) -> np.ndarray:

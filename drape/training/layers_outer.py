@@ -27,8 +27,8 @@ against the served inner layer and H-Coll (inside the body); the lowest RMSE's w
 L-Coll <= `max_l_coll_pct` (and H-Coll <= `max_h_coll_pct` where the config sets one) are kept (`best.pt`) and exported. DeePSD's served rig of the outer template alone is measured on the same split by
 the same rule; the lower score is served.
 Real motion without simulation (`mocap`, where the config has it): the network is also trained on
-`mocap.windows` windows per step of the real CMU clips `mocap.train` (imported at `mocap.fps`, cached under
-data/layers/mocap/), H_in drawn uniformly in the config's range, by the terms that need no simulation: repulsion,
+`mocap.windows` windows per step of the real CMU clips `mocap.train` (imported at `mocap.fps`, cached as DeePSD's
+training clips are), H_in drawn uniformly in the config's range, by the terms that need no simulation: repulsion,
 body and the relative edge-length error against the outer template at rest (weights `mocap.loss`); and it is
 validated on the real clips `mocap.validation` (`mocap.validation_frames` frames each, no training or evaluation
 uses them): their L-Coll and H-Coll are capped by `max_clip_l_coll_pct` / `max_clip_h_coll_pct` in the rule.
@@ -58,6 +58,7 @@ from drape.models.layers import OuterConfig, OuterTransformer
 from drape.runtime.deepsd import Rig, pose_outfit
 from drape.runtime.layers import INNER_MODELS, InnerModel, blend_windows, window_starts
 from drape.training import physics
+from drape.training.deepsd_data import mocap_motion
 from drape.training.layers_inner import body_weights
 from drape.training.validated_steps import restore_best, resume, save_step
 
@@ -162,11 +163,11 @@ class OuterTask:
 
     def clip_sequences(self, names: list[str], thickness: float, max_frames: int | None = None) -> list[Sequence]:
         """The config's real clips (`mocap`: dir, fps) as Sequences without simulation (outer None): imported on
-        the body (cached under data/layers/mocap/), the first `max_frames` frames, at `thickness` m."""
+        the body (deepsd_data.mocap_motion, cached), the first `max_frames` frames, at `thickness` m."""
         mocap = self.cfg["mocap"]
         out = []
         for name in names:
-            poses, trans = clip_motion(mocap["dir"], name, float(mocap["fps"]), self.cfg["body"])
+            poses, trans = mocap_motion(mocap["dir"], name, float(mocap["fps"]), self.cfg["body"])
             poses, trans = poses[:max_frames], trans[:max_frames]
             out.append(self.prepared(f"clip:{name}", name, thickness, poses, trans, float(mocap["fps"]), None, []))
         return out
@@ -319,35 +320,21 @@ def predict_keys(model: OuterTransformer, seq: Sequence, window: int) -> np.ndar
 
 
 PENALTY = 1000.0  # mm added to the score of a step whose L-Coll (or H-Coll) is over the config's cap
-CLIP_CACHE = Path("data") / "layers" / "mocap"
+def collision_shares(task: OuterTask, seq: Sequence, v: np.ndarray) -> tuple[float, float]:
+    """Of an outer layer v (T, No, 3) m posed along seq: (L-Coll, share behind the served inner layer;
+    H-Coll, share inside the body, exact closest triangle), fractions."""
+    from drape.training.layers_eval import h_coll, l_coll
 
-
-def clip_motion(directory: str | Path, name: str, fps: float, body: str) -> tuple[np.ndarray, np.ndarray]:
-    """The real clip `directory/name.bvh` imported onto `body` at `fps` (drape.assets.motion.import_motion: on
-    the floor) -> (poses (T, 24, 3) rad, trans (T, 3) m) float32; cached under data/layers/mocap/ (git-ignored)."""
-    from drape.assets.motion import import_motion
-
-    cache = CLIP_CACHE / f"{name}_{body}_{fps:g}.npz"
-    if not cache.exists():
-        path = Path(directory) / f"{name}.bvh"
-        if not path.exists():
-            raise FileNotFoundError(f"the config's mocap clip {path} is missing (../shared/data/mocap holds them)")
-        motion = import_motion(path.read_bytes(), load_body(body), fps=fps, name=name).motion
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(cache, poses=motion.poses, trans=motion.trans)
-    with np.load(cache, allow_pickle=False) as z:
-        return z["poses"].astype(np.float32), z["trans"].astype(np.float32)
+    return (l_coll(v, seq.inner, task.inner_faces)[0],
+            h_coll(v, task.body.pose(seq.poses, seq.trans), task.body.faces))
 
 
 def measure_clips(task: OuterTask, seqs: list[Sequence], pose: Callable[[Sequence], np.ndarray]) -> dict:
     """L-Coll and H-Coll (%, as measure_sequences) of a poser over real clips nobody simulated."""
-    from drape.training.layers_eval import h_coll, l_coll
-
     per = {}
     for s in seqs:
-        v = pose(s)
-        per[s.key] = {"l_coll_pct": round(100 * l_coll(v, s.inner, task.inner_faces)[0], 3),
-                      "h_coll_pct": round(100 * h_coll(v, task.body.pose(s.poses, s.trans), task.body.faces), 3)}
+        behind, inside = collision_shares(task, s, pose(s))
+        per[s.key] = {"l_coll_pct": round(100 * behind, 3), "h_coll_pct": round(100 * inside, 3)}
     return {"clip_l_coll_pct": round(float(np.mean([p["l_coll_pct"] for p in per.values()])), 3),
             "clip_h_coll_pct": round(float(np.mean([p["h_coll_pct"] for p in per.values()])), 3),
             "clip_sequences": per}
@@ -374,8 +361,6 @@ def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Seq
     """Outer RMSE against the simulation (mm), L-Coll (% outer vertices behind the served inner layer) and H-Coll
     (% outer vertices inside the body, exact closest triangle) of a poser over sequences; score = RMSE, plus
     PENALTY where L-Coll is over max_l_coll_pct or H-Coll over max_h_coll_pct."""
-    from drape.training.layers_eval import h_coll, l_coll
-
     sq, behind, inside, edges, per = [], [], [], [], {}
     for s in seqs:
         if s.outer is None:
@@ -383,9 +368,9 @@ def measure_sequences(task: OuterTask, seqs: list[Sequence], pose: Callable[[Seq
         v = pose(s)
         e = ((v - s.outer) ** 2).sum(-1)
         sq.append(e)
-        share = l_coll(v, s.inner, task.inner_faces)[0]
+        share, body_share = collision_shares(task, s, v)
         behind.append(share)
-        inside.append(h_coll(v, task.body.pose(s.poses, s.trans), task.body.faces))
+        inside.append(body_share)
         edges.append(sted(v, s.outer, task.faces)["sted"])
         per[s.key] = {"rmse_mm": round(float(np.sqrt(e.mean())) * 1e3, 2), "l_coll_pct": round(100 * share, 3),
                       "h_coll_pct": round(100 * inside[-1], 3), "sted": round(edges[-1], 4)}
