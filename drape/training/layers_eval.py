@@ -45,6 +45,7 @@ THICKNESS = 0.0067
 FRAMES = 60
 CACHE = Path("data") / "layers_eval"
 REAL = Path("..") / "shared" / "data" / "mocap" / "02_01_walk.bvh"
+CLIP = "dance_b"  # the embedded held-out clip
 SPEED_FRAMES = 300
 
 
@@ -63,7 +64,7 @@ def l_coll(outer: np.ndarray, inner: np.ndarray, inner_faces: np.ndarray) -> tup
 
 def heldout_motions(body: Body, real: Path = REAL) -> list[Motion]:
     """dance_b and, where present, the real CMU clip 02_01_walk at 30 fps."""
-    out = [load_clip("dance_b")]
+    out = [load_clip(CLIP)]
     if real.exists():
         out.append(import_motion(real.read_bytes(), body, fps=30.0, name=real.stem).motion)
     return out
@@ -133,7 +134,7 @@ class Rows:
 
     def speed(self, seconds: Callable[[Callable[[], object]], float]) -> dict[str, float]:
         """Seconds to pose SPEED_FRAMES frames of both layers: served (no refine) and DeePSD each alone."""
-        clip = load_clip("dance_b")
+        clip = load_clip(CLIP)
         reps = -(-SPEED_FRAMES // clip.num_frames)
         poses = np.tile(clip.poses, (reps, 1, 1))[:SPEED_FRAMES]
         trans = np.tile(clip.trans, (reps, 1))[:SPEED_FRAMES]

@@ -28,7 +28,7 @@ L-Coll <= `max_l_coll_pct` (and H-Coll <= `max_h_coll_pct` where the config sets
 the same rule; the lower score is served.
 Real motion without simulation (`mocap`, where the config has it): the network is also trained on
 `mocap.windows` windows per step of the real CMU clips `mocap.train` (imported at `mocap.fps`, cached as DeePSD's
-training clips are), H_in drawn uniformly in the config's range, by the terms that need no simulation: repulsion,
+training clips are) and of the embedded clips `mocap.embedded` (none of the evaluation's), H_in drawn uniformly in the config's range, by the terms that need no simulation: repulsion,
 body and the relative edge-length error against the outer template at rest (weights `mocap.loss`); and it is
 validated on the real clips `mocap.validation` (`mocap.validation_frames` frames each, no training or evaluation
 uses them): their L-Coll and H-Coll are capped by `max_clip_l_coll_pct` / `max_clip_h_coll_pct` in the rule.
@@ -48,6 +48,7 @@ import numpy as np
 import torch
 
 from drape.assets.body import load_body
+from drape.assets.motion import load_clip
 from drape.assets.outfits import split_outfit
 from drape.geometry.character_space import motion_features
 from drape.geometry.mesh import boundary_vertices, neighbour_table, unique_edges
@@ -162,14 +163,20 @@ class OuterTask:
                         trans, keys, inner, outer, rejected_for)
 
     def clip_sequences(self, names: list[str], thickness: float, max_frames: int | None = None) -> list[Sequence]:
-        """The config's real clips (`mocap`: dir, fps) as Sequences without simulation (outer None): imported on
-        the body (deepsd_data.mocap_motion, cached), the first `max_frames` frames, at `thickness` m."""
+        """Clips as Sequences without simulation (outer None), the first `max_frames` frames, at `thickness` m:
+        the config's real clips (`mocap`: dir, fps; imported on the body by deepsd_data.mocap_motion, cached) and
+        the embedded clips it names in `mocap.embedded` (drape.assets.motion.load_clip, at their own fps)."""
         mocap = self.cfg["mocap"]
         out = []
         for name in names:
-            poses, trans = mocap_motion(mocap["dir"], name, float(mocap["fps"]), self.cfg["body"])
+            if name in mocap.get("embedded", ()):
+                clip = load_clip(name)
+                poses, trans, fps = clip.poses.astype(np.float32), clip.trans.astype(np.float32), clip.fps
+            else:
+                fps = float(mocap["fps"])
+                poses, trans = mocap_motion(mocap["dir"], name, fps, self.cfg["body"])
             poses, trans = poses[:max_frames], trans[:max_frames]
-            out.append(self.prepared(f"clip:{name}", name, thickness, poses, trans, float(mocap["fps"]), None, []))
+            out.append(self.prepared(f"clip:{name}", name, thickness, poses, trans, fps, None, []))
         return out
 
     def laplacian(self, v: torch.Tensor) -> torch.Tensor:
@@ -415,7 +422,8 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
                          "make layers-data simulates them")
     mocap = cfg.get("mocap")
     low, high = cfg["thickness"]
-    clip_train = task.clip_sequences(mocap["train"], (low + high) / 2, mocap.get("max_frames")) if mocap else []
+    clip_train = (task.clip_sequences(mocap["train"] + mocap.get("embedded", []), (low + high) / 2,
+                                      mocap.get("max_frames")) if mocap else [])
     clip_val = task.clip_sequences(mocap["validation"], (low + high) / 2, mocap["validation_frames"]) if mocap else []
     model = OuterTransformer(OuterConfig(num_vertices=len(task.vertices),
                                          num_inner_keys=task.inner_model.rig.blend_shapes.shape[0], **cfg["model"]))
