@@ -262,6 +262,7 @@ def build_dataset(
              m, frames, *((np.asarray(mesh[2], np.float32), np.asarray(mesh[3], np.int32)) if layered else ()))
         for g, mesh in garments.items() for i, p in enumerate(params) for m in motions
     ]
+    grid = items  # the manifest lists every finished item of the whole grid, whichever splits this run simulates
     if only_splits is not None:
         items = [it for it in items if split_of(it.params_index, it.motion.name, s) in only_splits]
     by_key = {it.key: it for it in items}
@@ -300,12 +301,12 @@ def build_dataset(
             write_item(out / "items" / f"{it.key}.npz", it, res)
         _write_json(out / "timings.json", timings)
         # the manifest after every item: a dataset still being simulated can be trained on
-        _write_json(out / "manifest.json", _manifest(out, items, params, s, gate, frames, body, garments, timings))
+        _write_json(out / "manifest.json", _manifest(out, grid, params, s, gate, frames, body, garments, timings))
         if bar is not None:
             bar.update(1)
     if bar is not None:
         bar.close()
-    manifest = _manifest(out, items, params, s, gate, frames, body, garments, timings)
+    manifest = _manifest(out, grid, params, s, gate, frames, body, garments, timings)
     manifest["last_run"] = {"simulated": len(todo), "seconds": round(time.perf_counter() - t0, 1)}
     _write_json(out / "manifest.json", manifest)
     return manifest

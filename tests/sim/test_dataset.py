@@ -103,6 +103,10 @@ def test_only_splits_simulates_just_those_items(tmp_path):
     assert m["last_run"]["simulated"] == 1  # 2 parameter sets x 2 motions, one held out of each
     assert [e["split"] for e in m["items"]] + [r.get("split", "test") for r in m["rejected"]] == ["test"]
     assert _build(tmp_path, workers=1, only_splits=("test",))["last_run"]["simulated"] == 0
+    # another split into the same folder: the manifest keeps what earlier runs finished
+    m = _build(tmp_path, workers=1, only_splits=("train",))
+    assert m["last_run"]["simulated"] == 1
+    assert sorted([e["split"] for e in m["items"]] + [r["split"] for r in m["rejected"]]) == ["test", "train"]
 
 
 def _layer_build(out, **kw):
