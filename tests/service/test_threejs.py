@@ -1,6 +1,7 @@
 """three.js plays drape's animate GLB as drape poses: GLTFLoader + AnimationMixer in headless Chromium
-(tests/schemas/threejs_player.py) against the npz answer of the same request, for two outfits x two clips,
-with and without refinement, and the body against drape's own body posing; 3 frames each.
+(tests/schemas/threejs_player.py) against the npz answer of the same request, for two outfits, two clips, with
+and without refinement (each pair of the three met once), and the body against drape's own body posing; 3 frames
+each.
 
 three.js reads one skin weight set (JOINTS_0/WEIGHTS_0, normalised to sum 1); drape's GLB carries every
 influence in sets of 4. The served rig has 4 influences by default, so three.js must match drape; a rig
@@ -34,8 +35,10 @@ OUTFITS = {"tshirt": ("tshirt", 1200, 5), "dress": ("dress", 1200, 7)}
 CLIPS = ("walk", "dance_a")
 MEAN_MM, MAX_MM = 1.0, 5.0
 # outfit, clip, refine, influences (None: the service's default, 4)
-CASES: list[tuple[str, str, bool, int | None]] = [(o, c, r, None) for o in OUTFITS for c in CLIPS for r in (False, True)]
-CASES.append(("tshirt", "dance_a", False, 8))
+# each pair of outfit, clip and refine met once (4 of the 8 combinations: every browser run costs ~20 s)
+CASES: list[tuple[str, str, bool, int | None]] = [("tshirt", "walk", False, None), ("tshirt", "dance_a", True, None),
+                                                  ("dress", "walk", True, None), ("dress", "dance_a", False, None),
+                                                  ("tshirt", "dance_a", False, 8)]
 SPEC_MM = 0.01  # three.js against the specification's arithmetic on the same weight set
 
 # three.js against drape at 8 influences per vertex (worst of the 3 frames), on the test model
@@ -134,7 +137,7 @@ def test_the_glb_with_every_weight_set_is_drape(played, outfit, clip, refine, in
 
 @pytest.mark.parametrize("clip", [pytest.param(c, marks=BODY_FOUR_INFLUENCES) for c in CLIPS])
 def test_threejs_plays_the_body_as_drape(played, clip):
-    p = played("tshirt", clip, False)
+    p = played(*next(c for c in CASES if c[1] == clip))  # the body does not depend on the outfit or refinement
     motion = load_clip(clip)
     want = load_body("neutral").pose(motion.poses[p.frames], motion.trans[p.frames])
     worst = []
