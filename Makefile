@@ -141,7 +141,7 @@ mgn-inner-models: $(VENV)/.dev-installed
 # one command each: trained on `make layers-data`'s simulations (the sequences the config names) beside the
 # shipped inner network it reads, the checkpoint chosen on the validation sequences, DeePSD's outer rig measured
 # on them decides which one serves; exported into drape/assets/models/mgn_outer/<inner>_<outer>; then measured
-MGN_OUTER ?= jacket
+MGN_OUTER ?= jacket longsleeve
 mgn-outer-models: $(VENV)/.dev-installed
 	for o in $(MGN_OUTER); do $(BIN)/drape train mgn-outer --outer $$o || exit 1; done
 	$(BIN)/drape eval layers --write

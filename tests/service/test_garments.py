@@ -69,7 +69,7 @@ def test_list_and_template(server_url, http, garment):
     assert [g.model_dump() for g in listed if g.models == ["intrinsic"]] == [garment.info()]
     layers = {t.name: [t.model] for t in LayerCatalog().templates()}  # the layer network where one serves
     assert {g.name: g.models for g in listed if g.name in layers} == layers
-    assert set(layers) == {"tshirt", "jacket", "tanktop", "longsleeve"} and layers["longsleeve"] == ["deepsd"]
+    assert set(layers) == {"tshirt", "jacket", "tanktop", "longsleeve"} and layers["longsleeve"] == ["mgn_outer"]
     assert all(m in (["mgn_inner"], ["mgn_outer"], ["deepsd"]) for m in layers.values())
     assert listed[0].latent_size == 100 and listed[0].window == 8 and listed[0].models == ["intrinsic"]
     assert (tpl.name, tpl.body) == (NAME, "neutral")
