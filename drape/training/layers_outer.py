@@ -28,8 +28,8 @@ L-Coll <= `max_l_coll_pct` (and H-Coll <= `max_h_coll_pct` where the config sets
 the same rule; the lower score is served.
 Real motion without simulation (`mocap`, where the config has it): the network is also trained on
 `mocap.windows` windows per step of the real CMU clips `mocap.train` (imported at `mocap.fps`, cached as DeePSD's
-training clips are) and of the embedded clips `mocap.embedded` (none of the evaluation's), H_in drawn uniformly in the config's range, by the terms that need no simulation: repulsion,
-body and the relative edge-length error against the outer template at rest (weights `mocap.loss`); and it is
+training clips are) and of the embedded clips `mocap.embedded` (none of the evaluation's), H_in drawn uniformly
+in the config's range, by the terms that need no simulation: repulsion, body and the relative edge-length error against the outer template at rest (weights `mocap.loss`); and it is
 validated on the real clips `mocap.validation` (`mocap.validation_frames` frames each, no training or evaluation
 uses them): their L-Coll and H-Coll are capped by `max_clip_l_coll_pct` / `max_clip_h_coll_pct` in the rule.
 Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resumes from the latest.
@@ -327,6 +327,8 @@ def predict_keys(model: OuterTransformer, seq: Sequence, window: int) -> np.ndar
 
 
 PENALTY = 1000.0  # mm added to the score of a step whose L-Coll (or H-Coll) is over the config's cap
+
+
 def collision_shares(task: OuterTask, seq: Sequence, v: np.ndarray) -> tuple[float, float]:
     """Of an outer layer v (T, No, 3) m posed along seq: (L-Coll, share behind the served inner layer;
     H-Coll, share inside the body, exact closest triangle), fractions."""
