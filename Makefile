@@ -24,12 +24,13 @@ $(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
 serve: $(VENV)/.serve-installed
 	$(BIN)/drape serve --host $(HOST) --port $(PORT)
 
-# The tests run in two processes (pytest-xdist), then the ones marked `serial` (latency bars, a Ray cluster)
-# alone; the `slow` ones only with `make test-slow`.
+# The tests run in two processes (pytest-xdist; --dist loadscope: a module's tests run in one process, so its
+# module fixtures, a Ray cluster or an app with its engine, are set up once, not in each), then the ones marked
+# `serial` (latency bars, a Ray cluster) alone; the `slow` ones only with `make test-slow`.
 test: $(VENV)/.dev-installed
 	$(BIN)/ruff check drape tests bench
 	$(BIN)/mypy
-	$(BIN)/pytest -n 2 -m "not slow and not serial" --durations=15
+	$(BIN)/pytest -n 2 --dist loadscope -m "not slow and not serial" --durations=15
 	$(BIN)/pytest -m "not slow and serial" --durations=5
 
 test-slow: $(VENV)/.dev-installed

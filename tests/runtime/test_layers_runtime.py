@@ -1,8 +1,11 @@
 """The layer catalog and the engine with layer networks (untrained ones exported on the served tshirt and jacket
 templates): which model poses each layer, and that the engine's streams are those networks'."""
 
+import hashlib
+import io
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,12 +29,12 @@ from drape.runtime.layers import (
 from drape.training.layers_inner import body_weights
 
 
-def _export(folder, served="mgn_inner", pair="tshirt,jacket", seed=SEED):
+def _export(folder, pair="tshirt,jacket"):
     torch.manual_seed(1)
-    (v, f), _ = split_outfit(pair, VERTICES, seed=seed, body=BODY)
+    (v, f), _ = split_outfit(pair, VERTICES, seed=SEED, body=BODY)
     model = InnerPSD(InnerConfig(num_vertices=len(v), num_basis=8, width=16, basis_init=0.005))
     export_inner(model, folder / pair.split(",")[0], vertices=v, faces=f, weights=body_weights(v, load_body(BODY), 4),
-                 manifest={"served": served})
+                 manifest={"served": "mgn_inner"})
 
 
 @pytest.fixture(scope="module")
@@ -61,8 +64,25 @@ def test_a_network_that_measured_worse_is_not_served(models, tmp_path):
     assert LayerCatalog(models=tmp_path).find("tshirt", "jacket").model == "deepsd"
 
 
-def test_a_network_of_another_template_is_refused(tmp_path):
-    _export(tmp_path, seed=SEED + 1)
+def _on_another_template(src: Path, dst: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Copy the exported network folder src to dst with its rig.npz's template replaced by (vertices, faces) and
+    the manifest's sha256 of rig.npz updated: a network exported on another template, without a second export."""
+    shutil.copytree(src, dst)
+    manifest = json.loads((dst / "manifest.json").read_text())
+    entry = manifest["files"]["rig"]
+    with np.load(dst / entry["file"]) as z:
+        arrays = dict(z)
+    arrays.update(vertices=vertices.astype(np.float32), faces=faces.astype(np.int32))
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    (dst / entry["file"]).write_bytes(buffer.getvalue())
+    entry.update(sha256=hashlib.sha256(buffer.getvalue()).hexdigest(), bytes=len(buffer.getvalue()))
+    (dst / "manifest.json").write_text(json.dumps(manifest))
+
+
+def test_a_network_of_another_template_is_refused(models, tmp_path):
+    (v, f), _ = split_outfit("tshirt,jacket", VERTICES, seed=SEED + 1, body=BODY)
+    _on_another_template(models / "tshirt", tmp_path / "tshirt", v, f)
     with pytest.raises(ValueError, match="another template"):
         LayerCatalog(models=tmp_path).combinations()
 
@@ -90,13 +110,13 @@ def test_the_engine_s_inner_stream_is_the_network_s(models):
         engine.close()
 
 
-def _export_outer(folder, inner_sha256, served="mgn_outer", seed=SEED):
+def _export_outer(folder, inner_sha256):
     torch.manual_seed(2)
-    _, (v, f) = split_outfit("tshirt,jacket", VERTICES, seed=seed, body=BODY)
+    _, (v, f) = split_outfit("tshirt,jacket", VERTICES, seed=SEED, body=BODY)
     model = OuterTransformer(OuterConfig(num_vertices=len(v), num_inner_keys=8, num_basis=8, d_model=16,
                                          feedforward=32, window=10, basis_init=0.005))
     export_outer(model, folder / "tshirt_jacket", vertices=v, faces=f, weights=body_weights(v, load_body(BODY), 4),
-                 manifest={"served": served, "inner_network": {"pose_sha256": inner_sha256},
+                 manifest={"served": "mgn_outer", "inner_network": {"pose_sha256": inner_sha256},
                            "config": {"thickness": [0.004, 0.012]}})
 
 
@@ -124,8 +144,9 @@ def test_an_outer_network_is_served_beside_the_inner_network_it_reads(models, ou
     assert load_outer_model("tshirt", "jacket", outer_models).served
 
 
-def test_an_outer_network_of_another_template_is_refused(models, tmp_path):
-    _export_outer(tmp_path, load_inner_model("tshirt", models).sha256, seed=SEED + 1)
+def test_an_outer_network_of_another_template_is_refused(models, outer_models, tmp_path):
+    _, (v, f) = split_outfit("tshirt,jacket", VERTICES, seed=SEED + 1, body=BODY)
+    _on_another_template(outer_models / "tshirt_jacket", tmp_path / "tshirt_jacket", v, f)
     with pytest.raises(ValueError, match="another template"):
         LayerCatalog(models=models, outer_models=tmp_path).combinations()
 
