@@ -30,8 +30,8 @@ Real motion without simulation (`mocap`, where the config has it): the network i
 `mocap.windows` windows per step of the real CMU clips `mocap.train` (imported at `mocap.fps`, cached as DeePSD's
 training clips are) and of the embedded clips `mocap.embedded` (none of the evaluation's), H_in drawn uniformly
 in the config's range, by the terms that need no simulation: repulsion, body and the relative edge-length error against the outer template at rest (weights `mocap.loss`); and it is
-validated on the real clips `mocap.validation` (`mocap.validation_frames` frames each, no training or evaluation
-uses them): their L-Coll and H-Coll are capped by `max_clip_l_coll_pct` / `max_clip_h_coll_pct` in the rule.
+validated on the clips `mocap.validation` (real CMU or embedded clips, `mocap.validation_frames` frames each, no
+training or evaluation uses them): their L-Coll and H-Coll are capped by `max_clip_l_coll_pct` / `max_clip_h_coll_pct` in the rule.
 Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resumes from the latest.
 """
 
@@ -48,7 +48,7 @@ import numpy as np
 import torch
 
 from drape.assets.body import load_body
-from drape.assets.motion import load_clip
+from drape.assets.motion import list_clips, load_clip
 from drape.assets.outfits import split_outfit
 from drape.geometry.character_space import motion_features
 from drape.geometry.mesh import boundary_vertices, neighbour_table, unique_edges
@@ -165,11 +165,12 @@ class OuterTask:
     def clip_sequences(self, names: list[str], thickness: float, max_frames: int | None = None) -> list[Sequence]:
         """Clips as Sequences without simulation (outer None), the first `max_frames` frames, at `thickness` m:
         the config's real clips (`mocap`: dir, fps; imported on the body by deepsd_data.mocap_motion, cached) and
-        the embedded clips it names in `mocap.embedded` (drape.assets.motion.load_clip, at their own fps)."""
+        embedded clips, named as drape.assets.motion.list_clips names them (load_clip, at their own fps)."""
         mocap = self.cfg["mocap"]
+        embedded = set(list_clips())
         out = []
         for name in names:
-            if name in mocap.get("embedded", ()):
+            if name in embedded:
                 clip = load_clip(name)
                 poses, trans, fps = clip.poses.astype(np.float32), clip.trans.astype(np.float32), clip.fps
             else:
