@@ -1,0 +1,69 @@
+"""Choose between outer-layer training runs on one validation split and rule.
+
+Each run chooses its step on its own config's validation (drape.training.layers_outer.train); runs whose configs
+validate differently (other clips, other caps) are compared here on ONE config's: the validation sequences, the
+validation clips and the caps of `--config`. For each checkpoint folder: the network of its best.pt (built by the
+model config it was trained with, read from its last step file) measured by layers_outer.measure_all; DeePSD's
+outer rig (as served without a network) is measured beside them by the same code. Lower score wins (RMSE mm
+against the simulation, plus layers_outer.PENALTY where a cap is exceeded). The held-out evaluation (`drape eval
+layers`) plays no part.
+
+Run: .venv/bin/python -m bench.layers_outer_runs --config drape/training/configs/X.json checkpoints/A checkpoints/B
+(a few minutes on the 2-core machine; needs the pair's sequences under data/layers)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from drape.models.layers import OuterConfig, OuterTransformer
+from drape.training import layers_outer
+
+
+def run_network(folder: Path, task: layers_outer.OuterTask) -> tuple[OuterTransformer, int]:
+    """The chosen network of a run's checkpoint folder -> (model in eval mode, its step)."""
+    last = sorted(folder.glob("step_*.pt"))[-1]
+    trained_by = json.loads(torch.load(last, weights_only=True)["config"])
+    model = OuterTransformer(OuterConfig(num_vertices=len(task.vertices),
+                                         num_inner_keys=task.inner_model.rig.blend_shapes.shape[0],
+                                         **trained_by["model"]))
+    best = torch.load(folder / "best.pt", weights_only=True)
+    model.load_state_dict(best["model"])
+    model.eval()
+    return model, int(best["step"])
+
+
+def row(name: str, figures: dict) -> str:
+    return (f"{name:44} {figures['score']:9.2f} {figures['rmse_mm']:8.2f} {figures['l_coll_pct']:7.2f} "
+            f"{figures['h_coll_pct']:7.2f} {figures['clip_l_coll_pct']:7.2f} {figures['clip_h_coll_pct']:7.2f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--config", required=True, help="the config whose validation split and caps judge")
+    parser.add_argument("runs", nargs="+", type=Path, help="checkpoint folders (best.pt, step_*.pt)")
+    args = parser.parse_args()
+    cfg = json.loads(Path(args.config).read_text())
+    task = layers_outer.OuterTask(cfg)
+    seqs = task.sequences("test")
+    mocap = cfg["mocap"]
+    low, high = cfg["thickness"]
+    clips = task.clip_sequences(mocap["validation"], (low + high) / 2, mocap["validation_frames"])
+    print(f"validation of {args.config}: {len(seqs)} sequences, clips {', '.join(s.motion for s in clips)}; "
+          f"caps {layers_outer.collision_caps(cfg)}, clips L-Coll <= {cfg.get('max_clip_l_coll_pct', 100.0)}%, "
+          f"H-Coll <= {cfg.get('max_clip_h_coll_pct', 100.0)}%")
+    print(f"{'network':44} {'score':>9} {'RMSE mm':>8} {'L-Coll':>7} {'H-Coll':>7} {'clip L':>7} {'clip H':>7}")
+    with torch.no_grad():
+        for folder in args.runs:
+            model, step = run_network(folder, task)
+            figures = layers_outer.measure_all(task, seqs, clips, lambda s, m=model: layers_outer.pose_outer(m, task, s))
+            print(row(f"{folder.name} (step {step})", figures), flush=True)
+    print(row("DeePSD's outer rig", layers_outer.deepsd_validation(task, seqs, clips)))
+
+
+if __name__ == "__main__":
+    main()
