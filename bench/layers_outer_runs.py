@@ -49,10 +49,7 @@ def main() -> None:
     args = parser.parse_args()
     cfg = json.loads(Path(args.config).read_text())
     task = layers_outer.OuterTask(cfg)
-    seqs = task.sequences("test")
-    mocap = cfg["mocap"]
-    low, high = cfg["thickness"]
-    clips = task.clip_sequences(mocap["validation"], (low + high) / 2, mocap["validation_frames"])
+    seqs, clips = task.sequences("test"), layers_outer.validation_clips(task)
     print(f"validation of {args.config}: {len(seqs)} sequences, clips {', '.join(s.motion for s in clips)}; "
           f"caps {layers_outer.collision_caps(cfg)}, clips L-Coll <= {cfg.get('max_clip_l_coll_pct', 100.0)}%, "
           f"H-Coll <= {cfg.get('max_clip_h_coll_pct', 100.0)}%")

@@ -404,6 +404,16 @@ def pose_outer(model: OuterTransformer, task: OuterTask, seq: Sequence) -> np.nd
     return pose_outfit(task.vertices, rig, keys, task.body.joints, seq.poses, seq.trans)
 
 
+def validation_clips(task: OuterTask) -> list[Sequence]:
+    """The config's validation clips (`mocap.validation`, their first `mocap.validation_frames` frames, at the middle
+    of the thickness range); none without `mocap`."""
+    mocap = task.cfg.get("mocap")
+    if not mocap:
+        return []
+    low, high = task.cfg["thickness"]
+    return task.clip_sequences(mocap["validation"], (low + high) / 2, mocap["validation_frames"])
+
+
 def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print, data_root: str | Path | None = None,
           ) -> tuple[OuterTransformer, OuterTask, dict]:
     """Train (or resume) one combination's outer network; returns the validation-chosen model, its task and a
@@ -427,7 +437,7 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     low, high = cfg["thickness"]
     clip_train = (task.clip_sequences(mocap["train"] + mocap.get("embedded", []), (low + high) / 2,
                                       mocap.get("max_frames")) if mocap else [])
-    clip_val = task.clip_sequences(mocap["validation"], (low + high) / 2, mocap["validation_frames"]) if mocap else []
+    clip_val = validation_clips(task)
     model = OuterTransformer(OuterConfig(num_vertices=len(task.vertices),
                                          num_inner_keys=task.inner_model.rig.blend_shapes.shape[0], **cfg["model"]))
     model.set_normalization(torch.as_tensor(np.concatenate([s.features for s in train_seqs + clip_train])),

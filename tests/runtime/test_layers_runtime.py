@@ -1,8 +1,6 @@
 """The layer catalog and the engine with layer networks (untrained ones exported on the served tshirt and jacket
 templates): which model poses each layer, and that the engine's streams are those networks'."""
 
-import hashlib
-import io
 import json
 import shutil
 from pathlib import Path
@@ -15,6 +13,7 @@ from drape.assets.body import load_body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import split_outfit
 from drape.export.layers import export_inner, export_outer
+from drape.export.onnx_export import sha256
 from drape.models.layers import InnerConfig, InnerPSD, OuterConfig, OuterTransformer
 from drape.runtime.deepsd import pose_outfit
 from drape.runtime.engine import Engine
@@ -73,10 +72,10 @@ def _on_another_template(src: Path, dst: Path, vertices: np.ndarray, faces: np.n
     with np.load(dst / entry["file"]) as z:
         arrays = dict(z)
     arrays.update(vertices=vertices.astype(np.float32), faces=faces.astype(np.int32))
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    (dst / entry["file"]).write_bytes(buffer.getvalue())
-    entry.update(sha256=hashlib.sha256(buffer.getvalue()).hexdigest(), bytes=len(buffer.getvalue()))
+    rig = dst / entry["file"]
+    with rig.open("wb") as out:
+        np.savez(out, **arrays)
+    entry.update(sha256=sha256(rig), bytes=rig.stat().st_size)
     (dst / "manifest.json").write_text(json.dumps(manifest))
 
 
