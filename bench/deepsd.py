@@ -58,7 +58,7 @@ def main() -> None:
 
         body = load_body("neutral")
         o = outfits[10000]
-        rig = model.rig(o.vertices, o.faces)
+        rig = model.rig(o.vertices, o.faces, body)
         clip = load_clip("walk")
         idx = np.arange(300) % clip.num_frames
         poses, trans = clip.poses[idx].astype(np.float64), clip.trans[idx].astype(np.float64)

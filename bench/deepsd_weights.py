@@ -47,7 +47,7 @@ def main(model_dirs: list[Path]) -> None:
     print(f"  prior (nearest body vertex): {joints(prior)}")
     for d in model_dirs:
         model = DeePSDModel(d)
-        rig = model.rig(v, f)
+        rig = model.rig(v, f, body)
         posed = pose_outfit(v, rig, model.pose_keys(poses), body.joints, poses, trans)
         own = pose_mesh(v, rig.weights, body.joints, poses, trans)
         away = np.linalg.norm(posed - own, axis=-1)  # (T, N) m

@@ -146,7 +146,7 @@ def measure(model: DeePSDModel, n: int, keys: np.ndarray, joints: np.ndarray, po
     """frames/s of each method on an outfit of ~n vertices (and its vertex count under "vertices"),
     and max |new - old| in metres."""
     o = generate_outfit("tshirt,trousers", vertices=n, seed=1)
-    rig = model.rig(o.vertices, o.faces)
+    rig = model.rig(o.vertices, o.faces, load_body("neutral"))
     v, t = o.vertices, len(keys)
     blend = rig.blend_shapes.reshape(len(rig.blend_shapes), -1)
     out = np.empty((t, len(v), 3), dtype=np.float32)

@@ -126,7 +126,7 @@ def penetrating_inputs(model: DeePSDModel, o: Outfit, body: Body, p: np.ndarray,
     """The two inputs refinement is benched on, each (T, N, 3) metres: the shipped DeePSD's output
     and the nearest-weights LBS baseline."""
     return {
-        "deepsd": pose_outfit(o.vertices, model.rig(o.vertices, o.faces), model.pose_keys(p), body.joints, p, t),
+        "deepsd": pose_outfit(o.vertices, model.rig(o.vertices, o.faces, body), model.pose_keys(p), body.joints, p, t),
         "baseline": baseline_input(o, body, p, t),
     }
 

@@ -97,7 +97,7 @@ def main() -> None:
         if source == "baseline":
             g = baseline_input(o, body, p, t)
         else:
-            g = pose_outfit(o.vertices, model.rig(o.vertices, o.faces), model.pose_keys(p), body.joints, p, t)
+            g = pose_outfit(o.vertices, model.rig(o.vertices, o.faces, body), model.pose_keys(p), body.joints, p, t)
         g = g.astype(np.float64)
         edges, nv = unique_edges(o.faces), len(o.vertices)
         adjacency = adjacency_matrix(o.faces, nv).tocsr()

@@ -37,7 +37,7 @@ def main() -> None:
           f" {'served/plain':>12s} {'fit s':>6s}")
     for i, spec in enumerate(OUTFITS):
         o = generate_outfit(spec, vertices=args.vertices, seed=91000 + i)
-        dense = model.rig(o.vertices, o.faces)
+        dense = model.rig(o.vertices, o.faces, body)
         for k in (4, 8):
             t = time.perf_counter()
             served = sparse_rig(o.vertices, dense, body.joints, k, fit, fit_keys)

@@ -115,7 +115,7 @@ def main() -> None:
         body = load_body(spec.body)
         motions = [generate_motion(300, seed=7000 + j, body=body) for j in (1, 2)]
         motions += [import_motion((MOCAP / f"{c}.bvh").read_bytes(), body, fps=30.0, name=c).motion for c in CMU]
-        dense = model.rig(verts, faces)
+        dense = model.rig(verts, faces, body)
         rigs = {"model": dense}
         t0 = time.perf_counter()
         rigs["served"] = sparse_rig(verts, dense, body.joints, 4, fit, fit_keys)

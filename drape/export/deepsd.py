@@ -1,6 +1,8 @@
 """Export DeePSD to two ONNX files and write its manifest.
 
 outfit.onnx: features (N, 6) float32, nbr_idx (N, K) int64, nbr_w (N, K) float32
+             [, joint_mask (N, 24) float32 0/1 when the manifest has `joint_candidates`: the candidate joints
+             of drape.geometry.queries.candidate_joints with those arguments]
              -> weights (N, 24) float32, blend_shapes (P, N, 3) float32 (= D_data + D_phys),
                 blend_shapes_data (P, N, 3) float32 (D_data alone)   (N, K dynamic)
 pose.onnx:   poses (T, 72) float32 axis-angle radians -> pose_keys (T, P) float32 (T dynamic)
@@ -16,7 +18,13 @@ import numpy as np
 import torch
 
 from drape.export.onnx_export import export_onnx, io_spec, sha256
-from drape.models.deepsd import DeployedOutfitNet, OutfitNet, PoseNet
+from drape.models.deepsd import (
+    NUM_JOINTS,
+    DeployedMaskedOutfitNet,
+    DeployedOutfitNet,
+    OutfitNet,
+    PoseNet,
+)
 
 DEFAULT_DIR = Path(__file__).resolve().parents[1] / "assets" / "models" / "deepsd"
 
@@ -29,15 +37,25 @@ def example_inputs(n: int = 64, k: int = 6) -> tuple[torch.Tensor, torch.Tensor,
     return x, idx, w
 
 
-def export_deepsd(outfit: OutfitNet, pose: PoseNet, out_dir: str | Path) -> dict[str, Path]:
-    """Write outfit.onnx and pose.onnx into out_dir; returns their paths."""
+def export_deepsd(outfit: OutfitNet, pose: PoseNet, out_dir: str | Path, joint_mask: bool = False) -> dict[str, Path]:
+    """Write outfit.onnx and pose.onnx into out_dir; returns their paths. joint_mask: the outfit network takes
+    the candidate joints as a fourth input (a model trained with `joint_candidates`)."""
     out_dir = Path(out_dir)
     n, k, t = torch.export.Dim("num_vertices", min=4), torch.export.Dim("max_neighbours", min=2), torch.export.Dim("frames", min=1)
-    outfit_path = export_onnx(
-        DeployedOutfitNet(outfit).eval(), example_inputs(), out_dir / "outfit.onnx",
-        ["features", "nbr_idx", "nbr_w"], ["weights", "blend_shapes", "blend_shapes_data"],
-        ({0: n}, {0: n, 1: k}, {0: n, 1: k}),
-    )
+    if joint_mask:
+        x, idx, w = example_inputs()
+        mask = (torch.arange(NUM_JOINTS)[None] % 6 == torch.arange(len(x))[:, None] % 6).float()
+        outfit_path = export_onnx(
+            DeployedMaskedOutfitNet(outfit).eval(), (x, idx, w, mask), out_dir / "outfit.onnx",
+            ["features", "nbr_idx", "nbr_w", "joint_mask"], ["weights", "blend_shapes", "blend_shapes_data"],
+            ({0: n}, {0: n, 1: k}, {0: n, 1: k}, {0: n}),
+        )
+    else:
+        outfit_path = export_onnx(
+            DeployedOutfitNet(outfit).eval(), example_inputs(), out_dir / "outfit.onnx",
+            ["features", "nbr_idx", "nbr_w"], ["weights", "blend_shapes", "blend_shapes_data"],
+            ({0: n}, {0: n, 1: k}, {0: n, 1: k}),
+        )
     pose_path = export_onnx(
         pose.eval(), (torch.zeros(3, 72),), out_dir / "pose.onnx", ["poses"], ["pose_keys"], ({0: t},),
     )
@@ -63,6 +81,8 @@ def write_manifest(out_dir: str | Path, version: str, config: dict, evaluation: 
         "version": version,
         "trained": trained,
         "files": files,
+        # how the runtime makes the outfit network's joint_mask input (None: the network has no such input)
+        "joint_candidates": config.get("joint_candidates"),
         "training": {"config": config, "commit": git_commit()},
         "evaluation": evaluation,
     }
@@ -138,7 +158,7 @@ def export_deepsd_from_checkpoints(ckpt_dir: str | Path, out_dir: str | Path, in
         outfit, pose, config = OutfitNet(), PoseNet(), {"untrained": True}
     else:
         outfit, pose, config = load_checkpoint(ckpt_dir)
-    paths = export_deepsd(outfit, pose, out_dir)
+    paths = export_deepsd(outfit, pose, out_dir, joint_mask=config.get("joint_candidates") is not None)
     manifest = write_manifest(out_dir, version=VERSION, config=config, evaluation=None, trained=not init)
     return [paths["outfit"], paths["pose"], manifest]
 

@@ -5,7 +5,8 @@ Outfit network, per template outfit (any topology, any vertex count N):
   4 graph convolutions (32, 64, 128, 256) over the padded neighbour table
   (gather + weighted sum: ONNX-safe, no scatter);
   a per-vertex FC + max-pool -> global descriptor (256), concatenated per vertex (512);
-  heads (4-layer per-vertex MLPs): Omega -> blend weights W (N, 24) (softmax),
+  heads (4-layer per-vertex MLPs): Omega -> blend weights W (N, 24) (softmax; with a joint mask (N, 24),
+  over each vertex's candidate joints only: drape.geometry.queries.candidate_joints),
   Psi -> D_data (P, N, 3), Chi -> D_phys (P, N, 3) (trained by physics only).
   Deployed blend shapes D = D_data + D_phys.
 Pose network: axis-angle pose (T, 72) -> P pose keys (T, P), summing to 1 (softmax);
@@ -60,8 +61,17 @@ def mlp(sizes: list[int]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
+def masked_softmax(logits: torch.Tensor, joint_mask: torch.Tensor | None) -> torch.Tensor:
+    """(N, 24) logits -> weights summing to 1 over the joints where joint_mask (N, 24) float 0/1 is 1 (all
+    joints when None); the others get exactly 0 in float32 (exp(-1e4) underflows)."""
+    if joint_mask is None:
+        return torch.softmax(logits, dim=-1)
+    return torch.softmax(logits + (joint_mask - 1.0) * 1e4, dim=-1)
+
+
 class OutfitNet(nn.Module):
-    """(features (N, 6), nbr_idx (N, K), nbr_w (N, K)) -> (W (N, 24), D_data (P, N, 3), D_phys (P, N, 3))."""
+    """(features (N, 6), nbr_idx (N, K), nbr_w (N, K)[, joint_mask (N, 24)]) -> (W (N, 24), D_data (P, N, 3),
+    D_phys (P, N, 3))."""
 
     def __init__(self, cfg: DeePSDConfig = DeePSDConfig()):
         super().__init__()
@@ -87,11 +97,13 @@ class OutfitNet(nn.Module):
         return (head(f) * self.cfg.blend_scale).reshape(n, self.cfg.num_keys, 3).permute(1, 0, 2)
 
     def forward(
-        self, x: torch.Tensor, nbr_idx: torch.Tensor, nbr_w: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        self, x: torch.Tensor, nbr_idx: torch.Tensor, nbr_w: torch.Tensor, joint_mask: torch.Tensor | None = None,
+        chi: bool = True,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """chi=False skips the Chi head (D_phys None): training phases that do not use it."""
         f = self.features(x, nbr_idx, nbr_w)
-        weights = torch.softmax(self.omega(f), dim=-1)
-        return weights, self._blend(self.psi, f), self._blend(self.chi, f)
+        weights = masked_softmax(self.omega(f), joint_mask)
+        return weights, self._blend(self.psi, f), self._blend(self.chi, f) if chi else None
 
 
 class DeployedOutfitNet(nn.Module):
@@ -108,6 +120,23 @@ class DeployedOutfitNet(nn.Module):
         self, x: torch.Tensor, nbr_idx: torch.Tensor, nbr_w: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         w, d_data, d_phys = self.net(x, nbr_idx, nbr_w)
+        assert d_phys is not None
+        return w, d_data + d_phys, d_data
+
+
+class DeployedMaskedOutfitNet(nn.Module):
+    """DeployedOutfitNet with a fourth input, joint_mask (N, 24) float32 0/1: each vertex's candidate joints
+    (drape.geometry.queries.candidate_joints of the body it is rigged on); W is 0 off them."""
+
+    def __init__(self, net: OutfitNet):
+        super().__init__()
+        self.net = net
+
+    def forward(
+        self, x: torch.Tensor, nbr_idx: torch.Tensor, nbr_w: torch.Tensor, joint_mask: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        w, d_data, d_phys = self.net(x, nbr_idx, nbr_w, joint_mask)
+        assert d_phys is not None
         return w, d_data + d_phys, d_data
 
 

@@ -24,13 +24,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from drape.geometry.mesh import neighbour_table, vertex_normals, weld
 from drape.geometry.skeleton import PARENTS, as_pose_array, forward_kinematics
 from drape.runtime.model_files import checked_files, cpu_session
+
+if TYPE_CHECKING:
+    from drape.assets.body import Body
 
 MODEL_DIR = Path(__file__).resolve().parents[1] / "assets" / "models" / "deepsd"
 
@@ -64,18 +67,33 @@ class DeePSDModel:
         blobs = checked_files(model_dir, self.manifest, ("outfit", "pose"))
         self.sessions = {name: cpu_session(blob, threads) for name, blob in blobs.items()}
         self.num_keys = int(self.manifest["files"]["pose"]["outputs"][0]["shape"][-1])
+        # a model trained with its weights restricted to candidate joints takes them as an input
+        self.joint_candidates: dict | None = self.manifest.get("joint_candidates")
 
-    def rig(self, vertices: np.ndarray, faces: np.ndarray) -> Rig:
-        """Blend weights and pose-space blend shapes of an outfit in rest pose. Coincident vertices (UV seams)
-        are welded for the network and get the same rig, so that seams cannot open."""
+    def _inputs(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None) -> dict[str, np.ndarray]:
+        inputs = network_inputs(vertices, faces)
+        if self.joint_candidates is not None:
+            if body is None:
+                raise ValueError("this DeePSD model restricts weights to the body's joints near each vertex: "
+                                 "rig(...) needs the body")
+            from drape.geometry.queries import candidate_joints
+
+            mask = candidate_joints(vertices, body.vertices, body.weights, **self.joint_candidates)
+            inputs["joint_mask"] = mask.astype(np.float32)
+        return inputs
+
+    def rig(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None = None) -> Rig:
+        """Blend weights and pose-space blend shapes of an outfit in rest pose on `body` (needed by a model with
+        `joint_candidates`; the others ignore it). Coincident vertices (UV seams) are welded for the network
+        and get the same rig, so that seams cannot open."""
         welded, welded_faces, group = weld(vertices, faces)
-        w, d = self.sessions["outfit"].run(["weights", "blend_shapes"], network_inputs(welded, welded_faces))
+        w, d = self.sessions["outfit"].run(["weights", "blend_shapes"], self._inputs(welded, welded_faces, body))
         return Rig(weights=w[group], blend_shapes=d[:, group])
 
-    def blend_shapes_data(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    def blend_shapes_data(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None = None) -> np.ndarray:
         """D_data alone (P, N, 3): the model without its physics branch Chi (for evaluation); seams welded."""
         welded, welded_faces, group = weld(vertices, faces)
-        return self.sessions["outfit"].run(["blend_shapes_data"], network_inputs(welded, welded_faces))[0][:, group]
+        return self.sessions["outfit"].run(["blend_shapes_data"], self._inputs(welded, welded_faces, body))[0][:, group]
 
     def pose_keys(self, poses: np.ndarray) -> np.ndarray:
         """(T, 24, 3) or (T, 72) axis-angle -> (T, P) pose keys."""

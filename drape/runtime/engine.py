@@ -320,10 +320,11 @@ class Engine:
         if cached is not None:
             return cached
         t = time.perf_counter()
-        dense = self.model.rig(v, f)
+        body_mesh = load_body(body)
+        dense = self.model.rig(v, f, body_mesh)
         self._observe("outfit", time.perf_counter() - t)
         t = time.perf_counter()
-        rig = sparse_rig(v, dense, load_body(body).joints, influences, *self.fit_frames())
+        rig = sparse_rig(v, dense, body_mesh.joints, influences, *self.fit_frames())
         self._observe("sparse_rig", time.perf_counter() - t)
         out = RiggedOutfit(oid, body, v, f, rig, influences)
         self.cache.put(oid, out)
@@ -518,7 +519,7 @@ class Engine:
         """One small rig and pose, so the first request does not pay ORT's start-up; the refinement workers started."""
         v = np.array([[0, 1, 0.2], [0.1, 1, 0.2], [0, 1.1, 0.2], [0.1, 1.1, 0.25]], dtype=np.float32)
         f = np.array([[0, 1, 2], [1, 3, 2]], dtype=np.int32)
-        rig = self.model.rig(v, f)
+        rig = self.model.rig(v, f, load_body("neutral"))
         outfit = RiggedOutfit("warm-up", "neutral", v, f, rig)
         for _ in self.pose_chunks(outfit, np.zeros((2, 24, 3)), np.zeros((2, 3))):
             pass

@@ -20,6 +20,9 @@ A config with `"init_checkpoints": DIR` is a fine-tune: a fresh run starts from 
 networks of DIR's latest checkpoint (a finished run of another config) instead of
 random weights; phases with 0 steps are skipped. `"loss_phase": {PHASE: {NAME: WEIGHT}}` overrides
 loss weights in one phase only (e.g. a stiffer edge term for the physics phase than for Chi).
+`"joint_candidates": {...}` (keyword arguments of drape.geometry.queries.candidate_joints) restricts every
+vertex's weights to at most `influences` joints of the body's skin near it, by construction (the export then
+takes a joint_mask input, and the served 4-influence rig is the network's own).
 """
 
 from __future__ import annotations
@@ -69,13 +72,16 @@ def step_loss(phase: str, outfit: TrainOutfit, poses: torch.Tensor, net: OutfitN
               lw: dict) -> tuple[torch.Tensor, dict[str, float]]:
     """Loss of one outfit under a batch of poses (B, 24, 3) for the given phase; lw: that phase's
     loss weights (`phase_loss_weights`)."""
-    weights, d_data, d_phys = net(outfit.features, outfit.nbr_idx, outfit.nbr_w)
+    # the physics phase trains D_data alone: Chi's head is not run
+    weights, d_data, d_phys = net(outfit.features, outfit.nbr_idx, outfit.nbr_w, outfit.joint_mask,
+                                  chi=phase != "physics")
     if phase == "prior":
+        assert d_phys is not None
         l_w = ((weights - outfit.prior_weights) ** 2).sum(-1).mean()
         l_d = (d_data**2).sum(-1).mean() + (d_phys**2).sum(-1).mean()
         loss = lw["prior_weights"] * l_w + lw["prior_blend"] * l_d
         return loss, {"prior_w": float(l_w.detach()), "prior_d": float(l_d.detach())}
-    blend = d_data + d_phys if phase == "chi" else d_data
+    blend = d_data + d_phys if d_phys is not None else d_data
     keys = pose(poses.reshape(len(poses), -1))
     offsets = torch.einsum("bp,pnc->bnc", keys, blend)
     transforms = physics.skinning_transforms(poses, outfit.joints)
@@ -163,7 +169,7 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
     loss_weights = {p: phase_loss_weights(config, p) for p in PHASES}
     specs = train_specs(config)
     prepare_outfits(specs)
-    outfits = [TrainOutfit(s).to(dev) for s in specs]
+    outfits = [TrainOutfit(s, config.get("joint_candidates")).to(dev) for s in specs]
     pool = torch.as_tensor(pose_pool(config)).to(dev)
     net.to(dev)
     pose.to(dev)

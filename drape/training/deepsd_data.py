@@ -19,7 +19,7 @@ from drape.assets.motion import list_clips, load_clip
 from drape.assets.outfits import generate_outfit
 from drape.assets.procedural import generate_motion
 from drape.geometry.mesh import unique_edges
-from drape.geometry.queries import nearest_vertex_weights
+from drape.geometry.queries import candidate_joints, nearest_vertex_weights
 from drape.runtime.deepsd import network_inputs
 
 CACHE = Path("data/deepsd/outfits")
@@ -92,9 +92,12 @@ def prepare_outfits(specs: list[OutfitSpec], workers: int | None = None) -> None
 
 
 class TrainOutfit:
-    """One outfit's tensors for training, built once."""
+    """One outfit's tensors for training, built once. joint_candidates (a config's `joint_candidates`:
+    keyword arguments of drape.geometry.queries.candidate_joints, e.g. {"influences": 4}): the weights are
+    restricted to each vertex's candidate joints (`joint_mask` (N, 24) float 0/1, else None) and the prior
+    weights to the same joints, renormalised."""
 
-    def __init__(self, spec: OutfitSpec):
+    def __init__(self, spec: OutfitSpec, joint_candidates: dict | None = None):
         from drape.training.physics import BodyCollider
 
         v, f = load_outfit(spec)
@@ -109,7 +112,16 @@ class TrainOutfit:
         e = unique_edges(f)
         self.edges = torch.as_tensor(e)
         self.rest_len = (self.rest[self.edges[:, 0]] - self.rest[self.edges[:, 1]]).norm(dim=-1)
-        self.prior_weights = torch.as_tensor(nearest_vertex_weights(v, body.vertices, body.weights))
+        prior = nearest_vertex_weights(v, body.vertices, body.weights)
+        self.joint_mask: torch.Tensor | None = None
+        if joint_candidates is not None:
+            mask = candidate_joints(v, body.vertices, body.weights, **joint_candidates)
+            prior = prior * mask
+            # a vertex whose nearest skin weights lie off its candidates (rare) takes them evenly
+            prior = np.where(prior.sum(1, keepdims=True) > 0, prior, mask)
+            prior = (prior / prior.sum(1, keepdims=True)).astype(np.float32)
+            self.joint_mask = torch.as_tensor(mask, dtype=torch.float32)
+        self.prior_weights = torch.as_tensor(prior)
         self.joints = torch.as_tensor(body.joints)
         self.collider = BodyCollider(body, load_body(spec.body, proxy=True), v)
         identity = torch.zeros(1, 24, 3)

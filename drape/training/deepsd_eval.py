@@ -43,10 +43,10 @@ LOOSE = ("skirt", "dress")
 
 def method_poser(model: DeePSDModel, verts: np.ndarray, faces: np.ndarray, body):  # noqa: ANN001, ANN201
     """One outfit rigged by every method; returns pose(poses (T, 24, 3), trans (T, 3)) -> {method: (T, N, 3)}."""
-    rig = model.rig(verts, faces)
+    rig = model.rig(verts, faces, body)
     poses_fit = fit_poses()
     keys_fit = model.pose_keys(poses_fit)
-    rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces)),
+    rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces, body)),
             "served": sparse_rig(verts, rig, body.joints, 4, poses_fit, keys_fit),
             "served8": sparse_rig(verts, rig, body.joints, 8, poses_fit, keys_fit)}
     base_w = nearest_vertex_weights(verts, body.vertices, body.weights)

@@ -108,7 +108,7 @@ def validate(cfg: dict, model_dir: str | Path, log: Callable[[str], object] = pr
     off_prior: list[float] = []  # per validation outfit, in _measure's order (validation_specs)
 
     def rig(verts: np.ndarray, faces: np.ndarray, body: Body) -> Poser:
-        dense = model.rig(verts, faces)
+        dense = model.rig(verts, faces, body)
         off_prior.append(weights_off_prior(dense.weights, nearest_vertex_weights(verts, body.vertices, body.weights)))
         r = sparse_rig(verts, dense, body.joints, influences, poses_fit, keys_fit)
         return lambda poses, trans: pose_outfit(verts, r, model.pose_keys(poses), body.joints, poses, trans)
@@ -164,8 +164,10 @@ def choose_checkpoint(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], obje
         outfit.load_state_dict(state["outfit"])
         pose.load_state_dict(state["pose"])
         with tempfile.TemporaryDirectory() as tmp:
-            export_deepsd(outfit, pose, tmp)
-            write_manifest(tmp, version="candidate", config={}, evaluation=None, trained=True)
+            candidates = cfg.get("joint_candidates")
+            export_deepsd(outfit, pose, tmp, joint_mask=candidates is not None)
+            write_manifest(tmp, version="candidate", config={"joint_candidates": candidates} if candidates else {},
+                           evaluation=None, trained=True)
             log(f"{path.name}:")
             record["candidates"][path.name] = validate(cfg, tmp, log)
     log("the shipped model, for comparison:")

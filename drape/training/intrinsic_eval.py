@@ -126,8 +126,9 @@ def _deepsd_poser(garment: IntrinsicGarment, deepsd_dir: Path | None):  # noqa: 
 
     model = DeePSDModel(deepsd_dir or MODEL_DIR)
     rest = garment.template_vertices.astype(np.float64)
-    rig = model.rig(rest, garment.faces)
-    joints = load_body(garment.body).joints
+    body = load_body(garment.body)
+    rig = model.rig(rest, garment.faces, body)
+    joints = body.joints
 
     def pose(poses: np.ndarray, trans: np.ndarray) -> np.ndarray:
         return pose_outfit(rest, rig, model.pose_keys(poses), joints, poses, trans)

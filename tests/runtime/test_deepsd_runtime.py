@@ -45,7 +45,7 @@ def test_batched_posing_equals_loop_and_torch(model_dir):
     model = DeePSDModel(model_dir)
     body = load_body("neutral")
     o = generate_outfit("tshirt", vertices=1200, seed=2)
-    rig = model.rig(o.vertices, o.faces)
+    rig = model.rig(o.vertices, o.faces, body)
     assert np.allclose(rig.weights.sum(1), 1.0, atol=1e-5)
     clip = load_clip("walk")
     poses, trans = clip.poses[:20].astype(np.float64), clip.trans[:20].astype(np.float64)

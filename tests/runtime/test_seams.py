@@ -47,7 +47,8 @@ def test_weld_merges_exactly_the_copies(outfit):
 def test_the_network_rigs_a_seamed_mesh_as_the_sewn_one(outfit):
     o, v, f, copied = outfit
     model = DeePSDModel()
-    sewn, cut = model.rig(o.vertices, o.faces), model.rig(v, f)
+    body = load_body("neutral")
+    sewn, cut = model.rig(o.vertices, o.faces, body), model.rig(v, f, body)
     np.testing.assert_array_equal(cut.weights[: len(o.vertices)], sewn.weights)
     np.testing.assert_array_equal(cut.weights[len(o.vertices):], sewn.weights[copied])
     np.testing.assert_array_equal(cut.blend_shapes[:, len(o.vertices):], sewn.blend_shapes[:, copied])

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from drape.assets.body import load_body
 from drape.assets.outfits import generate_outfit
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel
 
@@ -31,7 +32,8 @@ def test_two_resolutions_of_one_garment_get_consistent_weights(model):
     """Same shirt, two vertex counts (other topology and vertex order): weights agree at nearby points."""
     a = generate_outfit("tshirt", vertices=2000, seed=5, looseness=0.3, length=0.5)
     b = generate_outfit("tshirt", vertices=5000, seed=5, looseness=0.3, length=0.5)
-    wa, wb = model.rig(a.vertices, a.faces).weights, model.rig(b.vertices, b.faces).weights
+    body = load_body("neutral")
+    wa, wb = model.rig(a.vertices, a.faces, body).weights, model.rig(b.vertices, b.faces, body).weights
     _, near = cKDTree(b.vertices).query(a.vertices)
     l1 = np.abs(wa - wb[near]).sum(axis=1)
     assert np.median(l1) < 0.3, np.median(l1)

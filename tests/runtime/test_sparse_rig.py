@@ -39,7 +39,7 @@ def test_inverse3_equals_numpy():
 def shipped():
     model = DeePSDModel()
     o = generate_outfit("longsleeve,shorts", vertices=2500, seed=4)
-    return model, o, model.rig(o.vertices, o.faces)
+    return model, o, model.rig(o.vertices, o.faces, load_body("neutral"))
 
 
 @pytest.mark.parametrize("k", [4, 8])

@@ -25,7 +25,7 @@ def test_animate_equals_library_posing(server_url, settings, outfit):
     clip = load_clip("kick")
     model = DeePSDModel(settings.model_dir)
     fit = fit_poses()
-    rig = sparse_rig(outfit.vertices, model.rig(outfit.vertices, outfit.faces), load_body("neutral").joints, 4,
+    rig = sparse_rig(outfit.vertices, model.rig(outfit.vertices, outfit.faces, load_body("neutral")), load_body("neutral").joints, 4,
                      fit, model.pose_keys(fit))  # the served rig: 4 influences a vertex
     poses, trans = clip.poses.astype(np.float64), clip.trans.astype(np.float64)
     ref = pose_outfit(outfit.vertices, rig, model.pose_keys(poses), load_body("neutral").joints, poses, trans)

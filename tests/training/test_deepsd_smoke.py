@@ -99,3 +99,49 @@ def test_step_loss_same_on_gpu(tmp_path, monkeypatch):
     (l_cpu, g_cpu), (l_gpu, g_gpu) = results
     assert abs(l_cpu - l_gpu) <= 1e-3 * abs(l_cpu) + 1e-5
     assert torch.allclose(g_cpu, g_gpu, rtol=1e-2, atol=1e-4)
+
+
+def test_joint_candidates_train_export_and_serve_exactly(tmp_path, monkeypatch):
+    """A model trained with `joint_candidates` keeps every vertex's weights on at most 4 joints of the body's
+    skin near it, in training, in its ONNX export and in the runtime (which makes the mask from the body); the
+    served 4-influence rig is then the network's own rig (pruning changes nothing)."""
+    from drape.assets.body import load_body
+    from drape.export.deepsd import write_manifest
+    from drape.geometry.queries import candidate_joints
+    from drape.models.deepsd import DeployedMaskedOutfitNet
+    from drape.runtime.deepsd import DeePSDModel
+    from drape.runtime.sparse_rig import fit_poses, sparse_rig
+
+    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
+    cfg = load_config()
+    cfg.update(train_outfits=2, train_vertices=[300, 420], procedural_motions=1, procedural_frames=30,
+               steps={"prior": 3, "physics": 3, "chi": 3}, checkpoint_every=3, joint_candidates={"influences": 4})
+    net, pose, _ = train(cfg, tmp_path / "ckpt", log=lambda *_: None)
+    spec = deepsd_data.train_specs(cfg)[0]
+    outfit = deepsd_data.TrainOutfit(spec, cfg["joint_candidates"])
+    assert outfit.joint_mask is not None and int(outfit.joint_mask.sum(1).max()) <= 4
+    assert torch.allclose(outfit.prior_weights.sum(1), torch.ones(len(outfit.rest)))
+    assert float((outfit.prior_weights * (1 - outfit.joint_mask)).abs().max()) == 0.0
+
+    paths = export_deepsd(net, pose, tmp_path / "onnx", joint_mask=True)
+    write_manifest(tmp_path / "onnx", version="test", config=cfg, evaluation=None, trained=True)
+    v, f = deepsd_data.load_outfit(spec)
+    body = load_body(spec.body)
+    inputs = network_inputs(v, f)
+    mask = candidate_joints(v, body.vertices, body.weights, influences=4).astype(np.float32)
+    w, d, _ = ort.InferenceSession(str(paths["outfit"])).run(None, {**inputs, "joint_mask": mask})
+    with torch.no_grad():
+        tw, td, _ = DeployedMaskedOutfitNet(net)(*(torch.from_numpy(inputs[k]) for k in ("features", "nbr_idx", "nbr_w")),
+                                                  torch.from_numpy(mask))
+    assert np.abs(w - tw.numpy()).max() <= 1e-4 and np.abs(d - td.numpy()).max() <= 1e-4
+    assert np.all(w[mask == 0] == 0) and np.allclose(w.sum(1), 1, atol=1e-5)
+
+    model = DeePSDModel(tmp_path / "onnx")
+    with pytest.raises(ValueError, match="needs the body"):
+        model.rig(v, f)
+    rig = model.rig(v, f, body)
+    assert np.count_nonzero(rig.weights, axis=1).max() <= 4
+    poses = fit_poses(40)
+    served = sparse_rig(v, rig, body.joints, 4, poses, model.pose_keys(poses))
+    assert np.abs(served.weights - rig.weights).max() <= 1e-6
+    assert np.abs(served.blend_shapes - rig.blend_shapes).max() <= 1e-6

@@ -1,0 +1,54 @@
+"""drape.geometry.queries.candidate_joints: the joints DeePSD may skin a garment vertex to."""
+
+import numpy as np
+
+from drape.assets.body import load_body
+from drape.geometry.queries import candidate_joints
+
+
+def _brute_force(points, body_vertices, body_weights, influences, margin, relative_margin):
+    """The same rule by a full distance matrix over every body vertex (no k-d tree, no neighbour cap)."""
+    d = np.linalg.norm(points[:, None] - body_vertices[None], axis=2)  # (P, M)
+    d0 = d.min(axis=1, keepdims=True)
+    near = d <= d0 + np.maximum(margin, relative_margin * d0)
+    avg = near.astype(np.float64) @ body_weights
+    mask = np.zeros(avg.shape, dtype=bool)
+    for i, row in enumerate(avg):
+        top = np.argsort(-row, kind="stable")[:influences]
+        mask[i, top] = row[top] > 1e-4 * near[i].sum()
+    return mask
+
+
+def test_matches_a_brute_force_reading_of_the_rule():
+    rng = np.random.default_rng(0)
+    # a synthetic "body": two blobs of vertices, weights on joints 0-2 and 3-5
+    verts = np.concatenate([rng.normal([0, 0, 0], 0.05, (300, 3)), rng.normal([0.3, 0, 0], 0.05, (300, 3))])
+    weights = np.zeros((600, 24))
+    weights[:300, :3] = rng.dirichlet([1, 1, 1], 300)
+    weights[300:, 3:6] = rng.dirichlet([1, 1, 1], 300)
+    points = rng.uniform([-0.2, -0.2, -0.2], [0.5, 0.2, 0.2], (200, 3))
+    got = candidate_joints(points, verts, weights, influences=4, neighbours=600, stride=1)
+    want = _brute_force(points, verts, weights, 4, 0.03, 0.5)
+    np.testing.assert_array_equal(got, want)
+    assert got.sum(axis=1).max() <= 4 and got.sum(axis=1).min() >= 1
+    # a point halfway between the blobs sees both; a point inside one sees only its joints
+    mid, inside = candidate_joints(np.array([[0.15, 0, 0], [0.0, 0, 0]]), verts, weights, influences=6,
+                                   neighbours=600, stride=1)
+    assert mid[:3].any() and mid[3:6].any()
+    assert inside[:3].any() and not inside[3:].any()
+
+
+def test_on_the_body_the_skin_s_joints_between_the_legs_both_legs():
+    body = load_body("neutral")
+    names = body.joint_names
+    # points on the skin: their nearest body vertex's largest joint is always a candidate
+    idx = np.random.default_rng(1).choice(len(body.vertices), 300, replace=False)
+    mask = candidate_joints(body.vertices[idx], body.vertices, body.weights)
+    assert mask[np.arange(300), body.weights[idx].argmax(axis=1)].all()
+    assert mask.sum(axis=1).max() <= 4
+    # a skirt's hem between the knees: both legs' joints, no arm or spine joint
+    knees = body.joints[[names.index("left_knee"), names.index("right_knee")]]
+    hem = knees.mean(axis=0) + [0, 0.05, 0]
+    joints = {names[j] for j in np.flatnonzero(candidate_joints(hem[None], body.vertices, body.weights)[0])}
+    assert {"left_hip", "right_hip"} <= joints or {"left_knee", "right_knee"} <= joints, joints
+    assert not any("shoulder" in j or "elbow" in j or "spine" in j for j in joints), joints
