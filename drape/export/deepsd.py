@@ -163,4 +163,4 @@ def export_deepsd_from_checkpoints(ckpt_dir: str | Path, out_dir: str | Path, in
     return [paths["outfit"], paths["pose"], manifest]
 
 
-VERSION = "0.6.0"
+VERSION = "0.8.0"

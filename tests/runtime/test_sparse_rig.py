@@ -37,9 +37,19 @@ def test_inverse3_equals_numpy():
 
 @pytest.fixture(scope="module")
 def shipped():
+    """The shipped model's blend shapes with dense weights (each vertex's skin weights averaged over its 200
+    nearest body vertices: 5-9 joints a vertex), a rig that 4 or 8 influences cannot play as it is: the shipped
+    model's own weights already keep to 4 joints (drape.geometry.queries.candidate_joints)."""
+    from scipy.spatial import cKDTree
+
     model = DeePSDModel()
+    body = load_body("neutral")
     o = generate_outfit("longsleeve,shorts", vertices=2500, seed=4)
-    return model, o, model.rig(o.vertices, o.faces, load_body("neutral"))
+    rig = model.rig(o.vertices, o.faces, body)
+    _, near = cKDTree(body.vertices).query(o.vertices, k=200)
+    weights = body.weights[near].mean(axis=1).astype(np.float32)
+    assert np.median((weights > 1e-3).sum(1)) > 4
+    return model, o, Rig(weights / weights.sum(1, keepdims=True), rig.blend_shapes)
 
 
 @pytest.mark.parametrize("k", [4, 8])
@@ -58,3 +68,18 @@ def test_refit_brings_the_sparse_rig_closer_to_the_dense_one_on_held_out_clips(s
                                     axis=2).mean()
                for name, r in (("served", served), ("plain", plain))}
         assert err["served"] < 0.8 * err["plain"], (clip, err)
+
+
+def test_the_shipped_model_s_rig_is_served_as_it_is():
+    """The shipped DeePSD keeps every vertex on at most 4 joints: the served 4-influence rig is its own rig."""
+    model = DeePSDModel()
+    assert model.joint_candidates == {"influences": 4}
+    body = load_body("female")
+    o = generate_outfit("jacket", vertices=2000, seed=6, body="female")
+    rig = model.rig(o.vertices, o.faces, body)
+    assert np.count_nonzero(rig.weights, axis=1).max() <= 4
+    poses = fit_poses()
+    served = sparse_rig(o.vertices, rig, body.joints, 4, poses, model.pose_keys(poses))
+    np.testing.assert_array_equal(served.weights > 0, rig.weights > 0)
+    assert np.abs(served.weights - rig.weights).max() <= 1e-6
+    assert np.abs(served.blend_shapes - rig.blend_shapes).max() <= 1e-6
