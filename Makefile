@@ -36,12 +36,13 @@ test: $(VENV)/.dev-installed
 test-slow: $(VENV)/.dev-installed
 	$(BIN)/pytest -m slow
 
-# DeePSD from scratch in one command (drape/training/configs/deepsd_wide.json: generated outfits, procedural
+# DeePSD from scratch in one command (drape/training/configs/deepsd_candidates.json, what ships as 0.8.0: weights
+# restricted to 4 joints of the body's skin near each vertex; generated outfits, procedural
 # motions, the DeepMimic clips and 31 real CMU clips of ../shared/data/mocap; the checkpoint chosen on the
 # validation split), exported into the package; then `drape eval deepsd --write` measures it once. The steps run
 # on a CUDA GPU when torch sees one (`drape train deepsd --device`), else on the CPU
-DEEPSD_CONFIG ?= drape/training/configs/deepsd_wide.json
-DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_wide
+DEEPSD_CONFIG ?= drape/training/configs/deepsd_candidates.json
+DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_candidates
 deepsd-model: $(VENV)/.dev-installed
 	$(BIN)/drape train deepsd --config $(DEEPSD_CONFIG) --checkpoints $(DEEPSD_CHECKPOINTS)
 	$(BIN)/drape export deepsd --checkpoints $(DEEPSD_CHECKPOINTS) --out drape/assets/models/deepsd
