@@ -4,6 +4,9 @@
    same weights (a freshly initialised model: speed does not depend on training).
 2. Posing 300 frames of a 10k-vertex outfit: the batched path (pose keys for all frames,
    one GEMM for the PSD offsets, batched LBS) vs a per-frame loop over the same functions.
+3. The shipped model's rig at the same sizes, whose weights keep to each vertex's candidate joints when its
+   manifest says so (drape.geometry.queries.candidate_joints, computed per request from the body): the
+   candidate joints alone, and the whole rig against (1)'s rig without them (same architecture).
 Run: .venv/bin/python -m bench.deepsd   (needs the [train] extra for the torch side)
 """
 
@@ -20,6 +23,7 @@ from drape.assets.body import load_body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
 from drape.export.deepsd import export_deepsd_from_checkpoints
+from drape.geometry.queries import candidate_joints
 from drape.models.deepsd import DeployedOutfitNet, OutfitNet, PoseNet
 from drape.runtime.deepsd import DeePSDModel, network_inputs, pose_outfit
 
@@ -75,6 +79,18 @@ def main() -> None:
         print(f"\nposing {len(poses)} frames x {len(o.vertices)} vertices")
         print(f"batched: {t_b:.3f} s ({len(poses) / t_b:.0f} frames/s); per-frame loop: {t_l:.3f} s "
               f"({len(poses) / t_l:.0f} frames/s); loop/batched = {t_l / t_b:.1f}x")
+
+        shipped = DeePSDModel(threads=2)
+        print(f"\nthe shipped model's rig ({shipped.manifest['version']}; candidate joints: "
+              f"{shipped.joint_candidates})")
+        print(f"{'N':>6s} {'candidates ms':>13s} {'rig ms':>9s} {'no-candidates rig ms':>20s} {'ratio':>6s}")
+        for n, o in outfits.items():
+            repeat = 10 if n <= 10000 else 4
+            t_c = timed(lambda: candidate_joints(o.vertices, body.vertices, body.weights,  # noqa: B023
+                                                 **(shipped.joint_candidates or {})), repeat)
+            t_s = timed(lambda: shipped.rig(o.vertices, o.faces, body), repeat)  # noqa: B023
+            t_p = timed(lambda: model.rig(o.vertices, o.faces), repeat)  # noqa: B023
+            print(f"{len(o.vertices):6d} {t_c * 1e3:13.1f} {t_s * 1e3:9.1f} {t_p * 1e3:20.1f} {t_s / t_p:6.2f}")
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ Run: .venv/bin/python -m bench.layers_choice  (a few minutes on the 2-core machi
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from drape.runtime.deepsd import MODEL_DIR as DEEPSD_DIR
 from drape.training import layers_inner, layers_outer
@@ -37,6 +38,10 @@ def main() -> None:
               f"  (DeePSD now: {now['inside_triangle_pct']:.2f}% inside, {now['edge_error_mm']:.2f} mm)")
     for folder in sorted((ASSETS / "mgn_outer").iterdir()):
         m = json.loads((folder / "manifest.json").read_text())
+        if not (Path(m["config"]["data"]) / "manifest.json").exists():
+            print(f"{'mgn_outer/' + folder.name:28} skipped: its simulated sequences ({m['config']['data']}) are "
+                  f"not here (make layers-data)")
+            continue
         task = layers_outer.OuterTask(m["config"])
         seqs = task.sequences("test")
         now = layers_outer.deepsd_validation(task, seqs)

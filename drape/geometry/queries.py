@@ -12,6 +12,7 @@ Two signed distances, both positive outside the body and negative inside:
 from __future__ import annotations
 
 import numpy as np
+from scipy import sparse
 from scipy.spatial import cKDTree
 
 from drape.geometry.mesh import vertex_normals
@@ -286,7 +287,7 @@ def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, 
 
 def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights: np.ndarray,
                      influences: int = 4, margin: float = 0.03, relative_margin: float = 0.5,
-                     neighbours: int = 128, stride: int = 4, chunk: int = 2048) -> np.ndarray:
+                     neighbours: int = 128, stride: int = 4, chunk: int = 8192) -> np.ndarray:
     """The joints a garment point may be skinned to: (P, 3), (M, 3) m, (M, K) -> (P, K) bool, at most
     `influences` True per row.
 
@@ -304,11 +305,14 @@ def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights
     k = min(neighbours, len(w))
     mask = np.zeros((len(pts), w.shape[1]), dtype=bool)
     for s in range(0, len(pts), chunk):
-        d, idx = tree.query(pts[s:s + chunk], k=k)
+        d, idx = tree.query(pts[s:s + chunk], k=k, workers=-1)
         d, idx = d.reshape(len(d), k), idx.reshape(len(idx), k)
         d0 = d[:, :1]
         near = (d <= d0 + np.maximum(margin, relative_margin * d0)).astype(np.float32)  # (c, k)
-        avg = np.einsum("ck,ckj->cj", near, w[idx])
+        # the sum of the near vertices' weights as a sparse (c, M) @ (M, K) product (an einsum over the
+        # gathered (c, k, K) weights was 30x slower)
+        pick = sparse.csr_matrix((near.ravel(), idx.ravel(), np.arange(0, near.size + 1, k)), shape=(len(d), len(w)))
+        avg = np.asarray(pick @ w)
         top = np.argsort(-avg, axis=1, kind="stable")[:, :influences]
         rows = np.arange(len(avg))[:, None]
         mask[s + rows, top] = avg[rows, top] > 1e-4 * near.sum(axis=1, keepdims=True)
