@@ -56,7 +56,8 @@ def main() -> None:
                     f"vertices {per_vertex[worst].mean():.1f} mm, {100 * np.mean(v[worst, 1] < knee_y):.0f}% below the "
                     f"knee, {100 * np.mean(np.abs(v[worst, 0]) < 0.06):.0f}% within 6 cm of the mid-plane")
             if model.joint_candidates is not None:
-                mask = candidate_joints(v[worst], body.vertices, body.weights, **model.joint_candidates)
+                mask = candidate_joints(v[worst], body.vertices, body.weights, parents=body.parents,
+                                        **model.joint_candidates)
                 counts = mask.sum(axis=0)
                 top = np.argsort(-counts)[:6]
                 line += "; their candidates: " + ", ".join(f"{names[j]} {counts[j]}" for j in top if counts[j])

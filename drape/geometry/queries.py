@@ -287,7 +287,8 @@ def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, 
 
 def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights: np.ndarray,
                      influences: int = 4, margin: float = 0.03, relative_margin: float = 0.5,
-                     neighbours: int = 128, stride: int = 4, chunk: int = 8192) -> np.ndarray:
+                     neighbours: int = 128, stride: int = 4, chunk: int = 8192, parents: np.ndarray | None = None,
+                     loose_beyond: float | None = None) -> np.ndarray:
     """The joints a garment point may be skinned to: (P, 3), (M, 3) m, (M, K) -> (P, K) bool, at most
     `influences` True per row.
 
@@ -298,6 +299,11 @@ def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights
     the skin's own joints; cloth hanging between body parts (a skirt between the legs) sees both parts. A
     rig restricted to these joints keeps a sleeve on the arm's joints, and engines that play 4 influences a
     vertex play it exactly.
+
+    loose_beyond (metres; needs `parents` (K,), the skeleton's parent of each joint, -1 at the root): a point
+    farther than that from the body keeps the `influences` - 1 largest joints and their lowest common ancestor
+    (when it is not among them already), so that a long skirt's hem between the knees may also follow the
+    pelvis instead of only the legs' joints.
     """
     pts = np.asarray(points, dtype=np.float64)
     w = np.asarray(body_weights, dtype=np.float32)[::stride]
@@ -315,5 +321,33 @@ def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights
         avg = np.asarray(pick @ w)
         top = np.argsort(-avg, axis=1, kind="stable")[:, :influences]
         rows = np.arange(len(avg))[:, None]
-        mask[s + rows, top] = avg[rows, top] > 1e-4 * near.sum(axis=1, keepdims=True)
+        keep = avg[rows, top] > 1e-4 * near.sum(axis=1, keepdims=True)
+        if loose_beyond is not None and influences >= 2:
+            if parents is None:
+                raise ValueError("loose_beyond needs the skeleton's parents")
+            loose = np.flatnonzero(d0[:, 0] > loose_beyond)
+            ancestor = lowest_common_ancestor(parents, top[loose, : influences - 1], keep[loose, : influences - 1])
+            new = ~(top[loose, : influences - 1] == ancestor[:, None]).any(axis=1)
+            top[loose[new], influences - 1] = ancestor[new]
+            keep[loose[new], influences - 1] = True
+        mask[s + rows, top] = keep
     return mask
+
+
+def lowest_common_ancestor(parents: np.ndarray, joints: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """parents (K,) (-1 at the root); joints (P, J) int, valid (P, J) bool (at least the first of each row) ->
+    (P,) int: each row's deepest joint that is an ancestor (or the joint itself) of every valid joint of the row."""
+    parents = np.asarray(parents)
+    k = len(parents)
+    chain = [[j] for j in range(k)]  # each joint's ancestors, itself first
+    for j in range(k):
+        while parents[chain[j][-1]] >= 0:
+            chain[j].append(int(parents[chain[j][-1]]))
+    pair = np.zeros((k, k), dtype=np.int64)  # pair[a, b]: the lowest common ancestor of a and b
+    for a in range(k):
+        for b in range(k):
+            pair[a, b] = next(x for x in chain[a] if x in chain[b])
+    out = np.asarray(joints)[:, 0].astype(np.int64)
+    for c in range(1, joints.shape[1]):
+        out = np.where(valid[:, c], pair[out, joints[:, c]], out)
+    return out

@@ -78,7 +78,7 @@ class DeePSDModel:
                                  "rig(...) needs the body")
             from drape.geometry.queries import candidate_joints
 
-            mask = candidate_joints(vertices, body.vertices, body.weights, **self.joint_candidates)
+            mask = candidate_joints(vertices, body.vertices, body.weights, parents=body.parents, **self.joint_candidates)
             inputs["joint_mask"] = mask.astype(np.float32)
         return inputs
 

@@ -115,7 +115,7 @@ class TrainOutfit:
         prior = nearest_vertex_weights(v, body.vertices, body.weights)
         self.joint_mask: torch.Tensor | None = None
         if joint_candidates is not None:
-            mask = candidate_joints(v, body.vertices, body.weights, **joint_candidates)
+            mask = candidate_joints(v, body.vertices, body.weights, parents=body.parents, **joint_candidates)
             prior = prior * mask
             # a vertex whose nearest skin weights lie off its candidates (rare) takes them evenly
             prior = np.where(prior.sum(1, keepdims=True) > 0, prior, mask)

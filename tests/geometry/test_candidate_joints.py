@@ -52,3 +52,41 @@ def test_on_the_body_the_skin_s_joints_between_the_legs_both_legs():
     joints = {names[j] for j in np.flatnonzero(candidate_joints(hem[None], body.vertices, body.weights)[0])}
     assert {"left_hip", "right_hip"} <= joints or {"left_knee", "right_knee"} <= joints, joints
     assert not any("shoulder" in j or "elbow" in j or "spine" in j for j in joints), joints
+
+
+def test_lowest_common_ancestor_against_walking_up_the_chains():
+    from drape.geometry.queries import lowest_common_ancestor
+
+    parents = load_body("neutral").parents
+    rng = np.random.default_rng(2)
+    joints = rng.integers(0, 24, (200, 3))
+    valid = np.ones((200, 3), dtype=bool)
+    valid[:50, 2] = False
+
+    def ancestors(j):
+        out = [j]
+        while parents[out[-1]] >= 0:
+            out.append(int(parents[out[-1]]))
+        return out
+
+    got = lowest_common_ancestor(parents, joints, valid)
+    for row, v, g in zip(joints, valid, got, strict=True):
+        chains = [ancestors(int(j)) for j in row[v]]
+        want = next(a for a in chains[0] if all(a in c for c in chains[1:]))
+        assert g == want
+
+
+def test_loose_cloth_between_the_legs_may_follow_the_pelvis():
+    body = load_body("neutral")
+    names = body.joint_names
+    knees = body.joints[[names.index("left_knee"), names.index("right_knee")]]
+    hem = (knees.mean(axis=0) + [0, -0.1, 0.0])[None]  # a long skirt's hem between the shins
+    tight = candidate_joints(hem, body.vertices, body.weights, parents=body.parents)
+    loose = candidate_joints(hem, body.vertices, body.weights, parents=body.parents, loose_beyond=0.02)
+    assert not tight[0, names.index("pelvis")]
+    assert loose[0, names.index("pelvis")] and loose.sum() <= 4
+    # near the skin nothing changes
+    on_skin = body.vertices[::500]
+    np.testing.assert_array_equal(candidate_joints(on_skin, body.vertices, body.weights, parents=body.parents,
+                                                   loose_beyond=0.02),
+                                  candidate_joints(on_skin, body.vertices, body.weights))
