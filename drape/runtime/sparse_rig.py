@@ -65,7 +65,11 @@ def sparse_rig(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, inf
     """The dense `rig` of an outfit (rest_vertices (N, 3) m, on a body with rest_joints (24, 3) m) with
     at most `influences` weights per vertex and its blend shapes (P, N, 3) refit over the fit frames:
     poses (T, 24, 3) rad (e.g. `fit_poses()`), keys (T, P) their pose keys; targets (T, N, 3) m: what the
-    sparse rig is fit to at those poses (default: the dense rig's posed vertices). -> Rig."""
+    sparse rig is fit to at those poses (default: the dense rig's posed vertices). -> Rig. A rig whose vertices
+    already have at most `influences` weights each (a DeePSD trained with candidate joints) is returned as it
+    is: pruning keeps every weight and there is nothing to refit."""
+    if targets is None and np.count_nonzero(rig.weights, axis=1).max(initial=0) <= influences:
+        return rig
     weights = top_weights(rig.weights, influences)
     sparse = Rig(weights, rig.blend_shapes)
     keys32 = np.asarray(keys, dtype=np.float32)
