@@ -42,20 +42,16 @@ def export_deepsd(outfit: OutfitNet, pose: PoseNet, out_dir: str | Path, joint_m
     the candidate joints as a fourth input (a model trained with `joint_candidates`)."""
     out_dir = Path(out_dir)
     n, k, t = torch.export.Dim("num_vertices", min=4), torch.export.Dim("max_neighbours", min=2), torch.export.Dim("frames", min=1)
+    deployed: torch.nn.Module = DeployedOutfitNet(outfit)
+    inputs: tuple[torch.Tensor, ...] = example_inputs()
+    names = ["features", "nbr_idx", "nbr_w"]
+    shapes: tuple[dict[int, torch.export.Dim], ...] = ({0: n}, {0: n, 1: k}, {0: n, 1: k})
     if joint_mask:
-        x, idx, w = example_inputs()
-        mask = (torch.arange(NUM_JOINTS)[None] % 6 == torch.arange(len(x))[:, None] % 6).float()
-        outfit_path = export_onnx(
-            DeployedMaskedOutfitNet(outfit).eval(), (x, idx, w, mask), out_dir / "outfit.onnx",
-            ["features", "nbr_idx", "nbr_w", "joint_mask"], ["weights", "blend_shapes", "blend_shapes_data"],
-            ({0: n}, {0: n, 1: k}, {0: n, 1: k}, {0: n}),
-        )
-    else:
-        outfit_path = export_onnx(
-            DeployedOutfitNet(outfit).eval(), example_inputs(), out_dir / "outfit.onnx",
-            ["features", "nbr_idx", "nbr_w"], ["weights", "blend_shapes", "blend_shapes_data"],
-            ({0: n}, {0: n, 1: k}, {0: n, 1: k}),
-        )
+        mask = (torch.arange(NUM_JOINTS)[None] % 6 == torch.arange(len(inputs[0]))[:, None] % 6).float()
+        deployed, inputs, names, shapes = (DeployedMaskedOutfitNet(outfit), (*inputs, mask), [*names, "joint_mask"],
+                                           (*shapes, {0: n}))
+    outfit_path = export_onnx(deployed.eval(), inputs, out_dir / "outfit.onnx", names,
+                              ["weights", "blend_shapes", "blend_shapes_data"], shapes)
     pose_path = export_onnx(
         pose.eval(), (torch.zeros(3, 72),), out_dir / "pose.onnx", ["poses"], ["pose_keys"], ({0: t},),
     )
