@@ -10,7 +10,8 @@ One config (drape/training/configs/intrinsic_<template>.json), two phases, one c
    with z_set the mean z of the frame's set in the batch (reconstruction from the set's latent, which is
    how a keyframe is used; set_lambda 0, the default, is the paper's loss).
 
-Validation: the last `val_params` training parameter sets are held out of training (the dataset's own
+Validation: the last `val_params` training parameter sets and every frame of the `val_motions` (optional,
+motion names of the training split) are held out of training (the dataset's own
 held-out parameter sets and motions are never read here: they are the test table's). After each
 phase's checkpoints the validation error is measured: phase 1, mean vertex error (mm) of the shape
 autoencoder; phase 2, mean vertex error (mm) of decoding each validation set's mean latent along
@@ -39,12 +40,21 @@ def load_config(template: str | None = None, path: str | Path | None = None) -> 
     return json.loads(p.read_text())
 
 
-def split_validation(frames: Frames, val_params: int) -> tuple[Frames, Frames]:
-    """The last `val_params` parameter sets present become the validation split."""
+def split_validation(frames: Frames, val_params: int, val_motions: tuple[str, ...] | list[str] = ()
+                     ) -> tuple[Frames, Frames]:
+    """(training, validation) frames: the last `val_params` parameter sets present and every frame of the
+    motions named in `val_motions` are validation; training has neither (so validation also measures
+    motions never trained on, which is what the test table asks of the model)."""
     sets = np.unique(frames.params)
     if not 0 < val_params < len(sets):
         raise ValueError(f"val_params must be in [1, {len(sets) - 1}] for {len(sets)} parameter sets")
+    missing = [m for m in val_motions if m not in frames.motion_names]
+    if missing:
+        raise ValueError(f"val_motions {missing} are not among the training motions {frames.motion_names}")
+    if len(set(val_motions)) >= len(frames.motion_names):
+        raise ValueError("val_motions would leave no training motion")
     val = np.isin(frames.params, sets[-val_params:])
+    val |= np.isin(frames.motions, [frames.motion_names.index(m) for m in val_motions])
     return frames.subset(~val), frames.subset(val)
 
 
@@ -71,13 +81,25 @@ def shape_error_mm(model: IntrinsicSpace, frames: Frames, batch: int = 512) -> f
 @torch.no_grad()
 def set_latent_error_mm(model: IntrinsicSpace, frames: Frames) -> float:
     """Decode each parameter set's mean latent along its frames' windows: mean vertex error, mm."""
+    def encode(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return model.encode(torch.as_tensor(v), torch.as_tensor(w)).numpy()
+
+    def decode(z: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return model.decode(torch.as_tensor(z), torch.as_tensor(w)).numpy()
+
+    return set_latent_error_of(encode, decode, frames)
+
+
+def set_latent_error_of(encode, decode, frames: Frames) -> float:  # noqa: ANN001
+    """`set_latent_error_mm` of any implementation: encode(vertices (F, N, 3), windows (F, W + 1, 24, 3))
+    -> latents (F, Z); decode(latents, windows) -> vertices (F, N, 3); character space, float32 m.
+    Mean over the parameter sets of the mean vertex error, mm."""
     errs = []
     for p in np.unique(frames.params):
         f = frames.subset(frames.params == p)
-        v, w = torch.as_tensor(f.vertices), torch.as_tensor(f.windows)
-        z = model.encode(v, w).mean(dim=0, keepdim=True).expand(len(v), -1)
-        errs.append((model.decode(z, w) - v).norm(dim=-1).mean())
-    return float(torch.stack(errs).mean() * 1e3)
+        z = encode(f.vertices, f.windows).mean(axis=0, keepdims=True).repeat(len(f), axis=0)
+        errs.append(np.linalg.norm(decode(z.astype(np.float32), f.windows) - f.vertices, axis=-1).mean())
+    return float(np.mean(errs) * 1e3)
 
 
 def invariant_loss(model: IntrinsicSpace, v: torch.Tensor, w: torch.Tensor, sets: int, lam: float,
@@ -106,6 +128,13 @@ def invariant_loss(model: IntrinsicSpace, v: torch.Tensor, w: torch.Tensor, sets
     return loss, parts
 
 
+def _sequences(frames: Frames) -> dict[str, list[int]]:
+    """The sequences a frame set holds: motion name -> its parameter-set indices (what a part-way dataset
+    trained on, for the manifest)."""
+    return {name: sorted({int(p) for p in np.unique(frames.params[frames.motions == i])})
+            for i, name in enumerate(frames.motion_names) if np.any(frames.motions == i)}
+
+
 def _latest(ckpt_dir: Path, phase: str) -> Path | None:
     found = sorted(ckpt_dir.glob(f"{phase}_*.pt"), key=lambda p: int(p.stem.split("_")[-1]))
     return found[-1] if found else None
@@ -122,12 +151,14 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     rng = np.random.default_rng(config["seed"])
     window = config["model"]["window"]
     frames, faces, manifest = load_frames(config["dataset"], window, ("train",))
-    train_f, val_f = split_validation(frames, config["val_params"])
-    log(f"{len(train_f)} training frames ({len(np.unique(train_f.params))} parameter sets), "
-        f"{len(val_f)} validation frames ({len(np.unique(val_f.params))} sets)")
+    train_f, val_f = split_validation(frames, config["val_params"], config.get("val_motions", ()))
+    log(f"{len(train_f)} training frames ({len(np.unique(train_f.params))} parameter sets, "
+        f"{len(np.unique(train_f.motions))} motions), {len(val_f)} validation frames "
+        f"({len(np.unique(val_f.params))} sets, {len(np.unique(val_f.motions))} motions)")
     model = build_model(config, train_f)
     edges = edges_of(faces)
     summary: dict = {"config": config, "train_frames": len(train_f), "val_frames": len(val_f),
+                     "train_sequences": _sequences(train_f), "val_sequences": _sequences(val_f),
                      "dataset_format": manifest.get("format"), "phases": {}}
     t0 = time.perf_counter()
 

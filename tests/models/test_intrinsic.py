@@ -121,3 +121,24 @@ def test_training_lowers_the_validation_errors_and_resumes(synthetic_dataset, tm
     assert summary["phases"]["invariant"]["val_set_latent_error_mm"] < 20.0, logs
     again, summary2 = train(config, tmp_path / "ckpt", log=logs.append)  # resumes: nothing left to do
     assert summary2["phases"] == summary["phases"]
+
+
+def test_validation_holds_out_the_last_parameter_sets_and_the_named_motions():
+    from drape.training.intrinsic import split_validation
+    from drape.training.intrinsic_data import Frames
+
+    params, motions = np.meshgrid(np.arange(5), np.arange(3), indexing="ij")  # 5 sets x 3 motions, a frame each
+    params, motions = params.ravel(), motions.ravel()
+    n = len(params)
+    frames = Frames(np.zeros((n, 4, 3), np.float32), np.zeros((n, 2, 24, 3), np.float32), params, motions,
+                    np.zeros(n, int), ["a", "b", "c"])
+    train, val = split_validation(frames, 2, ["b"])
+    assert set(zip(train.params, train.motions, strict=True)) == {(p, m) for p in range(3) for m in (0, 2)}
+    assert set(zip(val.params, val.motions, strict=True)) == ({(p, m) for p in (3, 4) for m in range(3)}
+                                                 | {(p, 1) for p in range(5)})
+    train, val = split_validation(frames, 1)
+    assert set(val.params) == {4} and len(train) == 12
+    with pytest.raises(ValueError, match="val_motions"):
+        split_validation(frames, 1, ["walk"])
+    with pytest.raises(ValueError, match="no training motion"):
+        split_validation(frames, 1, ["a", "b", "c"])

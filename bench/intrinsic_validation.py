@@ -1,0 +1,66 @@
+"""Intrinsic garment models measured on ONE training config's validation split, with ONNX Runtime: the
+training's checkpoint criterion (each parameter set's mean latent decoded along its frames' motion windows,
+mean vertex error in mm; `drape.training.intrinsic.set_latent_error_of`) for several exported models, so
+that a new run and the shipped model are compared on the same frames in the same run.
+
+Rows: the whole validation split, then its parts: the validation parameter sets on the motions trained on,
+the trained parameter sets on the validation motions (`val_motions`), and both held out. A model trained
+with another config may have trained on some of these frames (say so when you report it).
+Run: .venv/bin/python -m bench.intrinsic_validation --config drape/training/configs/intrinsic_skirt.json
+     MODEL_DIR [MODEL_DIR ...]   (MODEL_DIR: an exported model folder, e.g. drape/assets/models/intrinsic/skirt)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from drape.runtime.intrinsic import IntrinsicGarment
+from drape.training.intrinsic import set_latent_error_of, split_validation
+from drape.training.intrinsic_data import Frames, load_frames
+
+
+def parts(frames: Frames, val: Frames, val_params: int, val_motions: list[str]) -> dict[str, Frames]:
+    """The validation frames and their parts (a part left out when empty)."""
+    sets = np.unique(frames.params)[-val_params:]
+    held_motion = np.isin(val.motions, [val.motion_names.index(m) for m in val_motions])
+    held_set = np.isin(val.params, sets)
+    out = {"validation": val, "validation sets x trained motions": val.subset(held_set & ~held_motion),
+           "trained sets x validation motions": val.subset(~held_set & held_motion),
+           "validation sets x validation motions": val.subset(held_set & held_motion)}
+    return {k: v for k, v in out.items() if len(v)}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--config", required=True)
+    p.add_argument("models", nargs="+")
+    args = p.parse_args()
+    config = json.loads(Path(args.config).read_text())
+    val_motions = list(config.get("val_motions", ()))
+    garments = {m: IntrinsicGarment(m) for m in args.models}
+    by_window: dict[int, dict[str, Frames]] = {}
+    for g in garments.values():
+        w = int(g.window)
+        if w not in by_window:
+            frames, _, _ = load_frames(config["dataset"], w, ("train",))
+            _, val = split_validation(frames, config["val_params"], val_motions)
+            by_window[w] = parts(frames, val, config["val_params"], val_motions)
+    names = list(next(iter(by_window.values())))
+    print(f"config {args.config}: validation = last {config['val_params']} parameter sets + motions {val_motions}")
+    print("| model | version | " + " | ".join(f"{n} (mm, frames)" for n in names) + " |")
+    print("|---|---|" + "---|" * len(names))
+    for path, g in garments.items():
+        cells = []
+        for n in names:
+            f = by_window[int(g.window)][n]
+            err = set_latent_error_of(g._encode_local, g._decode_local, f)
+            cells.append(f"{err:.2f} ({len(f)})")
+        print(f"| {path} | {g.manifest.get('version', '?')} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
