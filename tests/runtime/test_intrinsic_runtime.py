@@ -14,6 +14,7 @@ import torch
 
 from drape.assets.body import load_body
 from drape.assets.motion import load_clip
+from drape.export.intrinsic import VERSION as INTRINSIC_VERSION
 from drape.geometry.character_space import motion_windows, root_frames
 from drape.models.intrinsic import character_space, world_space
 from drape.runtime.engine import Engine
@@ -134,7 +135,7 @@ def test_the_registry_loads_every_model_folder_and_checks_sha256(tg, tmp_path):
     g = reg.get(NAME)
     assert g.info() == {"name": NAME, "num_vertices": len(tg.vertices), "num_faces": len(tg.faces),
                         "body": "neutral", "models": ["intrinsic"], "fps": 30.0, "window": WINDOW,
-                        "version": "0.1.0", "latent_size": 100}
+                        "version": INTRINSIC_VERSION, "latent_size": 100}
     assert np.array_equal(g.vertices, tg.vertices) and np.array_equal(g.faces, tg.faces)
     (tmp_path / "notes").mkdir()  # a folder without a manifest is not a model
     shutil.copytree(tg.path, tmp_path / "a")
