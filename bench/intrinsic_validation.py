@@ -16,22 +16,18 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-
 from drape.runtime.intrinsic import IntrinsicGarment
-from drape.training.intrinsic import set_latent_error_of, split_validation
+from drape.training.intrinsic import set_latent_error_of, validation_masks
 from drape.training.intrinsic_data import Frames, load_frames
 
 
-def parts(frames: Frames, val: Frames, val_params: int, val_motions: list[str]) -> dict[str, Frames]:
-    """The validation frames and their parts (a part left out when empty)."""
-    sets = np.unique(frames.params)[-val_params:]
-    held_motion = np.isin(val.motions, [val.motion_names.index(m) for m in val_motions])
-    held_set = np.isin(val.params, sets)
-    out = {"validation": val, "validation sets x trained motions": val.subset(held_set & ~held_motion),
-           "trained sets x validation motions": val.subset(~held_set & held_motion),
-           "validation sets x validation motions": val.subset(held_set & held_motion)}
-    return {k: v for k, v in out.items() if len(v)}
+def parts(frames: Frames, val_params: int, val_motions: list[str]) -> dict[str, Frames]:
+    """The training split's validation frames and their parts (a part left out when empty)."""
+    held_set, held_motion = validation_masks(frames, val_params, val_motions)
+    masks = {"validation": held_set | held_motion, "validation sets x trained motions": held_set & ~held_motion,
+             "trained sets x validation motions": ~held_set & held_motion,
+             "validation sets x validation motions": held_set & held_motion}
+    return {k: frames.subset(m) for k, m in masks.items() if m.any()}
 
 
 def main() -> None:
@@ -47,8 +43,7 @@ def main() -> None:
         w = int(g.window)
         if w not in by_window:
             frames, _, _ = load_frames(config["dataset"], w, ("train",))
-            _, val = split_validation(frames, config["val_params"], val_motions)
-            by_window[w] = parts(frames, val, config["val_params"], val_motions)
+            by_window[w] = parts(frames, config["val_params"], val_motions)
     names = list(next(iter(by_window.values())))
     print(f"config {args.config}: validation = last {config['val_params']} parameter sets + motions {val_motions}")
     print("| model | version | " + " | ".join(f"{n} (mm, frames)" for n in names) + " |")

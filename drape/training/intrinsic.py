@@ -40,11 +40,10 @@ def load_config(template: str | None = None, path: str | Path | None = None) -> 
     return json.loads(p.read_text())
 
 
-def split_validation(frames: Frames, val_params: int, val_motions: tuple[str, ...] | list[str] = ()
-                     ) -> tuple[Frames, Frames]:
-    """(training, validation) frames: the last `val_params` parameter sets present and every frame of the
-    motions named in `val_motions` are validation; training has neither (so validation also measures
-    motions never trained on, which is what the test table asks of the model)."""
+def validation_masks(frames: Frames, val_params: int, val_motions: tuple[str, ...] | list[str] = ()
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(held_set, held_motion), (F,) bool each: the frames of the last `val_params` parameter sets present,
+    and the frames of the motions named in `val_motions` (motion names of the training split)."""
     sets = np.unique(frames.params)
     if not 0 < val_params < len(sets):
         raise ValueError(f"val_params must be in [1, {len(sets) - 1}] for {len(sets)} parameter sets")
@@ -53,8 +52,16 @@ def split_validation(frames: Frames, val_params: int, val_motions: tuple[str, ..
         raise ValueError(f"val_motions {missing} are not among the training motions {frames.motion_names}")
     if len(set(val_motions)) >= len(frames.motion_names):
         raise ValueError("val_motions would leave no training motion")
-    val = np.isin(frames.params, sets[-val_params:])
-    val |= np.isin(frames.motions, [frames.motion_names.index(m) for m in val_motions])
+    return (np.isin(frames.params, sets[-val_params:]),
+            np.isin(frames.motions, [frames.motion_names.index(m) for m in val_motions]))
+
+
+def split_validation(frames: Frames, val_params: int, val_motions: tuple[str, ...] | list[str] = ()
+                     ) -> tuple[Frames, Frames]:
+    """(training, validation) frames: the frames of `validation_masks` are validation; training has neither
+    (so validation also measures motions never trained on, which is what the test table asks of the model)."""
+    held_set, held_motion = validation_masks(frames, val_params, val_motions)
+    val = held_set | held_motion
     return frames.subset(~val), frames.subset(val)
 
 
