@@ -142,3 +142,19 @@ def test_validation_holds_out_the_last_parameter_sets_and_the_named_motions():
         split_validation(frames, 1, ["walk"])
     with pytest.raises(ValueError, match="no training motion"):
         split_validation(frames, 1, ["a", "b", "c"])
+
+
+def test_the_validation_bench_counts_the_frames_a_model_trained_on():
+    from bench.intrinsic_validation import trained_on
+    from drape.training.intrinsic import split_validation
+    from drape.training.intrinsic_data import Frames
+
+    params, motions = np.meshgrid(np.arange(5), np.arange(3), indexing="ij")
+    params, motions = np.repeat(params.ravel(), 2), np.repeat(motions.ravel(), 2)  # two frames a sequence
+    n = len(params)
+    frames = Frames(np.zeros((n, 4, 3), np.float32), np.zeros((n, 2, 24, 3), np.float32), params, motions,
+                    np.zeros(n, int), ["a", "b", "c"])
+    _, val = split_validation(frames, 2, ["b"])
+    assert trained_on(val, {"training": {"train_sequences": {"a": [0, 1, 2], "c": [0, 1, 2]}}}) == 0
+    assert trained_on(val, {"training": {"train_sequences": {"a": [3], "b": [0, 4], "walk": [3]}}}) == 6
+    assert trained_on(val, {}) is None
