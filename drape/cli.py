@@ -221,8 +221,8 @@ def _render_sim(args: argparse.Namespace) -> None:
 
         garment = IntrinsicGarment(args.garment_model or INTRINSIC_DIR / str(seq["garment"]))
         keys = _frames_arg(args.keyframes, T)
-        latents = [(k, garment.encode(seq["vertices"][k], seq["poses"], seq["trans"], k)) for k in keys]
-        keyed = garment.decode(garment.interpolate(latents, T), seq["poses"], seq["trans"])[frames]
+        keyed = garment.keyframed(seq["vertices"][keys], keys, seq["poses"], seq["trans"], float(seq["fps"]),
+                                  match_keyframes=not args.unmatched)[frames]
         side = 0.45 * view_matrix(args.azimuth)[0]  # screen x in world space
         layers = [Layer(posed - side, body.faces, (0.86, 0.74, 0.62)),
                   Layer(seq["vertices"][frames] - side, seq["faces"], (0.25, 0.45, 0.8)),
@@ -726,7 +726,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--motion", help="motion npz file")
     r.add_argument("--sim", help="a simulated sequence npz (drape sim run / dataset item): cloth next to the body")
     r.add_argument("--keyframes", help="with --sim: comma list of frames given to the template's intrinsic model as "
-                                       "keyframes; its sequence is drawn beside the simulation")
+                                       "keyframes (matched, as the service answers by default); its sequence is drawn "
+                                       "beside the simulation")
+    r.add_argument("--unmatched", action="store_true", help="with --keyframes: the decoded latents alone "
+                   "(match_keyframes false)")
     r.add_argument("--served", action="store_true", help="with a two-layer --sim: drape's served layers (as POST "
                    "/v1/layers/animate poses them, at the sequence's H_in) drawn beside the simulation")
     r.add_argument("--garment-model", help="with --keyframes: the model folder (default the shipped one of the "

@@ -302,9 +302,10 @@ def _encode_npz(vertices: np.ndarray, motion: MotionLike, frame: int) -> dict:
             "headers": {"Content-Type": NPZ, "Accept": NPZ}}
 
 
-def _keyframes_npz(motion: MotionLike, keyframes: Sequence[KeyframeLike], refine: bool) -> dict:
+def _keyframes_npz(motion: MotionLike, keyframes: Sequence[KeyframeLike], refine: bool, match_keyframes: bool) -> dict:
     return {"content": encode_npz({**_motion_arrays(motion), **_keyframe_arrays(keyframes),
-                                   "refine": np.array(bool(refine))}), "headers": {"Content-Type": NPZ}}
+                                   "refine": np.array(bool(refine)), "match_keyframes": np.array(bool(match_keyframes))}),
+            "headers": {"Content-Type": NPZ}}
 
 
 def _sample_npz(count: int, seed: int, motion: MotionLike, frame: int) -> dict:
@@ -525,19 +526,21 @@ class Client(_Base):
 
     @overload
     def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                          refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
+                          refine: bool = False, match_keyframes: bool = True, format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                          refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+                          refine: bool = False, match_keyframes: bool = True, format: Literal["glb", "pc2"]) -> bytes: ...
 
     def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                          refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+                          refine: bool = False, match_keyframes: bool = True, format: Format = "array") -> np.ndarray | bytes:
         """The garment's stream (T, N, 3) float32 m from keyframes: each {"frame": f, "vertices": (N, 3)} (world
         space at frame f) or {"frame": f, "latent": (Z,)}, or a (frame, array) pair; latents are interpolated
-        between keyframes and decoded with every frame's motion window; `refine` pushes the garment out of its
-        body. format="glb" / "pc2": the bytes of a GLB vertex animation / a PC2 point cache."""
-        req = _keyframes_npz(motion, keyframes, refine)
+        between keyframes and decoded with every frame's motion window; with `match_keyframes` the stream meets
+        the shape keyframes exactly (what decoding misses of them is added back, fading away from them);
+        `refine` pushes the garment out of its body. format="glb" / "pc2": the bytes of a GLB vertex animation
+        / a PC2 point cache."""
+        req = _keyframes_npz(motion, keyframes, refine, match_keyframes)
         if format != "array":
             return self._file(_garment_path(name, "animate"), _file_type(format), **req)
         return self._frames(_garment_path(name, "animate"), **req)
@@ -612,16 +615,19 @@ class AsyncClient(_Base):
 
     @overload
     async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                                refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
+                                refine: bool = False, match_keyframes: bool = True,
+                                format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                                refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+                                refine: bool = False, match_keyframes: bool = True,
+                                format: Literal["glb", "pc2"]) -> bytes: ...
 
     async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                                refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+                                refine: bool = False, match_keyframes: bool = True,
+                                format: Format = "array") -> np.ndarray | bytes:
         """The garment's stream (T, N, 3) float32 m from keyframes (see Client.animate_keyframes)."""
-        req = _keyframes_npz(motion, keyframes, refine)
+        req = _keyframes_npz(motion, keyframes, refine, match_keyframes)
         if format != "array":
             return await self._file(_garment_path(name, "animate"), _file_type(format), **req)
         return await self._frames(_garment_path(name, "animate"), **req)

@@ -37,7 +37,13 @@ from drape.geometry.refine import (
 from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
-from drape.runtime.intrinsic import DECODE_BLOCK, INTRINSIC_DIR, GarmentRegistry, IntrinsicGarment
+from drape.runtime.intrinsic import (
+    DECODE_BLOCK,
+    INTRINSIC_DIR,
+    GarmentRegistry,
+    IntrinsicGarment,
+    KeyframeResidual,
+)
 from drape.runtime.layers import (
     InnerModel,
     LayerCatalog,
@@ -491,15 +497,16 @@ class Engine:
 
     def garment_chunks(self, garment: IntrinsicGarment, latents: np.ndarray, poses: np.ndarray,
                        translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,
-                       ) -> Iterator[np.ndarray]:
+                       residual: KeyframeResidual | None = None) -> Iterator[np.ndarray]:
         """An intrinsic garment's stream: latents (T, Z), one per frame of the motion (poses (T, 24, 3) rad,
         translation (T, 3) m) -> world-space vertices (n, N, 3) float32 m in chunks of up to `chunk` frames,
-        refined against the garment's body (its template faces) if asked. Decoding runs DECODE_BLOCK
+        refined against the garment's body (its template faces) if asked, with the keyframes' `residual` added
+        (character space) when given. Decoding runs DECODE_BLOCK
         frames per ONNX Runtime call, handed out a chunk at a time; the root frames are computed once."""
         motion = garment.motion_frames(poses, translation)
         block = max(chunk, DECODE_BLOCK)
         start = 0
-        for frames in garment.decode_chunks(latents, motion, block, observe=self._observe):
+        for frames in garment.decode_chunks(latents, motion, block, observe=self._observe, residual=residual):
             for s in range(0, len(frames), chunk):
                 part = frames[s : s + chunk]
                 if refine is not None:

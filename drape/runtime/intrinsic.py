@@ -42,6 +42,9 @@ from drape.runtime.model_files import checked_files, cpu_session
 INTRINSIC_DIR = Path(__file__).resolve().parents[1] / "assets" / "models" / "intrinsic"
 DECODE_BLOCK = 256  # frames decoded per ONNX Runtime call
 REQUIRED_FILES = ("shape_encode", "shape_decode", "encode", "decode", "template")
+# Seconds over which a shape keyframe's residual (what decoding its latent misses) fades: chosen on the intrinsic
+# validation split among 10, 20 and 40 frames at 30 fps and no fading (docs/intrinsic.md).
+KEYFRAME_FADE_S = 40 / 30
 
 
 @dataclass(frozen=True)
@@ -90,6 +93,43 @@ def interpolate(keyframes: Sequence[tuple[int, np.ndarray]], num_frames: int) ->
     a = np.clip((t - frames[j]) / span, 0.0, 1.0)[:, None]  # 0 before the first keyframe: held at it
     out = lat[j] * (1.0 - a) + lat[k] * a
     return out.astype(np.float32)
+
+
+def residual_weights(key_frames: np.ndarray, frames: np.ndarray, fade_frames: float) -> np.ndarray:
+    """Weights (n, K) of K keyframes' residuals at `frames` (n,) int: the linear interpolation weights of the
+    keyframes before and after each frame (the nearest keyframe's weight 1 before the first and after the last),
+    each times exp(-|frame - keyframe| / fade_frames). key_frames (K,) int, sorted, distinct; fade_frames > 0.
+    A keyframe's own frame weighs it 1 and the others 0."""
+    keys = np.asarray(key_frames, dtype=np.int64)
+    t = np.asarray(frames, dtype=np.int64)
+    j = np.clip(np.searchsorted(keys, t, side="right") - 1, 0, len(keys) - 1)  # keyframe at or before t
+    k = np.minimum(j + 1, len(keys) - 1)
+    span = np.maximum(keys[k] - keys[j], 1)
+    a = np.clip((t - keys[j]) / span, 0.0, 1.0)  # 0 before the first keyframe, 1 after the last (k == j there)
+    w = np.zeros((len(t), len(keys)))
+    rows = np.arange(len(t))
+    w[rows, j] += (1.0 - a) * np.exp(-np.abs(t - keys[j]) / fade_frames)
+    w[rows, k] += a * np.exp(-np.abs(keys[k] - t) / fade_frames)
+    return w
+
+
+@dataclass(frozen=True)
+class KeyframeResidual:
+    """What decoding leaves of the keyframes, added back so that each shape keyframe is met exactly at its frame
+    and its correction fades away from it (`residual_weights`).
+
+    frames (K,) int64 sorted; residuals (K, N, 3) float32 m, character space of each keyframe's frame (the
+    keyframe's shape minus its decoded shape; zeros for keyframes given as latents); fade_frames > 0.
+    """
+
+    frames: np.ndarray
+    residuals: np.ndarray
+    fade_frames: float
+
+    def at(self, start: int, stop: int) -> np.ndarray:
+        """The residual of frames start..stop-1, (stop - start, N, 3) float32 m, character space."""
+        w = residual_weights(self.frames, np.arange(start, stop), self.fade_frames).astype(np.float32)
+        return np.einsum("tk,knc->tnc", w, self.residuals)
 
 
 class IntrinsicGarment:
@@ -209,10 +249,31 @@ class IntrinsicGarment:
         motion = self.motion_frames(np.asarray(poses)[: frame + 1], np.asarray(trans)[: frame + 1])
         return self.encode_at(np.asarray(vertices_world)[None], [frame], motion)[0]
 
+    def keyframe_residual(self, shapes: np.ndarray, shape_frames: Sequence[int], latent_frames: Sequence[int],
+                          latents: np.ndarray, motion: MotionFrames, fps: float,
+                          fade_s: float = KEYFRAME_FADE_S) -> KeyframeResidual:
+        """The residual that makes a decoded stream meet its shape keyframes: shapes (Ks, N, 3) m world space at
+        shape_frames (Ks,); latent_frames (Kl,) the frames of keyframes given as latents (residual 0); latents
+        (T, Z) the stream's latents (each keyframe's own latent at its frame); fps of the motion; fade_s: the
+        fading's time constant, seconds."""
+        idx = np.asarray(shape_frames, dtype=np.int64).reshape(-1)
+        v = np.asarray(shapes, dtype=np.float64).reshape(len(idx), self.num_vertices, 3)
+        local = character_space_numpy(v, motion.root_position[idx], motion.root_rotation[idx]).astype(np.float32)
+        windows = (np.concatenate([motion.windows(int(f), int(f) + 1, self.window) for f in idx]) if len(idx)
+                   else np.zeros((0, self.window + 1, 24, 3), np.float32))
+        decoded = (self._decode_local(np.ascontiguousarray(latents[idx], dtype=np.float32), windows) if len(idx)
+                   else np.zeros_like(local))
+        frames = np.concatenate([idx, np.asarray(latent_frames, dtype=np.int64).reshape(-1)])
+        residuals = np.concatenate([local - decoded, np.zeros((len(frames) - len(idx), self.num_vertices, 3),
+                                                              np.float32)])
+        order = np.argsort(frames, kind="stable")
+        return KeyframeResidual(frames[order], residuals[order].astype(np.float32), fade_s * float(fps))
+
     def decode_chunks(self, latents: np.ndarray, motion: MotionFrames, chunk: int = DECODE_BLOCK,
-                      observe: Callable[[str, float], None] | None = None) -> Iterator[np.ndarray]:
+                      observe: Callable[[str, float], None] | None = None,
+                      residual: KeyframeResidual | None = None) -> Iterator[np.ndarray]:
         """latents (T, Z), one per frame of `motion` -> world-space vertices, (n, N, 3) float32 m per chunk of
-        up to `chunk` frames (one ONNX Runtime call each)."""
+        up to `chunk` frames (one ONNX Runtime call each); `residual` (character space) added when given."""
         z = np.asarray(latents, dtype=np.float32)
         if z.ndim != 2 or z.shape != (len(motion), self.latent_size):
             raise ValueError(f"expected ({len(motion)}, {self.latent_size}) latents, got {z.shape}")
@@ -220,17 +281,32 @@ class IntrinsicGarment:
             e = min(s + chunk, len(z))
             t = time.perf_counter()
             local = self._decode_local(np.ascontiguousarray(z[s:e]), motion.windows(s, e, self.window))
+            if residual is not None:
+                local = local + residual.at(s, e)
             if observe is not None:
                 observe("intrinsic_decode", time.perf_counter() - t)
             yield world_space_numpy(local, motion.root_position[s:e].astype(np.float32),
                                     motion.root_rotation[s:e].astype(np.float32))
 
     def decode(self, latents: np.ndarray, poses: np.ndarray, trans: np.ndarray,
-               chunk: int = DECODE_BLOCK) -> np.ndarray:
+               chunk: int = DECODE_BLOCK, residual: KeyframeResidual | None = None) -> np.ndarray:
         """latents (T, Z) and the motion (poses (T, 24, 3) rad, trans (T, 3) m) -> vertices (T, N, 3) float32 m,
-        world space; decoded `chunk` frames per ONNX Runtime call, the root frames computed once."""
+        world space; decoded `chunk` frames per ONNX Runtime call, the root frames computed once; `residual`
+        (from `keyframe_residual`) added in character space when given."""
         motion = self.motion_frames(poses, trans)
-        parts = list(self.decode_chunks(latents, motion, chunk))
+        parts = list(self.decode_chunks(latents, motion, chunk, residual=residual))
+        return np.concatenate(parts) if parts else np.zeros((0, self.num_vertices, 3), np.float32)
+
+    def keyframed(self, shapes: np.ndarray, frames: Sequence[int], poses: np.ndarray, trans: np.ndarray,
+                  fps: float, match_keyframes: bool = True, fade_s: float = KEYFRAME_FADE_S) -> np.ndarray:
+        """Shape keyframes -> the whole stream: shapes (K, N, 3) m world space at frames (K,) of the motion (poses
+        (T, 24, 3) rad, trans (T, 3) m, fps), encoded, their latents interpolated and decoded along the motion;
+        with match_keyframes, each keyframe's residual is added back (`keyframe_residual`). -> (T, N, 3) float32."""
+        motion = self.motion_frames(poses, trans)
+        z = self.encode_at(shapes, frames, motion)
+        latents = self.interpolate(list(zip([int(f) for f in frames], z, strict=True)), len(motion))
+        residual = self.keyframe_residual(shapes, frames, [], latents, motion, fps, fade_s) if match_keyframes else None
+        parts = list(self.decode_chunks(latents, motion, residual=residual))
         return np.concatenate(parts) if parts else np.zeros((0, self.num_vertices, 3), np.float32)
 
     def sample(self, count: int, seed: int, frame: int, poses: np.ndarray,

@@ -79,6 +79,9 @@ class Keyframe(BaseModel):
 class KeyframeFields(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
     keyframes: list[Keyframe] = Field(min_length=1, description="at least one; one keyframe per frame")
+    match_keyframes: bool = Field(True, description="keyframes given as vertices are met exactly at their frames: "
+                                  "what decoding their latents misses is added back, fading with the distance "
+                                  "from them (false: the decoded latents alone)")
     refine: bool | RefineOptions = Field(False, description="collision refinement post step against the "
                                                             "garment's body: true or options")
 

@@ -441,7 +441,7 @@ def _refine_form(data: bytes, content_type: str, settings: Settings,
 GARMENT_FORM = ("motion_file", "fps", "up", "request")
 GARMENT_NPZ = {
     "encode": ("vertices", "frame"),
-    "animate": ("vertex_frames", "vertices", "latent_frames", "latents", "refine", *REFINE_OPTIONS),
+    "animate": ("vertex_frames", "vertices", "latent_frames", "latents", "match_keyframes", "refine", *REFINE_OPTIONS),
     "sample": ("count", "seed", "frame"),
 }
 MOTION_NPZ = ("poses", "translation", "fps", "clip")
@@ -458,7 +458,8 @@ def garment_request(route: str, kind: str, data: bytes, settings: Settings, body
     JSON: the model itself. npz: the motion's members (clip or poses, translation, fps) and the route's:
     encode: vertices (N, 3), frame (integer scalar); sample: count, seed, frame (integer scalars); animate:
     vertex_frames (Kv,) with vertices (Kv, N, 3) and/or latent_frames (Kl,) with latents (Kl, Z) (keyframes
-    numbered vertex ones first), refine (boolean scalar) and/or the refine options as scalars. A multipart form:
+    numbered vertex ones first), match_keyframes (boolean scalar), refine (boolean scalar) and/or the refine
+    options as scalars. A multipart form:
     motion_file (a BVH or AMASS npz, retargeted onto the garment's `body`), fps, up, and `request`: the JSON
     request without its motion."""
     if kind == "application/x-npz":
@@ -547,6 +548,12 @@ def _garment_npz(route: str, data: bytes, settings: Settings) -> dict:
                                    "refine")
             refine = refine if (bool(flag) and refine) else bool(flag)
         request.update(keyframes=keyframes, refine=refine or False)
+        if "match_keyframes" in z:
+            flag = z["match_keyframes"]
+            if flag.shape != () or flag.dtype.kind != "b":
+                raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}",
+                                   "match_keyframes")
+            request["match_keyframes"] = bool(flag)
     return request
 
 

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from drape.runtime.engine import Engine, RefineSettings
-from drape.runtime.intrinsic import IntrinsicGarment, interpolate
+from drape.runtime.intrinsic import IntrinsicGarment, KeyframeResidual, interpolate
 from drape.schemas.garments import MAX_SAMPLES, MAX_SEED, GarmentInfo, GarmentList
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
 from drape.service.handlers import _array, check_answer_size, check_motion, check_refine
@@ -109,6 +109,7 @@ class KeyframePlan:
     fps: float
     latents: np.ndarray
     refine: RefineSettings | None = None
+    residual: KeyframeResidual | None = None
 
     @property
     def num_frames(self) -> int:
@@ -117,8 +118,9 @@ class KeyframePlan:
 
 def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
                    max_posed: int | None) -> KeyframePlan:
-    """request {"motion", "keyframes": [{"frame", "vertices" | "latent"}, ...], "refine"} -> the plan: keyframes
-    given as vertices encoded with the motion up to their frame, latents interpolated over every frame."""
+    """request {"motion", "keyframes": [{"frame", "vertices" | "latent"}, ...], "match_keyframes", "refine"} -> the
+    plan: keyframes given as vertices encoded with the motion up to their frame, latents interpolated over every
+    frame, and (match_keyframes, default true) the residual that makes the stream meet the shape keyframes."""
     keyframes = request.get("keyframes")
     if not isinstance(keyframes, list) or not keyframes:
         raise InvalidInput("give at least one keyframe", "keyframes")
@@ -147,12 +149,20 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
             latent_keys.append((frame, check_latent(key["latent"], garment, f"{field}.latent")))
         else:
             shapes.append((frame, check_shape(key["vertices"], garment, f"{field}.vertices")))
-    if shapes:
-        motion = garment.motion_frames(poses, trans)
-        frames = [f for f, _ in shapes]
-        encoded = garment.encode_at(np.stack([v for _, v in shapes]), frames, motion)
-        latent_keys += list(zip(frames, encoded, strict=True))
-    return KeyframePlan(garment, poses, trans, fps, interpolate(latent_keys, T), check_refine(request.get("refine")))
+    match = request.get("match_keyframes", True)
+    if not isinstance(match, bool):
+        raise InvalidInput(f"expected true or false, got {type(match).__name__}", "match_keyframes")
+    refine = check_refine(request.get("refine"))
+    if not shapes:
+        return KeyframePlan(garment, poses, trans, fps, interpolate(latent_keys, T), refine)
+    motion = garment.motion_frames(poses, trans)
+    frames = [f for f, _ in shapes]
+    given = [f for f, _ in latent_keys]
+    stacked = np.stack([v for _, v in shapes])
+    latent_keys += list(zip(frames, garment.encode_at(stacked, frames, motion), strict=True))
+    latents = interpolate(latent_keys, T)
+    residual = garment.keyframe_residual(stacked, frames, given, latents, motion, fps) if match else None
+    return KeyframePlan(garment, poses, trans, fps, latents, refine, residual)
 
 
 def sample(settings: Settings, garment: IntrinsicGarment, request: dict,

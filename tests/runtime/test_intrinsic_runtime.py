@@ -18,7 +18,14 @@ from drape.export.intrinsic import VERSION as INTRINSIC_VERSION
 from drape.geometry.character_space import motion_windows, root_frames
 from drape.models.intrinsic import character_space, world_space
 from drape.runtime.engine import Engine
-from drape.runtime.intrinsic import GarmentRegistry, IntrinsicGarment, garment_names, interpolate
+from drape.runtime.intrinsic import (
+    KEYFRAME_FADE_S,
+    GarmentRegistry,
+    IntrinsicGarment,
+    garment_names,
+    interpolate,
+    residual_weights,
+)
 from tests.intrinsic_model import NAME, WINDOW, intrinsic_model
 
 
@@ -111,6 +118,36 @@ def test_interpolation_is_linear_between_keyframes_and_held_outside():
         interpolate([(4, a), (4, b)], 10)
     with pytest.raises(ValueError, match="at least one"):
         interpolate([], 10)
+
+
+def test_residual_weights_are_the_interpolation_weights_faded_by_distance():
+    keys = np.array([4, 8, 14])
+    w = residual_weights(keys, np.arange(20), 5.0)
+    assert w.shape == (20, 3)
+    assert np.array_equal(w[keys], np.eye(3))  # a keyframe's own frame: itself alone, weight 1
+    assert np.allclose(w[6], [0.5 * np.exp(-2 / 5), 0.5 * np.exp(-2 / 5), 0])
+    assert np.allclose(w[9], [0, 5 / 6 * np.exp(-1 / 5), 1 / 6 * np.exp(-5 / 5)])
+    assert np.allclose(w[:4, 0], np.exp(-np.arange(4, 0, -1) / 5)) and not w[:4, 1:].any()  # before the first
+    assert np.allclose(w[15:, 2], np.exp(-np.arange(1, 6) / 5)) and not w[15:, :2].any()  # after the last
+    assert np.allclose(residual_weights(keys, np.arange(20), 1e12).sum(axis=1), 1.0)  # no fading: a partition
+
+
+def test_matched_keyframes_are_met_exactly_and_the_correction_fades(garment, motion):
+    poses, trans = motion
+    rng = np.random.default_rng(3)
+    keys = [10, 50]
+    shapes = garment.decode(np.tile(garment.latent_mean, (len(poses), 1)).astype(np.float32), poses, trans)[keys]
+    shapes = shapes + rng.normal(0, 0.01, shapes.shape).astype(np.float32)  # not a decoded shape
+    plain = garment.keyframed(shapes, keys, poses, trans, 30.0, match_keyframes=False)
+    matched = garment.keyframed(shapes, keys, poses, trans, 30.0)
+    assert np.abs(matched[keys] - shapes).max() <= 1e-5  # met exactly
+    assert np.abs(plain[keys] - shapes).max() > 5e-3  # the decoder alone does not meet them
+    fade = 30.0 * KEYFRAME_FADE_S
+    for t, k in ((0, 10), (5, 10), (60, 50), (69, 50)):  # before the first / after the last keyframe: its
+        # residual alone (a rigid move of it: same length per vertex), faded by the distance
+        gap = np.linalg.norm(matched[t] - plain[t], axis=1)
+        own = np.linalg.norm(shapes[keys.index(k)] - plain[k], axis=1)
+        assert np.allclose(gap, np.exp(-abs(t - k) / fade) * own, atol=1e-5)
 
 
 def test_sample_draws_from_the_latent_statistics(garment, motion):

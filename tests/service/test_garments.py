@@ -93,12 +93,18 @@ def test_models_lists_each_intrinsic_space(http, garment):
 def test_a_keyframe_as_vertices_equals_its_encoded_latent(server_url, garment, motion, shape):
     with drape.Client(server_url) as client:
         z = client.encode_keyframe(NAME, vertices=shape, motion=motion, frame=12)
-        by_vertices = client.animate_keyframes(NAME, motion=motion, keyframes=[{"frame": 12, "vertices": shape}])
+        by_vertices = client.animate_keyframes(NAME, motion=motion, keyframes=[{"frame": 12, "vertices": shape}],
+                                               match_keyframes=False)
         by_latent = client.animate_keyframes(NAME, motion=motion, keyframes=[(12, z)])
+        matched = client.animate_keyframes(NAME, motion=motion, keyframes=[{"frame": 12, "vertices": shape}])
     assert z.shape == (100,) and z.dtype == np.float32
     assert np.abs(z - garment.encode(shape, motion["poses"], motion["translation"], 12)).max() <= 1e-6
     assert by_vertices.shape == (40, garment.num_vertices, 3) and by_vertices.dtype == np.float32
     assert np.abs(by_vertices - by_latent).max() <= 1e-6
+    # by default the stream meets the shape keyframe (the random model's decoding does not)
+    assert np.abs(matched[12] - shape).max() <= 1e-5 < np.abs(by_vertices[12] - shape).max()
+    library = garment.keyframed(shape[None], [12], motion["poses"], motion["translation"], motion["fps"])
+    assert np.abs(matched - library).max() <= 1e-5
     ref = garment.decode(np.tile(z, (40, 1)), motion["poses"], motion["translation"])
     assert np.abs(by_latent - ref).max() <= 1e-5
     # one keyframe reproduces its own shape only roughly (the model is random), but drives every frame
@@ -127,10 +133,26 @@ def test_every_answer_format_agrees(server_url, http, garment, motion, shape):
     player = GlbPlayer(glb)
     for t in (0, 21, 39):
         assert np.abs(player.positions(NAME, t) - frames[t]).max() < 1e-5
-    # the latents are interpolated: frame 21 is decoded from the mean of the two keyframes' latents
-    z12 = garment.encode(shape, motion["poses"], motion["translation"], 12)
-    mid = garment.decode(np.tile((z12 + z0) / 2, (40, 1)), motion["poses"], motion["translation"])[21]
-    assert np.abs(frames[21] - mid).max() <= 1e-5
+    # the latents are interpolated: frame 21 is decoded from the mean of the two keyframes' latents, plus the
+    # shape keyframe's residual faded; the latent keyframe's frame is its latent decoded, no residual
+    poses, trans = motion["poses"], motion["translation"]
+    z12 = garment.encode(shape, poses, trans, 12)
+    latents = garment.interpolate([(12, z12), (30, z0)], 40)
+    assert np.allclose(latents[21], (z12 + z0) / 2, atol=1e-6)
+    residual = garment.keyframe_residual(shape[None], [12], [30], latents, garment.motion_frames(poses, trans), 30.0)
+    assert np.abs(frames - garment.decode(latents, poses, trans, residual=residual)).max() <= 1e-5
+    assert np.abs(frames[30] - garment.decode(latents, poses, trans)[30]).max() <= 1e-5
+    assert np.abs(frames[12] - shape).max() <= 1e-5
+    plain_npz = encode_npz({**{k: np.asarray(v) for k, v in motion.items()}, "vertex_frames": np.array([12]),
+                            "vertices": shape[None], "latent_frames": np.array([30]), "latents": z0[None],
+                            "match_keyframes": np.array(False)})
+    plain = decode_npz(http.post(f"/v1/garments/{NAME}/animate", content=plain_npz,
+                                 headers={"content-type": NPZ, "accept": NPZ}).content)["vertices"]
+    plain_js = http.post(f"/v1/garments/{NAME}/animate", json={
+        "motion": json_motion(motion), "match_keyframes": False,
+        "keyframes": [{"frame": 12, "vertices": shape.tolist()}, {"frame": 30, "latent": z0.tolist()}]}).json()
+    assert np.abs(plain - garment.decode(latents, poses, trans)).max() <= 1e-5
+    assert np.array_equal(np.asarray(plain_js["vertices"], np.float32), plain)
 
 
 def test_refinement_pushes_the_garment_out_of_its_body(server_url, garment, motion):
@@ -167,15 +189,18 @@ def test_async_client(server_url, garment, motion, shape):
             listed = await client.garments()
             tpl = await client.garment(NAME)
             z = await client.encode_keyframe(NAME, vertices=shape, motion=motion, frame=12)
-            frames = await client.animate_keyframes(NAME, motion=motion, keyframes=[(12, shape)])
+            frames = await client.animate_keyframes(NAME, motion=motion, keyframes=[(12, shape)],
+                                                    match_keyframes=False)
+            matched = await client.animate_keyframes(NAME, motion=motion, keyframes=[(12, shape)])
             pc2 = await client.animate_keyframes(NAME, motion=motion, keyframes=[(12, z)], format="pc2")
             samples = await client.sample_designs(NAME, count=2, seed=1, motion="kick", frame=3)
-            return listed, tpl, z, frames, pc2, samples
+            return listed, tpl, z, frames, matched, pc2, samples
 
-    listed, tpl, z, frames, pc2, samples = asyncio.run(go())
+    listed, tpl, z, frames, matched, pc2, samples = asyncio.run(go())
     assert listed.garments[0].name == NAME and tpl.vertices.shape == (garment.num_vertices, 3)
     assert np.abs(z - garment.encode(shape, motion["poses"], motion["translation"], 12)).max() <= 1e-6
     assert np.abs(read_pc2(pc2)[0] - frames).max() <= 1e-6
+    assert np.abs(matched[12] - shape).max() <= 1e-5
     assert samples.latents.shape == (2, 100) and samples.vertices.shape == (2, garment.num_vertices, 3)
 
 
@@ -263,6 +288,8 @@ def test_bad_inputs_name_their_field(http, garment, shape):
     # the motion, the refine options, formats
     problem(post("sample", count=2, motion={"clip": "moonwalk"}), 404, "motion.clip")
     problem(post("animate", motion=kick, keyframes=[{"frame": 0, "latent": z}], refine={"eps": -1.0}), 422, "eps")
+    problem(post("animate", motion=kick, keyframes=[{"frame": 0, "latent": z}], match_keyframes="yes"), 422,
+            "match_keyframes")
     problem(http.post(f"/v1/garments/{NAME}/encode", content=b"x", headers={"content-type": "text/plain"}), 415,
             "Content-Type")
     problem(http.post(f"/v1/garments/{NAME}/sample", json={"count": 1, "motion": kick}, headers={"accept": GLB}),
@@ -287,6 +314,8 @@ def test_bad_npz_inputs_name_their_field(http, garment, shape):
             "keyframes[0].latent", "100 values")
     problem(post("animate", latent_frames=np.array([1, 2]), latents=np.zeros((1, 100), np.float32)), 422, "latents")
     problem(post("animate", vertex_frames=np.array([1])), 422, "vertices")
+    problem(post("animate", latent_frames=np.array([1]), latents=np.zeros((1, 100), np.float32),
+                 match_keyframes=np.array([True, False])), 422, "match_keyframes", "boolean scalar")
     problem(post("sample", count=np.array(65)), 422, "count")
     problem(post("sample", count=np.array(2), frame=np.array(500)), 422, "frame")
     buf = io.BytesIO()

@@ -147,13 +147,14 @@ async def encode_keyframe(request: Request, name: str = NAME) -> Response:
         GLB: BINARY}}, **ERRORS},
     openapi_extra=_request_body(
         "KeyframeAnimateRequest", "vertex_frames (Kv,) integers with vertices (Kv, N, 3) and/or latent_frames (Kl,) "
-        "with latents (Kl, Z); refine (boolean scalar) and/or the refine options as scalars: eps, max_iterations, "
-        "relief_iterations", "KeyframeFields", "keyframes, refine"))
+        "with latents (Kl, Z); match_keyframes (boolean scalar); refine (boolean scalar) and/or the refine options as "
+        "scalars: eps, max_iterations, relief_iterations", "KeyframeFields", "keyframes, match_keyframes, refine"))
 async def animate_keyframes(request: Request, name: str = NAME) -> Response:
     """Keyframes + motion (+ refine) -> the garment's vertices (T, N, 3) m, world space. A keyframe is a shape
     (vertices (N, 3), world space at its frame: encoded with the motion up to that frame) or a latent (Z,); the
     latents are interpolated linearly between keyframes (held before the first and after the last) and each
-    frame is decoded with its motion window; refinement pushes the garment out of its body. Answers as
+    frame is decoded with its motion window; with match_keyframes (default) shape keyframes are met exactly, what
+    decoding misses of them added back and fading away from them; refinement pushes the garment out of its body. Answers as
     /v1/outfits/animate: JSON, npz, the frame stream, PC2, or GLB (the stream as a vertex animation)."""
     answer = choose(request.headers.get("accept"), STREAM_FORMATS)
     post = await _read_post(request, name)
@@ -165,7 +166,7 @@ async def animate_keyframes(request: Request, name: str = NAME) -> Response:
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.garment_chunks(garment, p.latents, p.poses, p.translation, settings.stream_chunk_frames,
-                                         refine=p.refine)
+                                         refine=p.refine, residual=p.residual)
 
         return FrameSource(chunks, garment.faces, p.num_frames, garment.num_vertices, p.fps, "")
 
