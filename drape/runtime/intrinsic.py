@@ -95,21 +95,30 @@ def interpolate(keyframes: Sequence[tuple[int, np.ndarray]], num_frames: int) ->
     return out.astype(np.float32)
 
 
-def residual_weights(key_frames: np.ndarray, frames: np.ndarray, fade_frames: float) -> np.ndarray:
-    """Weights (n, K) of K keyframes' residuals at `frames` (n,) int: the linear interpolation weights of the
-    keyframes before and after each frame (the nearest keyframe's weight 1 before the first and after the last),
-    each times exp(-|frame - keyframe| / fade_frames). key_frames (K,) int, sorted, distinct; fade_frames > 0.
-    A keyframe's own frame weighs it 1 and the others 0."""
+def _bracketing(key_frames: np.ndarray, frames: np.ndarray, fade_frames: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For each of `frames` (n,): the keyframes before and after it (indices j, k (n,) into key_frames; j == k
+    before the first and after the last) and their weights (n,) each (see residual_weights)."""
     keys = np.asarray(key_frames, dtype=np.int64)
     t = np.asarray(frames, dtype=np.int64)
     j = np.clip(np.searchsorted(keys, t, side="right") - 1, 0, len(keys) - 1)  # keyframe at or before t
     k = np.minimum(j + 1, len(keys) - 1)
     span = np.maximum(keys[k] - keys[j], 1)
     a = np.clip((t - keys[j]) / span, 0.0, 1.0)  # 0 before the first keyframe, 1 after the last (k == j there)
-    w = np.zeros((len(t), len(keys)))
-    rows = np.arange(len(t))
-    w[rows, j] += (1.0 - a) * np.exp(-np.abs(t - keys[j]) / fade_frames)
-    w[rows, k] += a * np.exp(-np.abs(keys[k] - t) / fade_frames)
+    return (j, k, (1.0 - a) * np.exp(-np.abs(t - keys[j]) / fade_frames),
+            a * np.exp(-np.abs(keys[k] - t) / fade_frames))
+
+
+def residual_weights(key_frames: np.ndarray, frames: np.ndarray, fade_frames: float) -> np.ndarray:
+    """Weights (n, K) of K keyframes' residuals at `frames` (n,) int: the linear interpolation weights of the
+    keyframes before and after each frame (the nearest keyframe's weight 1 before the first and after the last),
+    each times exp(-|frame - keyframe| / fade_frames). key_frames (K,) int, sorted, distinct; fade_frames > 0.
+    A keyframe's own frame weighs it 1 and the others 0."""
+    j, k, wj, wk = _bracketing(key_frames, frames, fade_frames)
+    w = np.zeros((len(j), len(key_frames)))
+    rows = np.arange(len(j))
+    w[rows, j] += wj
+    w[rows, k] += wk
     return w
 
 
@@ -128,8 +137,9 @@ class KeyframeResidual:
 
     def at(self, start: int, stop: int) -> np.ndarray:
         """The residual of frames start..stop-1, (stop - start, N, 3) float32 m, character space."""
-        w = residual_weights(self.frames, np.arange(start, stop), self.fade_frames).astype(np.float32)
-        return np.einsum("tk,knc->tnc", w, self.residuals)
+        j, k, wj, wk = _bracketing(self.frames, np.arange(start, stop), self.fade_frames)
+        r = self.residuals
+        return (wj.astype(np.float32)[:, None, None] * r[j] + wk.astype(np.float32)[:, None, None] * r[k])
 
 
 class IntrinsicGarment:

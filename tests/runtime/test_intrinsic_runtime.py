@@ -22,6 +22,7 @@ from drape.runtime.intrinsic import (
     KEYFRAME_FADE_S,
     GarmentRegistry,
     IntrinsicGarment,
+    KeyframeResidual,
     garment_names,
     interpolate,
     residual_weights,
@@ -130,6 +131,9 @@ def test_residual_weights_are_the_interpolation_weights_faded_by_distance():
     assert np.allclose(w[:4, 0], np.exp(-np.arange(4, 0, -1) / 5)) and not w[:4, 1:].any()  # before the first
     assert np.allclose(w[15:, 2], np.exp(-np.arange(1, 6) / 5)) and not w[15:, :2].any()  # after the last
     assert np.allclose(residual_weights(keys, np.arange(20), 1e12).sum(axis=1), 1.0)  # no fading: a partition
+    r = np.random.default_rng(0).normal(size=(3, 7, 3)).astype(np.float32)
+    dense = np.einsum("tk,knc->tnc", residual_weights(keys, np.arange(2, 17), 5.0), r)
+    assert np.allclose(KeyframeResidual(keys, r, 5.0).at(2, 17), dense, atol=1e-6)
 
 
 def test_matched_keyframes_are_met_exactly_and_the_correction_fades(garment, motion):
