@@ -230,7 +230,8 @@ def _render_sim(args: argparse.Namespace) -> None:
                   Layer(keyed + side, garment.faces, (0.85, 0.45, 0.2))]
         titles = [f"frame {f}" + (" (keyframe)" if f in keys else "") for f in frames]
         caption = (f"left: the simulation ({caption.split(': ', 1)[1]}); right: drape's intrinsic space "
-                   f"from keyframes at frames {', '.join(map(str, keys))} of it")
+                   f"from keyframes at frames {', '.join(map(str, keys))} of it, "
+                   + ("unmatched" if args.unmatched else "matched"))
     if args.served:
         layers, model = _served_layers_beside(seq, frames, body, layers, args.azimuth)
         caption = (f"left: MuJoCo ({seq['garment']}, clip {seq['motion']}, inner orange, H_in "
