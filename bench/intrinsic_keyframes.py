@@ -2,7 +2,8 @@
 keyframes (first and last frame included) over each validation sequence, the mean vertex error (mm) of the
 whole sequence for drape's latents alone, for drape with the keyframes matched at several fading time
 constants (`drape.runtime.intrinsic.keyframe_residual`; "none": the residual interpolated linearly, no fading),
-and for linear interpolation of the vertices in character space. This is how KEYFRAME_FADE_S was chosen.
+and for linear interpolation of the vertices in character space (`drape.training.intrinsic_eval.keyframe_errors`,
+what the test table's keyframe ratio uses). This is how KEYFRAME_FADE_S was chosen.
 
 Run: .venv/bin/python -m bench.intrinsic_keyframes --config drape/training/configs/intrinsic_skirt.json
      [--model drape/assets/models/intrinsic/skirt] [--fades 0.333,0.667,1.333,none]
@@ -16,12 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.geometry.character_space import character_space_numpy, world_space_numpy
-from drape.geometry.metrics import mean_vertex_error_mm
 from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
 from drape.training.intrinsic import validation_masks
 from drape.training.intrinsic_data import load_frames
-from drape.training.intrinsic_eval import _load
+from drape.training.intrinsic_eval import _load, keyframe_errors
 
 COUNTS = (2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 30, 40)
 NO_FADE_S = 1e9
@@ -37,30 +36,6 @@ def validation_items(config: dict, window: int) -> list[dict]:
     return [it for it in manifest["items"] if it["split"] == "train" and (it["params"], it["motion"]) in pairs]
 
 
-def sequence_errors(garment: IntrinsicGarment, seq: dict, fades: dict[str, float]) -> dict[str, dict[int, float]]:
-    """{method: {keyframe count: mean vertex error mm}} for one sequence."""
-    v, poses, trans = seq["vertices"], seq["poses"], seq["trans"]
-    T = len(v)
-    motion = garment.motion_frames(poses, trans)
-    cs = character_space_numpy(v, motion.root_position, motion.root_rotation)
-    out: dict[str, dict[int, float]] = {"drape": {}, **{f"matched, fade {k}": {} for k in fades}, "vertex_interp": {}}
-    for k in (c for c in COUNTS if c <= T):
-        keys = np.unique(np.round(np.linspace(0, T - 1, k)).astype(int))
-        z = garment.encode_at(v[keys], keys.tolist(), motion)
-        latents = garment.interpolate(list(zip(keys.tolist(), z, strict=True)), T)
-        out["drape"][k] = mean_vertex_error_mm(np.concatenate(list(garment.decode_chunks(latents, motion))), v)
-        for name, fade in fades.items():
-            res = garment.keyframe_residual(v[keys], keys.tolist(), [], latents, motion, seq["fps"], fade)
-            pred = np.concatenate(list(garment.decode_chunks(latents, motion, residual=res)))
-            out[f"matched, fade {name}"][k] = mean_vertex_error_mm(pred, v)
-        j = np.clip(np.searchsorted(keys, np.arange(T), side="right") - 1, 0, len(keys) - 2)
-        a = ((np.arange(T) - keys[j]) / (keys[j + 1] - keys[j]))[:, None, None]
-        lerp = world_space_numpy((1 - a) * cs[keys[j]] + a * cs[keys[j + 1]], motion.root_position,
-                                 motion.root_rotation)
-        out["vertex_interp"][k] = mean_vertex_error_mm(lerp, v)
-    return out
-
-
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--config", required=True)
@@ -71,7 +46,8 @@ def main() -> None:
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
     fades = {f: (NO_FADE_S if f == "none" else float(f)) for f in args.fades.split(",")}
     items = validation_items(config, garment.window)
-    rows = [sequence_errors(garment, _load(Path(config["dataset"]), it), fades) for it in items]
+    rows = [keyframe_errors(garment, _load(Path(config["dataset"]), it), COUNTS,
+                            {f"matched, fade {k}": f for k, f in fades.items()}) for it in items]
     methods = list(rows[0])
     print(f"model {garment.path} ({garment.version}), {len(items)} validation sequences of {args.config}; "
           "mean vertex error of the whole sequence (mm), mean over sequences")

@@ -303,7 +303,11 @@ class IntrinsicGarment:
         """latents (T, Z) and the motion (poses (T, 24, 3) rad, trans (T, 3) m) -> vertices (T, N, 3) float32 m,
         world space; decoded `chunk` frames per ONNX Runtime call, the root frames computed once; `residual`
         (from `keyframe_residual`) added in character space when given."""
-        motion = self.motion_frames(poses, trans)
+        return self.decode_motion(latents, self.motion_frames(poses, trans), chunk, residual)
+
+    def decode_motion(self, latents: np.ndarray, motion: MotionFrames, chunk: int = DECODE_BLOCK,
+                      residual: KeyframeResidual | None = None) -> np.ndarray:
+        """`decode` for root frames already computed (`motion_frames`) -> vertices (T, N, 3) float32 m."""
         parts = list(self.decode_chunks(latents, motion, chunk, residual=residual))
         return np.concatenate(parts) if parts else np.zeros((0, self.num_vertices, 3), np.float32)
 
@@ -316,8 +320,7 @@ class IntrinsicGarment:
         z = self.encode_at(shapes, frames, motion)
         latents = self.interpolate(list(zip([int(f) for f in frames], z, strict=True)), len(motion))
         residual = self.keyframe_residual(shapes, frames, [], latents, motion, fps, fade_s) if match_keyframes else None
-        parts = list(self.decode_chunks(latents, motion, residual=residual))
-        return np.concatenate(parts) if parts else np.zeros((0, self.num_vertices, 3), np.float32)
+        return self.decode_motion(latents, motion, residual=residual)
 
     def sample(self, count: int, seed: int, frame: int, poses: np.ndarray,
                trans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

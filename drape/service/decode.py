@@ -265,11 +265,9 @@ def _animate_npz(data: bytes, settings: Settings, engine: Engine) -> dict:
               "poses": npz_numbers(z, "poses") if "poses" in z else None,
               "translation": npz_numbers(z, "translation") if "translation" in z else None}
     refine: bool | dict | None = npz_options(z)
-    if "refine" in z:
-        flag = z["refine"]
-        if flag.shape != () or flag.dtype.kind != "b":
-            raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}", "refine")
-        refine = refine if (bool(flag) and refine) else bool(flag)
+    flag = npz_flag(z, "refine")
+    if flag is not None:
+        refine = refine if (flag and refine) else flag
     request: dict[str, Any] = {"motion": motion, "body": npz_text(z, "body"), "refine": refine or False,
                                "outfit_id": outfit_id, "outfit": None, "influences": npz_scalar(z, "influences"),
                                "fit": bool(npz_flag(z, "fit"))}
@@ -541,19 +539,13 @@ def _garment_npz(route: str, data: bytes, settings: Settings) -> dict:
             raise InvalidInput("give at least one keyframe: 'vertex_frames' with 'vertices' and/or 'latent_frames' "
                                "with 'latents'", "keyframes")
         refine: bool | dict | None = npz_options(z)
-        if "refine" in z:
-            flag = z["refine"]
-            if flag.shape != () or flag.dtype.kind != "b":
-                raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}",
-                                   "refine")
-            refine = refine if (bool(flag) and refine) else bool(flag)
+        flag = npz_flag(z, "refine")
+        if flag is not None:
+            refine = refine if (flag and refine) else flag
         request.update(keyframes=keyframes, refine=refine or False)
-        if "match_keyframes" in z:
-            flag = z["match_keyframes"]
-            if flag.shape != () or flag.dtype.kind != "b":
-                raise InvalidInput(f"expected a boolean scalar, got dtype {flag.dtype} and shape {flag.shape}",
-                                   "match_keyframes")
-            request["match_keyframes"] = bool(flag)
+        match = npz_flag(z, "match_keyframes")
+        if match is not None:
+            request["match_keyframes"] = match
     return request
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.assets.body import load_body
-from drape.geometry.character_space import character_space_numpy, root_frames, world_space_numpy
+from drape.geometry.character_space import character_space_numpy, world_space_numpy
 from drape.geometry.metrics import (
     collision_share,
     edge_length_error_mm,
@@ -41,7 +41,7 @@ from drape.geometry.metrics import (
     mean_vertex_error_mm,
     sted,
 )
-from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
+from drape.runtime.intrinsic import INTRINSIC_DIR, KEYFRAME_FADE_S, IntrinsicGarment
 
 WINDOW = 96  # frames between and including the two keyframes (Fig. 13)
 
@@ -70,16 +70,17 @@ def two_keyframes(garment: IntrinsicGarment, seq: dict, length: int = WINDOW) ->
     if T < length:
         raise ValueError(f"sequence of {T} frames is shorter than the {length}-frame window")
     a, b = T - length, T - 1
-    body = load_body(garment.body)
-    _, rp, rr = root_frames(poses, trans, body.joints, body.parents)
+    motion = garment.motion_frames(poses, trans)
+    rp, rr = motion.root_position, motion.root_rotation
     cs = character_space_numpy(v, rp, rr)
     t = (np.arange(a, b + 1) - a) / (b - a)  # (length,)
     between = slice(1, length - 1)
     truth = v[a:b + 1][between]
 
-    z = garment.interpolate([(a, garment.encode(v[a], poses, trans, a)), (b, garment.encode(v[b], poses, trans, b))], T)
-    drape = garment.decode(z, poses, trans)[a:b + 1]
-    matched = garment.keyframed(v[[a, b]], [a, b], poses, trans, seq["fps"])[a:b + 1]
+    z = garment.interpolate(list(zip([a, b], garment.encode_at(v[[a, b]], [a, b], motion), strict=True)), T)
+    residual = garment.keyframe_residual(v[[a, b]], [a, b], [], z, motion, seq["fps"])
+    drape = garment.decode_motion(z, motion)[a:b + 1]
+    matched = garment.decode_motion(z, motion, residual=residual)[a:b + 1]
     lerp_cs = (1 - t)[:, None, None] * cs[a] + t[:, None, None] * cs[b]
     vertex = world_space_numpy(lerp_cs, rp[a:b + 1], rr[a:b + 1])
     s = garment.descriptors(cs[[a, b]])
@@ -95,33 +96,41 @@ KEYFRAME_THRESHOLD_MM = 10.0  # the mean vertex error a keyframed sequence must 
 KEYFRAME_COUNTS = (2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 75, 100, 150)
 
 
-def keyframe_ratio(garment: IntrinsicGarment, seq: dict, threshold_mm: float = KEYFRAME_THRESHOLD_MM,
-                   counts: tuple[int, ...] = KEYFRAME_COUNTS) -> dict:
-    """The fewest evenly spaced keyframes (first and last frame included) that keep the mean vertex error of
-    the whole sequence under `threshold_mm`, for drape (latents interpolated; keyframes unmatched and matched)
-    and for linear interpolation
-    of the vertices in character space; as counts and as % of the frames (None: not reached by the
-    largest count tried), with each method's error at every count tried."""
+def keyframe_errors(garment: IntrinsicGarment, seq: dict, counts: tuple[int, ...],
+                    fades: dict[str, float]) -> dict[str, dict[int, float]]:
+    """Mean vertex error (mm) of the whole sequence `seq` from k evenly spaced keyframes (first and last frame
+    included), for each k of `counts` up to its length: {"drape": latents alone, <name>: keyframes matched with
+    fading time constant fades[name] (seconds), "vertex_interp": linear interpolation of the vertices in
+    character space} -> {method: {k: error}}."""
     v, poses, trans = seq["vertices"], seq["poses"], seq["trans"]
     T = len(v)
-    body = load_body(garment.body)
-    _, rp, rr = root_frames(poses, trans, body.joints, body.parents)
-    cs = character_space_numpy(v, rp, rr)
     motion = garment.motion_frames(poses, trans)
-    errors: dict[str, dict[int, float]] = {"drape": {}, "drape_matched": {}, "vertex_interp": {}}
+    rp, rr = motion.root_position, motion.root_rotation
+    cs = character_space_numpy(v, rp, rr)
+    errors: dict[str, dict[int, float]] = {"drape": {}, **{name: {} for name in fades}, "vertex_interp": {}}
     for k in (c for c in counts if c <= T):
         keys = np.unique(np.round(np.linspace(0, T - 1, k)).astype(int))
         z = garment.encode_at(v[keys], keys.tolist(), motion)
         latents = garment.interpolate(list(zip(keys.tolist(), z, strict=True)), T)
-        drape = list(garment.decode_chunks(latents, motion))
-        errors["drape"][k] = mean_vertex_error_mm(np.concatenate(drape), v)
-        residual = garment.keyframe_residual(v[keys], keys.tolist(), [], latents, motion, seq["fps"])
-        matched = np.concatenate(list(garment.decode_chunks(latents, motion, residual=residual)))
-        errors["drape_matched"][k] = mean_vertex_error_mm(matched, v)
+        errors["drape"][k] = mean_vertex_error_mm(garment.decode_motion(latents, motion), v)
+        for name, fade in fades.items():
+            residual = garment.keyframe_residual(v[keys], keys.tolist(), [], latents, motion, seq["fps"], fade)
+            errors[name][k] = mean_vertex_error_mm(garment.decode_motion(latents, motion, residual=residual), v)
         j = np.clip(np.searchsorted(keys, np.arange(T), side="right") - 1, 0, len(keys) - 2)
         a = ((np.arange(T) - keys[j]) / (keys[j + 1] - keys[j]))[:, None, None]
         lerp = world_space_numpy((1 - a) * cs[keys[j]] + a * cs[keys[j + 1]], rp, rr)
         errors["vertex_interp"][k] = mean_vertex_error_mm(lerp, v)
+    return errors
+
+
+def keyframe_ratio(garment: IntrinsicGarment, seq: dict, threshold_mm: float = KEYFRAME_THRESHOLD_MM,
+                   counts: tuple[int, ...] = KEYFRAME_COUNTS) -> dict:
+    """The fewest evenly spaced keyframes (first and last frame included) that keep the mean vertex error of
+    the whole sequence under `threshold_mm`, for drape (latents interpolated; keyframes unmatched and matched
+    at KEYFRAME_FADE_S) and for linear interpolation of the vertices in character space; as counts and as % of
+    the frames (None: not reached by the largest count tried), with each method's error at every count tried."""
+    T = len(seq["vertices"])
+    errors = keyframe_errors(garment, seq, counts, {"drape_matched": KEYFRAME_FADE_S})
     out: dict = {"frames": T, "threshold_mm": threshold_mm}
     for name, e in errors.items():
         fewest = next((k for k in sorted(e) if e[k] < threshold_mm), None)
