@@ -55,16 +55,33 @@ def _rot(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.ndarray:
     )
 
 
+def _spread_legs(ch: dict[str, list[np.ndarray]], n: int, fps: float, rng: np.random.Generator,
+                 spread: float) -> None:
+    """Add legs-apart bursts to the (rx, ry, rz) channels `ch` in place: one signal's positive lobes lift
+    the left leg, its negative lobes the right one (never both), the other leg reaching back."""
+    side_signal = smooth_noise(n, fps, rng, 1.3)
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        lift = spread * 1.5 * np.clip(sign * side_signal - 0.5, 0.0, 1.0)  # bursts where |signal| > 0.5
+        back = spread * 1.5 * np.clip(-sign * side_signal - 0.5, 0.0, 1.0)
+        ch[f"{side}_hip"][0] += -1.0 * lift + 0.35 * back  # swing forward, or reach back
+        ch[f"{side}_hip"][2] += sign * 0.35 * lift * np.abs(smooth_noise(n, fps, rng, 1.0))  # and out
+        ch[f"{side}_knee"][0] += 0.4 * back  # the standing leg bends a little
+
+
 def generate_motion(
     frames: int,
     seed: int = 0,
     fps: float = 30.0,
     body: str | Body = "neutral",
     walk: float = 0.6,
+    spread: float = 0.0,
 ) -> Motion:
     """A procedural motion of `frames` frames.
 
     walk: share of the time spent walking rather than standing, reaching and turning (0..1).
+    spread: amplitude (0..1) of legs-apart bursts: one leg at a time swung forward and out (a kick, a lunge,
+        a wide step) while the other reaches back, up to the hips' limits (ankles ~1.2 m apart at 1, like
+        the DeepMimic kick). Drawn from a second generator, so `spread=0` gives exactly the motion without it.
     """
     if frames < 1:
         raise ValueError("frames must be >= 1")
@@ -100,6 +117,8 @@ def generate_motion(
         for axis in range(3):
             ch[name][axis] += amp * smooth_noise(n, fps, rng, 1.8)
     ch["spine1"][0] += 0.05 * g  # lean into the walk
+    if spread > 0:
+        _spread_legs(ch, n, fps, np.random.default_rng([seed, 1]), spread)
 
     local = np.repeat(np.eye(3)[None, None], 24, axis=1).repeat(n, axis=0)
     for name, (lx, ly, lz) in LIMITS.items():

@@ -161,11 +161,16 @@ def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:
 
 
 def pose_pool(cfg: dict) -> np.ndarray:
-    """(P, 24, 3) float32 training poses: procedural motions + non-held-out clips + the config's real
-    mocap clips (`mocap`: {"dir", "fps", "train": [names]}, if any), root zeroed."""
+    """(P, 24, 3) float32 training poses: procedural motions, legs-apart procedural motions
+    (`procedural_spread`: {"motions", "spread"}, if any; generate_motion's `spread`) + non-held-out clips +
+    the config's real mocap clips (`mocap`: {"dir", "fps", "train": [names]}, if any), root zeroed."""
     poses = []
     for i in range(cfg["procedural_motions"]):
         poses.append(generate_motion(cfg["procedural_frames"], seed=cfg["seed"] + 500 + i).poses)
+    wide: dict = cfg.get("procedural_spread") or {}
+    for i in range(wide.get("motions", 0)):
+        poses.append(generate_motion(cfg["procedural_frames"], seed=cfg["seed"] + 900 + i,
+                                     spread=float(wide["spread"])).poses)
     for name in list_clips():
         if name not in cfg["heldout_clips"]:
             poses.append(load_clip(name).poses)

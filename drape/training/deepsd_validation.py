@@ -2,7 +2,7 @@
 
 The split (a config's `validation`): the evaluation's outfit types with other seeds (`outfit_seed` + i, on
 the config's bodies in turn), posed along motions no training or evaluation uses: procedural motions of
-`procedural_seeds` and real CMU clips (`clips`, imported from the config's mocap folder onto each body at its
+`procedural_seeds`, legs-apart ones (`procedural_spread`: {"seeds", "spread"}, if any) and real CMU clips (`clips`, imported from the config's mocap folder onto each body at its
 fps). Each candidate checkpoint is exported to ONNX and measured as it would be served (the
 `influences`-influence rig of drape.runtime.sparse_rig): the share of vertices inside the posed body (exact
 closest-triangle signed distance; %) on `frames_per_clip` frames of each motion, and the mean edge-length
@@ -46,9 +46,12 @@ def _clip(directory: str, name: str, body: str, fps: float) -> Motion:
 
 
 def validation_motions(cfg: dict, body: str) -> list[Motion]:
-    """The validation motions on `body`: procedural ones, then the real clips."""
+    """The validation motions on `body`: procedural ones, legs-apart ones, then the real clips."""
     v = cfg["validation"]
     out = [generate_motion(v["procedural_frames"], seed=s, body=body) for s in v["procedural_seeds"]]
+    wide: dict = v.get("procedural_spread") or {}
+    out += [generate_motion(v["procedural_frames"], seed=s, body=body, spread=float(wide["spread"]))
+            for s in wide.get("seeds", [])]
     mocap = cfg["mocap"]
     return out + [_clip(str(mocap["dir"]), c, body, float(mocap["fps"])) for c in v["clips"]]
 

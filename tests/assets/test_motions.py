@@ -102,6 +102,27 @@ def test_procedural_motion_smooth_limited_seeded():
     assert long.num_frames == 3000 and np.isfinite(long.poses).all()
 
 
+def _ankle_separation(motion, body):
+    _, joints = forward_kinematics(motion.poses, body.joints)
+    return np.linalg.norm(joints[:, JOINT_INDEX["left_ankle"]] - joints[:, JOINT_INDEX["right_ankle"]], axis=1)
+
+
+def test_spread_motions_part_the_legs_like_the_kick_and_leave_spread_zero_unchanged():
+    body = load_body("neutral")
+    plain, zero = generate_motion(300, seed=7), generate_motion(300, seed=7, spread=0.0)
+    assert np.array_equal(plain.poses, zero.poses) and np.array_equal(plain.trans, zero.trans)
+    wide = generate_motion(300, seed=7, spread=1.0)
+    kick = _ankle_separation(load_clip("kick"), body)
+    # the plain generator never parts the legs as far as the held-out kick; spread does
+    assert np.percentile(_ankle_separation(plain, body), 95) < 0.8 < np.percentile(kick, 95)
+    assert np.percentile(_ankle_separation(wide, body), 95) > 0.8 * np.percentile(kick, 95)
+    # still smooth (no pops), a foot on the floor
+    _, joints = forward_kinematics(wide.poses, body.joints, translation=wide.trans)
+    assert (np.linalg.norm(np.diff(joints, 2, axis=0), axis=2) * wide.fps**2).max() < 120.0
+    ankles = joints[:, [JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"]], 1].min(1)
+    assert np.allclose(ankles, body.joints[JOINT_INDEX["left_ankle"], 1], atol=1e-4)
+
+
 def _write_bvh(path, body, frames):
     """A CMU-named BVH whose rest skeleton is `body`'s, in centimetres, with Euler ZXY channels."""
     from drape.geometry.skeleton import CMU_EXTRAS, CMU_TO_SMPL

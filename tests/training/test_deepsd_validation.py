@@ -39,6 +39,23 @@ def test_real_mocap_widens_the_pose_pool(cfg):
         "drape/training/configs/deepsd_wide.json"))["mocap"]["train"])
 
 
+def test_legs_apart_motions_join_the_pose_pool_and_the_validation_motions(cfg):
+    from drape.assets.procedural import generate_motion
+    from drape.training.deepsd_validation import validation_motions
+
+    without = deepsd_data.pose_pool(cfg)
+    pool = deepsd_data.pose_pool({**cfg, "procedural_spread": {"motions": 2, "spread": 1.0}})
+    wide = generate_motion(cfg["procedural_frames"], seed=cfg["seed"] + 901, spread=1.0).poses
+    assert len(pool) == len(without) + 2 * len(wide)
+    start = cfg["procedural_motions"] * cfg["procedural_frames"] + len(wide)  # after the plain ones, 2nd wide
+    assert np.allclose(pool[start:start + len(wide), 1:], wide[:, 1:])
+    v = {**cfg["validation"], "procedural_spread": {"seeds": [7101], "spread": 1.0}}
+    motions = validation_motions({**cfg, "validation": v}, "neutral")
+    assert len(motions) == len(validation_motions(cfg, "neutral")) + 1
+    assert np.array_equal(motions[1].poses, generate_motion(30, seed=7101, body="neutral", spread=1.0).poses)
+    assert not {7101} & set(cfg["validation"]["procedural_seeds"])
+
+
 @pytest.mark.slow  # about 25 s: `make test-slow`
 def test_the_checkpoint_is_chosen_on_validation_and_exported(cfg, tmp_path):
     train(cfg, tmp_path / "ckpt", log=lambda *_: None)
