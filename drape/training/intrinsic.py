@@ -202,7 +202,11 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     # phase 2: the motion-invariant autoencoder (N_E/N_D frozen)
     ic = config["invariant"]
     params = [p for name, p in model.named_parameters() if not name.startswith("shape.")]
-    opt = torch.optim.Adam(params, lr=ic["lr"])
+    # optional regularisers (absent: the paper's plain Adam, bit-identical to runs before them):
+    # weight_decay (AdamW's decoupled decay) and window_noise (metres: Gaussian noise on the motion windows'
+    # joint positions, drawn per step from the seed and the step: the same run draws the same noise)
+    wd, noise = float(ic.get("weight_decay", 0.0)), float(ic.get("window_noise", 0.0))
+    opt = torch.optim.AdamW(params, lr=ic["lr"], weight_decay=wd) if wd > 0 else torch.optim.Adam(params, lr=ic["lr"])
     start, best = 0, (float("inf"), None)
     parts: dict = {}
     last = _latest(ckpt, "invariant")
@@ -218,7 +222,11 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     for step in tqdm(range(start, ic["steps"]), desc="invariant", initial=start, total=ic["steps"]):
         chosen = rng.choice(set_ids, ic["sets_per_batch"], replace=False)
         pick = np.concatenate([rng.choice(by_set[p], ic["frames_per_set"]) for p in chosen])
-        loss, parts = invariant_loss(model, verts[pick], wins[pick], len(chosen), ic["lambda"], ic.get("set_lambda", 0.0))
+        w = wins[pick]
+        if noise > 0:
+            g = torch.Generator().manual_seed(config["seed"] * 1_000_003 + step)
+            w = w + noise * torch.randn(w.shape, generator=g, dtype=w.dtype)
+        loss, parts = invariant_loss(model, verts[pick], w, len(chosen), ic["lambda"], ic.get("set_lambda", 0.0))
         opt.zero_grad()
         loss.backward()
         opt.step()

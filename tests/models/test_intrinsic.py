@@ -123,6 +123,25 @@ def test_training_lowers_the_validation_errors_and_resumes(synthetic_dataset, tm
     assert summary2["phases"] == summary["phases"]
 
 
+def test_the_invariant_phase_regularisers_are_seeded_and_change_the_run(synthetic_dataset, tmp_path):
+    from drape.training.intrinsic import train
+
+    config = {"template": "g", "dataset": str(synthetic_dataset), "seed": 0,
+              "model": {"window": 5, "descriptor": 8, "latent": 8, "coefficients": 4, "shape_widths": [32],
+                        "motion_widths": [16], "invariant_widths": [16], "shape_scale": 10.0},
+              "val_params": 1,
+              "shape": {"steps": 50, "batch": 32, "lr": 0.003, "laplacian": 1.0},
+              "invariant": {"steps": 100, "sets_per_batch": 3, "frames_per_set": 16, "lr": 0.003, "lambda": 10.0},
+              "checkpoint_every": 50}
+    reg = {**config, "invariant": {**config["invariant"], "weight_decay": 0.05, "window_noise": 0.01}}
+    _, plain = train(config, tmp_path / "plain", log=lambda *_: None)
+    _, a = train(reg, tmp_path / "a", log=lambda *_: None)
+    _, b = train(reg, tmp_path / "b", log=lambda *_: None)
+    err = [s["phases"]["invariant"]["val_set_latent_error_mm"] for s in (plain, a, b)]
+    assert err[1] == err[2] and err[1] != err[0] and np.isfinite(err).all()
+    assert plain["phases"]["shape"] == a["phases"]["shape"]  # the shape phase is untouched
+
+
 def test_validation_holds_out_the_last_parameter_sets_and_the_named_motions():
     from drape.training.intrinsic import split_validation
     from drape.training.intrinsic_data import Frames
