@@ -22,7 +22,9 @@ random weights; phases with 0 steps are skipped. `"loss_phase": {PHASE: {NAME: W
 loss weights in one phase only (e.g. a stiffer edge term for the physics phase than for Chi).
 `"joint_candidates": {...}` (keyword arguments of drape.geometry.queries.candidate_joints) restricts every
 vertex's weights to at most `influences` joints of the body's skin near it, by construction (the export then
-takes a joint_mask input, and the served 4-influence rig is the network's own).
+takes a joint_mask input, and the served 4-influence rig is the network's own). `"loose_prior_share": s` (with
+`joint_candidates.loose_beyond`) gives the candidates' common ancestor s of the weights prior of every vertex
+beyond that distance (drape.training.deepsd_data.loose_ancestor_prior); absent or 0: the prior as before.
 """
 
 from __future__ import annotations
@@ -169,7 +171,7 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
     loss_weights = {p: phase_loss_weights(config, p) for p in PHASES}
     specs = train_specs(config)
     prepare_outfits(specs)
-    outfits = [TrainOutfit(s, config.get("joint_candidates")).to(dev) for s in specs]
+    outfits = [TrainOutfit(s, config.get("joint_candidates"), config.get("loose_prior_share", 0.0)).to(dev) for s in specs]
     pool = torch.as_tensor(pose_pool(config)).to(dev)
     net.to(dev)
     pose.to(dev)

@@ -19,7 +19,7 @@ from drape.assets.motion import list_clips, load_clip
 from drape.assets.outfits import generate_outfit
 from drape.assets.procedural import generate_motion
 from drape.geometry.mesh import unique_edges
-from drape.geometry.queries import candidate_joints, nearest_vertex_weights
+from drape.geometry.queries import candidate_joints, lowest_common_ancestor, nearest_vertex_weights
 from drape.runtime.deepsd import network_inputs
 
 CACHE = Path("data/deepsd/outfits")
@@ -97,7 +97,7 @@ class TrainOutfit:
     restricted to each vertex's candidate joints (`joint_mask` (N, 24) float 0/1, else None) and the prior
     weights to the same joints, renormalised."""
 
-    def __init__(self, spec: OutfitSpec, joint_candidates: dict | None = None):
+    def __init__(self, spec: OutfitSpec, joint_candidates: dict | None = None, loose_prior_share: float = 0.0):
         from drape.training.physics import BodyCollider
 
         v, f = load_outfit(spec)
@@ -120,6 +120,12 @@ class TrainOutfit:
             # a vertex whose nearest skin weights lie off its candidates (rare) takes them evenly
             prior = np.where(prior.sum(1, keepdims=True) > 0, prior, mask)
             prior = (prior / prior.sum(1, keepdims=True)).astype(np.float32)
+            beyond = joint_candidates.get("loose_beyond")
+            if loose_prior_share > 0 and beyond is not None:
+                from scipy.spatial import cKDTree
+
+                d0 = cKDTree(body.vertices[:: joint_candidates.get("stride", 4)]).query(v)[0]
+                prior = loose_ancestor_prior(prior, mask, d0 > beyond, body.parents, loose_prior_share)
             self.joint_mask = torch.as_tensor(mask, dtype=torch.float32)
         self.prior_weights = torch.as_tensor(prior)
         self.joints = torch.as_tensor(body.joints)
@@ -153,6 +159,25 @@ def mocap_motion(directory: str | Path, name: str, fps: float, body: str = "neut
         np.savez(cache, poses=motion.poses, trans=motion.trans)
     with np.load(cache, allow_pickle=False) as z:
         return z["poses"].astype(np.float32), z["trans"].astype(np.float32)
+
+
+def loose_ancestor_prior(prior: np.ndarray, mask: np.ndarray, loose: np.ndarray, parents: np.ndarray,
+                         share: float) -> np.ndarray:
+    """prior (N, K) weights (rows sum to 1), mask (N, K) bool candidate joints, loose (N,) bool, parents (K,)
+    -> (N, K) float32: each loose vertex's prior moves `share` of its mass onto the lowest common ancestor of
+    its candidate joints (the pelvis for a hem between the knees), the rest scaled by 1 - share; other rows
+    unchanged. A prior that puts ~0 on that joint holds loose cloth on the legs (and a softmax weight near 0
+    gets almost no gradient), though the candidates allow it."""
+    out = np.array(prior, dtype=np.float32)
+    rows = np.flatnonzero(loose)
+    if len(rows) == 0:
+        return out
+    order = np.argsort(~mask[rows], axis=1, kind="stable")  # candidate joints first
+    valid = np.take_along_axis(mask[rows], order, axis=1)
+    ancestor = lowest_common_ancestor(parents, order, valid)
+    out[rows] *= 1.0 - share
+    out[rows, ancestor] += share
+    return out
 
 
 def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:

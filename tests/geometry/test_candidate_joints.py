@@ -3,7 +3,8 @@
 import numpy as np
 
 from drape.assets.body import load_body
-from drape.geometry.queries import candidate_joints
+from drape.assets.outfits import generate_outfit
+from drape.geometry.queries import candidate_joints, nearest_vertex_weights
 
 
 def _brute_force(points, body_vertices, body_weights, influences, margin, relative_margin):
@@ -90,3 +91,38 @@ def test_loose_cloth_between_the_legs_may_follow_the_pelvis():
     np.testing.assert_array_equal(candidate_joints(on_skin, body.vertices, body.weights, parents=body.parents,
                                                    loose_beyond=0.02),
                                   candidate_joints(on_skin, body.vertices, body.weights))
+
+
+def test_loose_ancestor_prior_moves_a_share_onto_the_candidates_common_ancestor():
+    from drape.training.deepsd_data import loose_ancestor_prior
+
+    body = load_body("neutral")
+    o = generate_outfit("dress", vertices=1500, seed=3, body="neutral")
+    mask = candidate_joints(o.vertices, body.vertices, body.weights, parents=body.parents, loose_beyond=0.03)
+    prior = nearest_vertex_weights(o.vertices, body.vertices, body.weights) * mask
+    prior = np.where(prior.sum(1, keepdims=True) > 0, prior, mask)
+    prior = (prior / prior.sum(1, keepdims=True)).astype(np.float32)
+    loose = np.linalg.norm(o.vertices[:, None] - body.vertices[None, ::4], axis=2).min(1) > 0.03
+    out = loose_ancestor_prior(prior, mask, loose, body.parents, 0.5)
+    assert loose.any() and (~loose).any()
+    np.testing.assert_array_equal(out[~loose], prior[~loose])
+    np.testing.assert_allclose(out.sum(1), 1.0, atol=1e-5)
+    assert not (out[~mask] > 0).any()  # the ancestor is one of the candidates: nothing leaves the mask
+    added = out[loose] - 0.5 * prior[loose]  # (L, K): share 0.5 on one joint per loose row
+    assert (np.abs(added).sum(1) > 0.5 - 1e-5).all() and ((added > 1e-6).sum(1) == 1).all()
+    ancestor = added.argmax(1)
+
+    def chain(j):  # j and its ancestors
+        out = {int(j)}
+        while body.parents[j] >= 0:
+            j = body.parents[j]
+            out.add(int(j))
+        return out
+    for a, row in zip(ancestor, mask[loose], strict=True):
+        assert row[a] and all(a in chain(j) for j in np.flatnonzero(row))
+    # between the legs below mid-thigh the ancestor is the pelvis, which the skin prior left at ~0
+    thigh = 0.5 * (body.joints[1, 1] + body.joints[4, 1])
+    low = o.vertices[loose, 1] < thigh
+    assert (ancestor[low] == 0).any() and prior[loose][low & (ancestor == 0), 0].mean() < 0.1
+    np.testing.assert_array_equal(loose_ancestor_prior(prior, mask, np.zeros(len(prior), bool), body.parents, 0.5),
+                                  prior)
