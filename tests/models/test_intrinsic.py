@@ -104,16 +104,23 @@ def synthetic_dataset(tmp_path_factory):
     return out
 
 
+def _tiny_config(dataset, width: int, steps: tuple[int, int], batch: int, every: int) -> dict:
+    """A training config for the synthetic dataset: shape widths [width], the other widths width / 2,
+    `steps` (shape, invariant), shape batch `batch`, `batch` / 2 frames per set, a checkpoint every `every`."""
+    return {"template": "g", "dataset": str(dataset), "seed": 0,
+            "model": {"window": 5, "descriptor": 8, "latent": 8, "coefficients": 4, "shape_widths": [width],
+                      "motion_widths": [width // 2], "invariant_widths": [width // 2], "shape_scale": 10.0},
+            "val_params": 1,
+            "shape": {"steps": steps[0], "batch": batch, "lr": 0.003, "laplacian": 1.0},
+            "invariant": {"steps": steps[1], "sets_per_batch": 3, "frames_per_set": batch // 2, "lr": 0.003,
+                          "lambda": 10.0},
+            "checkpoint_every": every}
+
+
 def test_training_lowers_the_validation_errors_and_resumes(synthetic_dataset, tmp_path):
     from drape.training.intrinsic import train
 
-    config = {"template": "g", "dataset": str(synthetic_dataset), "seed": 0,
-              "model": {"window": 5, "descriptor": 8, "latent": 8, "coefficients": 4, "shape_widths": [64],
-                        "motion_widths": [32], "invariant_widths": [32], "shape_scale": 10.0},
-              "val_params": 1,
-              "shape": {"steps": 300, "batch": 64, "lr": 0.003, "laplacian": 1.0},
-              "invariant": {"steps": 300, "sets_per_batch": 3, "frames_per_set": 32, "lr": 0.003, "lambda": 10.0},
-              "checkpoint_every": 100}
+    config = _tiny_config(synthetic_dataset, width=64, steps=(300, 300), batch=64, every=100)
     logs: list[str] = []
     model, summary = train(config, tmp_path / "ckpt", log=logs.append)
     first = [float(x.split("error ")[1].split(" mm")[0]) for x in logs if x.startswith("shape step")]
@@ -126,13 +133,7 @@ def test_training_lowers_the_validation_errors_and_resumes(synthetic_dataset, tm
 def test_the_invariant_phase_regularisers_are_seeded_and_change_the_run(synthetic_dataset, tmp_path):
     from drape.training.intrinsic import train
 
-    config = {"template": "g", "dataset": str(synthetic_dataset), "seed": 0,
-              "model": {"window": 5, "descriptor": 8, "latent": 8, "coefficients": 4, "shape_widths": [32],
-                        "motion_widths": [16], "invariant_widths": [16], "shape_scale": 10.0},
-              "val_params": 1,
-              "shape": {"steps": 50, "batch": 32, "lr": 0.003, "laplacian": 1.0},
-              "invariant": {"steps": 100, "sets_per_batch": 3, "frames_per_set": 16, "lr": 0.003, "lambda": 10.0},
-              "checkpoint_every": 50}
+    config = _tiny_config(synthetic_dataset, width=32, steps=(50, 100), batch=32, every=50)
     reg = {**config, "invariant": {**config["invariant"], "weight_decay": 0.05, "window_noise": 0.01}}
     _, plain = train(config, tmp_path / "plain", log=lambda *_: None)
     _, a = train(reg, tmp_path / "a", log=lambda *_: None)
