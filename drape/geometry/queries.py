@@ -285,9 +285,20 @@ def winding_number(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, 
     return out
 
 
+CANDIDATE_STRIDE = 4  # candidate_joints and loose_points read every 4th body vertex
+
+
+def loose_points(points: np.ndarray, body_vertices: np.ndarray, loose_beyond: float,
+                 stride: int = CANDIDATE_STRIDE) -> np.ndarray:
+    """(P, 3), (M, 3) m -> (P,) bool: the points farther than `loose_beyond` metres from every `stride`-th body
+    vertex (loose cloth: candidate_joints' `loose_beyond` rule, the one place it is decided)."""
+    d0 = cKDTree(np.asarray(body_vertices)[::stride]).query(np.asarray(points, dtype=np.float64), workers=-1)[0]
+    return np.asarray(d0 > loose_beyond)
+
+
 def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights: np.ndarray,
                      influences: int = 4, margin: float = 0.03, relative_margin: float = 0.5,
-                     neighbours: int = 128, stride: int = 4, chunk: int = 8192, parents: np.ndarray | None = None,
+                     neighbours: int = 128, stride: int = CANDIDATE_STRIDE, chunk: int = 8192, parents: np.ndarray | None = None,
                      loose_beyond: float | None = None) -> np.ndarray:
     """The joints a garment point may be skinned to: (P, 3), (M, 3) m, (M, K) -> (P, K) bool, at most
     `influences` True per row.
@@ -310,6 +321,11 @@ def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights
     tree = cKDTree(np.asarray(body_vertices)[::stride])
     k = min(neighbours, len(w))
     mask = np.zeros((len(pts), w.shape[1]), dtype=bool)
+    is_loose: np.ndarray | None = None
+    if loose_beyond is not None and influences >= 2:
+        if parents is None:
+            raise ValueError("loose_beyond needs the skeleton's parents")
+        is_loose = loose_points(pts, body_vertices, loose_beyond, stride)
     for s in range(0, len(pts), chunk):
         d, idx = tree.query(pts[s:s + chunk], k=k, workers=-1)
         d, idx = d.reshape(len(d), k), idx.reshape(len(idx), k)
@@ -322,10 +338,8 @@ def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights
         top = np.argsort(-avg, axis=1, kind="stable")[:, :influences]
         rows = np.arange(len(avg))[:, None]
         keep = avg[rows, top] > 1e-4 * near.sum(axis=1, keepdims=True)
-        if loose_beyond is not None and influences >= 2:
-            if parents is None:
-                raise ValueError("loose_beyond needs the skeleton's parents")
-            loose = np.flatnonzero(d0[:, 0] > loose_beyond)
+        if is_loose is not None and parents is not None:
+            loose = np.flatnonzero(is_loose[s:s + len(d)])
             ancestor = lowest_common_ancestor(parents, top[loose, : influences - 1], keep[loose, : influences - 1])
             new = ~(top[loose, : influences - 1] == ancestor[:, None]).any(axis=1)
             top[loose[new], influences - 1] = ancestor[new]

@@ -19,7 +19,13 @@ from drape.assets.motion import list_clips, load_clip
 from drape.assets.outfits import generate_outfit
 from drape.assets.procedural import generate_motion
 from drape.geometry.mesh import unique_edges
-from drape.geometry.queries import candidate_joints, lowest_common_ancestor, nearest_vertex_weights
+from drape.geometry.queries import (
+    CANDIDATE_STRIDE,
+    candidate_joints,
+    loose_points,
+    lowest_common_ancestor,
+    nearest_vertex_weights,
+)
 from drape.runtime.deepsd import network_inputs
 
 CACHE = Path("data/deepsd/outfits")
@@ -122,10 +128,8 @@ class TrainOutfit:
             prior = (prior / prior.sum(1, keepdims=True)).astype(np.float32)
             beyond = joint_candidates.get("loose_beyond")
             if loose_prior_share > 0 and beyond is not None:
-                from scipy.spatial import cKDTree
-
-                d0 = cKDTree(body.vertices[:: joint_candidates.get("stride", 4)]).query(v)[0]
-                prior = loose_ancestor_prior(prior, mask, d0 > beyond, body.parents, loose_prior_share)
+                loose = loose_points(v, body.vertices, beyond, joint_candidates.get("stride", CANDIDATE_STRIDE))
+                prior = loose_ancestor_prior(prior, mask, loose, body.parents, loose_prior_share)
             self.joint_mask = torch.as_tensor(mask, dtype=torch.float32)
         self.prior_weights = torch.as_tensor(prior)
         self.joints = torch.as_tensor(body.joints)

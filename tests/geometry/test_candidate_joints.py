@@ -4,7 +4,7 @@ import numpy as np
 
 from drape.assets.body import load_body
 from drape.assets.outfits import generate_outfit
-from drape.geometry.queries import candidate_joints, nearest_vertex_weights
+from drape.geometry.queries import candidate_joints, loose_points, nearest_vertex_weights
 
 
 def _brute_force(points, body_vertices, body_weights, influences, margin, relative_margin):
@@ -103,6 +103,7 @@ def test_loose_ancestor_prior_moves_a_share_onto_the_candidates_common_ancestor(
     prior = np.where(prior.sum(1, keepdims=True) > 0, prior, mask)
     prior = (prior / prior.sum(1, keepdims=True)).astype(np.float32)
     loose = np.linalg.norm(o.vertices[:, None] - body.vertices[None, ::4], axis=2).min(1) > 0.03
+    np.testing.assert_array_equal(loose_points(o.vertices, body.vertices, 0.03), loose)  # the one rule, brute force
     out = loose_ancestor_prior(prior, mask, loose, body.parents, 0.5)
     assert loose.any() and (~loose).any()
     np.testing.assert_array_equal(out[~loose], prior[~loose])
