@@ -41,8 +41,8 @@ test-slow: $(VENV)/.dev-installed
 # motions, the DeepMimic clips and 31 real CMU clips of ../shared/data/mocap; the checkpoint chosen on the
 # validation split), exported into the package; then `drape eval deepsd --write` measures it once. The steps run
 # on a CUDA GPU when torch sees one (`drape train deepsd --device`), else on the CPU
-DEEPSD_CONFIG ?= drape/training/configs/deepsd_candidates_loose.json
-DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_candidates_loose
+DEEPSD_CONFIG ?= drape/training/configs/deepsd_candidates_loose_prior.json
+DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_candidates_loose_prior
 deepsd-model: $(VENV)/.dev-installed
 	$(BIN)/drape train deepsd --config $(DEEPSD_CONFIG) --checkpoints $(DEEPSD_CHECKPOINTS)
 	$(BIN)/drape export deepsd --checkpoints $(DEEPSD_CHECKPOINTS) --out drape/assets/models/deepsd
