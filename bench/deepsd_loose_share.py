@@ -17,7 +17,7 @@ import json
 from dataclasses import replace
 
 from drape.assets.body import load_body
-from drape.geometry.queries import candidate_joints, loose_points
+from drape.geometry.queries import CANDIDATE_STRIDE, candidate_joints, loose_points
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, pose_outfit
 from drape.training.deepsd_data import load_outfit, loose_ancestor_prior
 from drape.training.deepsd_validation import measure_poser, validation_specs
@@ -39,7 +39,7 @@ def main() -> None:
     rig = model.rig(v, f, body)
     cand = cfg["joint_candidates"]
     mask = candidate_joints(v, body.vertices, body.weights, parents=body.parents, **cand)
-    loose = loose_points(v, body.vertices, cand["loose_beyond"], cand.get("stride", 4))
+    loose = loose_points(v, body.vertices, cand["loose_beyond"], cand.get("stride", CANDIDATE_STRIDE))
     pelvis = body.joint_names.index("pelvis")
     print(f"{spec.key}: {len(v)} vertices, {loose.sum()} loose (beyond {cand['loose_beyond'] * 100:.0f} cm); "
           f"DeePSD {model.manifest['version']}, validation motions of {args.config}")

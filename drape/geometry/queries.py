@@ -291,7 +291,9 @@ CANDIDATE_STRIDE = 4  # candidate_joints and loose_points read every 4th body ve
 def loose_points(points: np.ndarray, body_vertices: np.ndarray, loose_beyond: float,
                  stride: int = CANDIDATE_STRIDE) -> np.ndarray:
     """(P, 3), (M, 3) m -> (P,) bool: the points farther than `loose_beyond` metres from every `stride`-th body
-    vertex (loose cloth: candidate_joints' `loose_beyond` rule, the one place it is decided)."""
+    vertex (loose cloth: candidate_joints' `loose_beyond` rule, for callers without its neighbour query;
+    candidate_joints compares the nearest distance of the query it already runs, rather than a second one on
+    the rig's path; tests/geometry/test_candidate_joints.py pins that the two agree)."""
     d0 = cKDTree(np.asarray(body_vertices)[::stride]).query(np.asarray(points, dtype=np.float64), workers=-1)[0]
     return np.asarray(d0 > loose_beyond)
 
@@ -321,11 +323,8 @@ def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights
     tree = cKDTree(np.asarray(body_vertices)[::stride])
     k = min(neighbours, len(w))
     mask = np.zeros((len(pts), w.shape[1]), dtype=bool)
-    is_loose: np.ndarray | None = None
-    if loose_beyond is not None and influences >= 2:
-        if parents is None:
-            raise ValueError("loose_beyond needs the skeleton's parents")
-        is_loose = loose_points(pts, body_vertices, loose_beyond, stride)
+    if loose_beyond is not None and influences >= 2 and parents is None:
+        raise ValueError("loose_beyond needs the skeleton's parents")
     for s in range(0, len(pts), chunk):
         d, idx = tree.query(pts[s:s + chunk], k=k, workers=-1)
         d, idx = d.reshape(len(d), k), idx.reshape(len(idx), k)
@@ -338,8 +337,8 @@ def candidate_joints(points: np.ndarray, body_vertices: np.ndarray, body_weights
         top = np.argsort(-avg, axis=1, kind="stable")[:, :influences]
         rows = np.arange(len(avg))[:, None]
         keep = avg[rows, top] > 1e-4 * near.sum(axis=1, keepdims=True)
-        if is_loose is not None and parents is not None:
-            loose = np.flatnonzero(is_loose[s:s + len(d)])
+        if loose_beyond is not None and influences >= 2 and parents is not None:
+            loose = np.flatnonzero(d0[:, 0] > loose_beyond)  # loose_points' rule, on the distances at hand
             ancestor = lowest_common_ancestor(parents, top[loose, : influences - 1], keep[loose, : influences - 1])
             new = ~(top[loose, : influences - 1] == ancestor[:, None]).any(axis=1)
             top[loose[new], influences - 1] = ancestor[new]

@@ -103,7 +103,10 @@ def test_loose_ancestor_prior_moves_a_share_onto_the_candidates_common_ancestor(
     prior = np.where(prior.sum(1, keepdims=True) > 0, prior, mask)
     prior = (prior / prior.sum(1, keepdims=True)).astype(np.float32)
     loose = np.linalg.norm(o.vertices[:, None] - body.vertices[None, ::4], axis=2).min(1) > 0.03
-    np.testing.assert_array_equal(loose_points(o.vertices, body.vertices, 0.03), loose)  # the one rule, brute force
+    np.testing.assert_array_equal(loose_points(o.vertices, body.vertices, 0.03), loose)  # the rule, brute force
+    # candidate_joints applies the same rule: only loose rows gain a joint over the plain candidates
+    changed = (mask != candidate_joints(o.vertices, body.vertices, body.weights)).any(axis=1)
+    assert changed.any() and not (changed & ~loose).any()
     out = loose_ancestor_prior(prior, mask, loose, body.parents, 0.5)
     assert loose.any() and (~loose).any()
     np.testing.assert_array_equal(out[~loose], prior[~loose])
