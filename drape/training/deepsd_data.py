@@ -122,10 +122,7 @@ class TrainOutfit:
         self.joint_mask: torch.Tensor | None = None
         if joint_candidates is not None:
             mask = candidate_joints(v, body.vertices, body.weights, parents=body.parents, **joint_candidates)
-            prior = prior * mask
-            # a vertex whose nearest skin weights lie off its candidates (rare) takes them evenly
-            prior = np.where(prior.sum(1, keepdims=True) > 0, prior, mask)
-            prior = (prior / prior.sum(1, keepdims=True)).astype(np.float32)
+            prior = candidate_prior(prior, mask)
             beyond = joint_candidates.get("loose_beyond")
             if loose_prior_share > 0 and beyond is not None:
                 loose = loose_points(v, body.vertices, beyond, joint_candidates.get("stride", CANDIDATE_STRIDE))
@@ -163,6 +160,14 @@ def mocap_motion(directory: str | Path, name: str, fps: float, body: str = "neut
         np.savez(cache, poses=motion.poses, trans=motion.trans)
     with np.load(cache, allow_pickle=False) as z:
         return z["poses"].astype(np.float32), z["trans"].astype(np.float32)
+
+
+def candidate_prior(prior: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """prior (N, K) weights, mask (N, K) bool candidate joints -> (N, K) float32: the prior restricted to the
+    candidates and renormalised; a vertex whose prior lies wholly off its candidates (rare) takes them evenly."""
+    out = prior * mask
+    out = np.where(out.sum(1, keepdims=True) > 0, out, mask)
+    return (out / out.sum(1, keepdims=True)).astype(np.float32)
 
 
 def loose_ancestor_prior(prior: np.ndarray, mask: np.ndarray, loose: np.ndarray, parents: np.ndarray,

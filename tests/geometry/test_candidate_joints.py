@@ -94,14 +94,12 @@ def test_loose_cloth_between_the_legs_may_follow_the_pelvis():
 
 
 def test_loose_ancestor_prior_moves_a_share_onto_the_candidates_common_ancestor():
-    from drape.training.deepsd_data import loose_ancestor_prior
+    from drape.training.deepsd_data import candidate_prior, loose_ancestor_prior
 
     body = load_body("neutral")
     o = generate_outfit("dress", vertices=1500, seed=3, body="neutral")
     mask = candidate_joints(o.vertices, body.vertices, body.weights, parents=body.parents, loose_beyond=0.03)
-    prior = nearest_vertex_weights(o.vertices, body.vertices, body.weights) * mask
-    prior = np.where(prior.sum(1, keepdims=True) > 0, prior, mask)
-    prior = (prior / prior.sum(1, keepdims=True)).astype(np.float32)
+    prior = candidate_prior(nearest_vertex_weights(o.vertices, body.vertices, body.weights), mask)
     loose = np.linalg.norm(o.vertices[:, None] - body.vertices[None, ::4], axis=2).min(1) > 0.03
     np.testing.assert_array_equal(loose_points(o.vertices, body.vertices, 0.03), loose)  # the rule, brute force
     # candidate_joints applies the same rule: only loose rows gain a joint over the plain candidates
