@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from drape.geometry.body_scale import BodyScale, body_height, body_scale
 from drape.geometry.mesh import neighbour_table, vertex_normals, weld
 from drape.geometry.skeleton import PARENTS, as_pose_array, forward_kinematics
 from drape.runtime.model_files import checked_files, cpu_session
@@ -58,10 +59,23 @@ class Rig:
     blend_shapes: np.ndarray
 
 
+@lru_cache(maxsize=8)
+def trained_heights(bodies: tuple[str, ...]) -> tuple[float, float] | None:
+    """(lowest, tallest) m of the body presets a model was trained on; None when one is not a preset here."""
+    from drape.assets.body import list_bodies, load_body
+
+    if not set(bodies) <= set(list_bodies()):
+        return None
+    heights = [body_height(load_body(b).vertices) for b in bodies]
+    return min(heights), max(heights)
+
+
 class DeePSDModel:
     """The two ONNX files of a DeePSD export, checked against their manifest's sha256."""
 
-    def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2):
+    def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, scale_bodies: bool = True):
+        """scale_bodies: read a garment on a body taller or shorter than every body trained on as if the body
+        were scaled into the trained range of heights (`drape.geometry.body_scale`); False reads it as it is."""
         model_dir = Path(model_dir)
         self.manifest = json.loads((model_dir / "manifest.json").read_text())
         blobs = checked_files(model_dir, self.manifest, ("outfit", "pose"))
@@ -69,8 +83,20 @@ class DeePSDModel:
         self.num_keys = int(self.manifest["files"]["pose"]["outputs"][0]["shape"][-1])
         # a model trained with its weights restricted to candidate joints takes them as an input
         self.joint_candidates: dict | None = self.manifest.get("joint_candidates")
+        trained = self.manifest.get("training", {}).get("config", {}).get("bodies")
+        self.trained_heights = trained_heights(tuple(trained)) if trained and scale_bodies else None
+
+    def body_scale(self, body: Body | None) -> BodyScale | None:
+        """How the network reads a garment on `body` (None: as it is)."""
+        if body is None or self.trained_heights is None:
+            return None
+        scale = body_scale(body.vertices, body.joints[0], self.trained_heights)
+        return None if scale.identity else scale
 
     def _inputs(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None) -> dict[str, np.ndarray]:
+        scale = self.body_scale(body)
+        if scale is not None:  # the network reads garment and body as if the body were in its trained range
+            vertices = scale.apply(vertices)
         inputs = network_inputs(vertices, faces)
         if self.joint_candidates is not None:
             if body is None:
@@ -78,7 +104,8 @@ class DeePSDModel:
                                  "rig(...) needs the body")
             from drape.geometry.queries import candidate_joints
 
-            mask = candidate_joints(vertices, body.vertices, body.weights, parents=body.parents, **self.joint_candidates)
+            body_vertices = body.vertices if scale is None else scale.apply(body.vertices)
+            mask = candidate_joints(vertices, body_vertices, body.weights, parents=body.parents, **self.joint_candidates)
             inputs["joint_mask"] = mask.astype(np.float32)
         return inputs
 
@@ -88,12 +115,18 @@ class DeePSDModel:
         and get the same rig, so that seams cannot open."""
         welded, welded_faces, group = weld(vertices, faces)
         w, d = self.sessions["outfit"].run(["weights", "blend_shapes"], self._inputs(welded, welded_faces, body))
-        return Rig(weights=w[group], blend_shapes=d[:, group])
+        return Rig(weights=w[group], blend_shapes=self._unscaled(d, body)[:, group])
+
+    def _unscaled(self, blend_shapes: np.ndarray, body: Body | None) -> np.ndarray:
+        """Blend shapes (P, N, 3) the network answered in its scaled frame -> metres on `body`."""
+        scale = self.body_scale(body)
+        return blend_shapes if scale is None else (blend_shapes / np.float32(scale.scale)).astype(np.float32)
 
     def blend_shapes_data(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None = None) -> np.ndarray:
         """D_data alone (P, N, 3): the model without its physics branch Chi (for evaluation); seams welded."""
         welded, welded_faces, group = weld(vertices, faces)
-        return self.sessions["outfit"].run(["blend_shapes_data"], self._inputs(welded, welded_faces, body))[0][:, group]
+        d = self.sessions["outfit"].run(["blend_shapes_data"], self._inputs(welded, welded_faces, body))[0]
+        return self._unscaled(d, body)[:, group]
 
     def pose_keys(self, poses: np.ndarray) -> np.ndarray:
         """(T, 24, 3) or (T, 72) axis-angle -> (T, P) pose keys."""

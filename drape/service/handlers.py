@@ -10,6 +10,7 @@ import numpy as np
 
 from drape.assets.body import is_registered, list_bodies, load_body
 from drape.assets.motion import list_clips, load_clip
+from drape.geometry.body_scale import body_height
 from drape.geometry.fitting import UNITS, FitError, FitResult, fit_garment, infer_units
 from drape.geometry.placement import FAR_M, body_distance, placement
 from drape.geometry.queries import MeshDistance
@@ -203,6 +204,20 @@ def fit(settings: Settings, vertices: Any, faces: Any, body: str | None, units: 
         raise InvalidInput(str(exc), f"{pre}vertices") from None
 
 
+def body_scale_warnings(engine: Engine, body: str) -> list[str]:
+    """A sentence when the rig model reads this body scaled into the heights it was trained on
+    (drape.geometry.body_scale), else none."""
+    b = load_body(body)
+    scale = engine.model.body_scale(b)
+    if scale is None:
+        return []
+    lo, hi = engine.model.trained_heights or (0.0, 0.0)
+    height = body_height(b.vertices)
+    return [f"the {body} body is {height:.2f} m tall, outside the {lo:.2f}-{hi:.2f} m of the bodies the rig model "
+            f"was trained on: it reads the garment scaled to {height * scale.scale:.2f} m; expect more of it inside "
+            "the body when posed (refine: true removes it)"]
+
+
 def fit_answer(result: FitResult, faces: np.ndarray) -> dict:
     """A FitResult as the FitResponse document."""
     return {"vertices": result.vertices.tolist(), "faces": np.asarray(faces).tolist(),
@@ -218,6 +233,7 @@ def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str
     v, f = check_mesh(vertices if fitted is None else fitted.vertices, faces, settings)
     body_name = check_body(body)
     diagnostics = check_on_body(v, body_name)
+    diagnostics["warnings"] += body_scale_warnings(engine, body_name)
     outfit = engine.rig(v, f, body_name, check_influences(influences))
     return replace(outfit, diagnostics=diagnostics, fit=None if fitted is None else fit_answer(fitted, f),
                    parts=parts)

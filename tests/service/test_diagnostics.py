@@ -83,3 +83,18 @@ def test_a_garment_centred_on_the_origin_is_named():
     at_origin = o.vertices - o.vertices.mean(axis=0)  # as garments made for other tools often come
     d = placement(at_origin, body.vertices, body.faces)
     assert any("below the body's feet" in w and "centred on the origin" in w for w in d["warnings"]), d
+
+
+
+def test_a_body_taller_than_every_trained_body_is_named():
+    """The shipped model (the service tests' own is untrained and knows no trained bodies): the rig handler adds
+    this sentence to the diagnostics' warnings."""
+    from types import SimpleNamespace
+
+    from drape.runtime.deepsd import DeePSDModel
+    from drape.service.handlers import body_scale_warnings
+
+    engine = SimpleNamespace(model=DeePSDModel())  # all body_scale_warnings reads of an Engine
+    (sentence,) = body_scale_warnings(engine, "heavy")  # heavy: 1.95 m; trained 1.66-1.80 m
+    assert "1.95 m tall, outside the 1.66-1.80 m" in sentence and "scaled to 1.80 m" in sentence
+    assert body_scale_warnings(engine, "male") == []
