@@ -7,7 +7,7 @@ validation outfits (its outfit types and seeds, generated on that body) along it
 (procedural and real CMU, imported onto that body), measured as the checkpoint choice measures them
 (drape.training.deepsd_validation.measure_poser: inside % by closest triangle, edge error mm; the 4-influence
 served rig), for: the nearest-body-weights baseline, the shipped model reading the garment as it is
-(`scale_bodies=False`) and scaled (the default).
+(`scale_bodies=None`) and scaled (the default).
 
 Run: .venv/bin/python -m bench.deepsd_body_scale [--config CONFIG] [--bodies val_tall,val_big]
 (about 25 minutes on the 2-core machine for the three bodies).
@@ -50,11 +50,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="drape/training/configs/deepsd_candidates_loose_prior.json")
     parser.add_argument("--bodies", default=",".join(BODIES))
+    parser.add_argument("--models", default="as_is,height,torso", help="as_is: scale_bodies=None; height, torso: "
+                        "DeePSDModel's scale_bodies")
     args = parser.parse_args()
     with open(args.config) as fh:
         cfg = json.load(fh)
-    models = {"as_is": DeePSDModel(MODEL_DIR, scale_bodies=False), "scaled": DeePSDModel(MODEL_DIR)}
-    shipped = models["scaled"]
+    models = {m: DeePSDModel(MODEL_DIR, scale_bodies=None if m == "as_is" else m) for m in args.models.split(",")}
+    shipped = DeePSDModel(MODEL_DIR)
     print(f"DeePSD {shipped.manifest['version']}, trained heights {shipped.trained_heights}; validation of "
           f"{args.config}")
     poses_fit = fit_poses()
@@ -63,9 +65,9 @@ def main() -> None:
     totals: dict[str, list[dict]] = {"baseline": [], **{m: [] for m in models}}
     for name in args.bodies.split(","):
         body = scaled_body(name)
-        scale = shipped.body_scale(body)
-        print(f"\n{name}: {body_height(body.vertices):.3f} m, read at scale "
-              f"{1.0 if scale is None else scale.scale:.3f}")
+        scales = {m: model.body_scale(body) for m, model in models.items()}
+        print(f"\n{name}: {body_height(body.vertices):.3f} m, read at scale (x, y, z) "
+              + ", ".join(f"{m} {[1.0, 1.0, 1.0] if s is None else s.scale.round(3).tolist()}" for m, s in scales.items()))
         print(f"{'outfit':28} {'method':9} {'inside %':>9} {'edge mm':>8}")
         for spec in validation_specs(cfg):
             spec = replace(spec, body=name)

@@ -23,14 +23,18 @@ def body_height(vertices: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class BodyScale:
-    """p -> pivot + scale * (p - pivot). scale: dimensionless; pivot (3,) float64 m."""
+    """p -> pivot + scale * (p - pivot). scale (3,) float64, dimensionless, per axis; pivot (3,) float64 m."""
 
-    scale: float
+    scale: np.ndarray
     pivot: np.ndarray
 
     @property
     def identity(self) -> bool:
-        return self.scale == 1.0
+        return bool(np.all(self.scale == 1.0))
+
+    def unscale(self, displacements: np.ndarray) -> np.ndarray:
+        """displacements (..., 3) m read in the scaled frame -> (..., 3) float32 m on the body."""
+        return (np.asarray(displacements) / self.scale).astype(np.float32)
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """points (..., 3) m -> (..., 3) float64 m, in the trained range's frame."""
@@ -38,18 +42,40 @@ class BodyScale:
         return p if self.identity else self.pivot + self.scale * (p - self.pivot)
 
 
-def body_scale(body_vertices: np.ndarray, pelvis: np.ndarray, heights: tuple[float, float]) -> BodyScale:
-    """The scaling that brings a body into a trained range of heights.
+def torso_size(vertices: np.ndarray, joints: np.ndarray) -> tuple[float, float]:
+    """vertices (V, 3) m, joints (24, 3) m in SMPL's order, T-pose rest -> (width along X, depth along Z) m of
+    the torso: the vertices between the pelvis and spine3 heights, within the shoulder joints."""
+    v, j = np.asarray(vertices, dtype=np.float64), np.asarray(joints, dtype=np.float64)
+    pelvis, spine3, left_shoulder, right_shoulder = j[0], j[9], j[16], j[17]
+    half = abs(left_shoulder[0] - right_shoulder[0]) / 2
+    torso = v[(v[:, 1] > pelvis[1]) & (v[:, 1] < spine3[1]) & (np.abs(v[:, 0] - pelvis[0]) < half)]
+    return float(np.ptp(torso[:, 0])), float(np.ptp(torso[:, 2]))
 
-    body_vertices (V, 3) m, Y-up, rest pose; pelvis (3,) m, the root joint; heights (lowest, tallest) m of
-    the bodies trained on. Scale = clamp(height, lowest, tallest) / height (1 inside the range), about the
-    point on the body's floor (its lowest Y) under the pelvis.
-    """
-    lo, hi = float(heights[0]), float(heights[1])
+
+def _clamped(value: float, bounds: tuple[float, float], name: str) -> float:
+    lo, hi = float(bounds[0]), float(bounds[1])
     if not 0 < lo <= hi:
-        raise ValueError(f"heights must be 0 < lowest <= tallest, got {heights}")
-    h = body_height(body_vertices)
-    target = min(max(h, lo), hi)
-    pelvis = np.asarray(pelvis, dtype=np.float64)
-    pivot = np.array([pelvis[0], float(np.asarray(body_vertices)[:, 1].min()), pelvis[2]])
-    return BodyScale(scale=1.0 if target == h else target / h, pivot=pivot)
+        raise ValueError(f"{name} must be 0 < lowest <= highest, got {bounds}")
+    return 1.0 if lo <= value <= hi else min(max(value, lo), hi) / value
+
+
+def body_scale(body_vertices: np.ndarray, joints: np.ndarray, heights: tuple[float, float],
+               torso: tuple[tuple[float, float], tuple[float, float]] | None = None) -> BodyScale:
+    """The scaling that brings a body into a trained range of heights (and, with `torso`, of torso sizes).
+
+    body_vertices (V, 3) m, Y-up, T-pose rest; joints (24, 3) m, SMPL's order; heights (lowest, tallest) m of
+    the bodies trained on. Uniform scale = clamp(height, lowest, tallest) / height (1 inside the range), about
+    the point on the body's floor (its lowest Y) under the pelvis. torso ((width lo, hi), (depth lo, hi)) m
+    (`torso_size` of the trained bodies): then X and Z are scaled further, each so that the uniformly scaled
+    torso's width and depth fall in their ranges.
+    """
+    v = np.asarray(body_vertices, dtype=np.float64)
+    j = np.asarray(joints, dtype=np.float64)
+    uniform = _clamped(body_height(v), heights, "heights")
+    scale = np.full(3, uniform)
+    if torso is not None:
+        width, depth = torso_size(v * uniform, j * uniform)
+        scale[0] *= _clamped(width, torso[0], "torso widths")
+        scale[2] *= _clamped(depth, torso[1], "torso depths")
+    pivot = np.array([j[0, 0], float(v[:, 1].min()), j[0, 2]])
+    return BodyScale(scale=scale, pivot=pivot)

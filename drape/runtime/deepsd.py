@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from drape.geometry.body_scale import BodyScale, body_height, body_scale
+from drape.geometry.body_scale import BodyScale, body_height, body_scale, torso_size
 from drape.geometry.mesh import neighbour_table, vertex_normals, weld
 from drape.geometry.skeleton import PARENTS, as_pose_array, forward_kinematics
 from drape.runtime.model_files import checked_files, cpu_session
@@ -59,23 +59,30 @@ class Rig:
     blend_shapes: np.ndarray
 
 
+Range = tuple[float, float]
+
+
 @lru_cache(maxsize=8)
-def trained_heights(bodies: tuple[str, ...]) -> tuple[float, float] | None:
-    """(lowest, tallest) m of the body presets a model was trained on; None when one is not a preset here."""
+def trained_ranges(bodies: tuple[str, ...]) -> tuple[Range, tuple[Range, Range]] | None:
+    """Of the body presets a model was trained on: (heights (lowest, tallest), torso ((width lo, hi), (depth lo,
+    hi))) m (drape.geometry.body_scale); None when one of them is not a preset here."""
     from drape.assets.body import list_bodies, load_body
 
     if not set(bodies) <= set(list_bodies()):
         return None
-    heights = [body_height(load_body(b).vertices) for b in bodies]
-    return min(heights), max(heights)
+    presets = [load_body(b) for b in bodies]
+    heights = [body_height(b.vertices) for b in presets]
+    widths, depths = zip(*(torso_size(b.vertices, b.joints) for b in presets), strict=True)
+    return (min(heights), max(heights)), ((min(widths), max(widths)), (min(depths), max(depths)))
 
 
 class DeePSDModel:
     """The two ONNX files of a DeePSD export, checked against their manifest's sha256."""
 
-    def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, scale_bodies: bool = True):
-        """scale_bodies: read a garment on a body taller or shorter than every body trained on as if the body
-        were scaled into the trained range of heights (`drape.geometry.body_scale`); False reads it as it is."""
+    def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, scale_bodies: str | None = "height"):
+        """scale_bodies: "height" reads a garment on a body taller or shorter than every body trained on as if
+        the body were scaled into the trained range of heights (`drape.geometry.body_scale`); "torso" also
+        brings its torso's width and depth into the trained range; None reads it as it is."""
         model_dir = Path(model_dir)
         self.manifest = json.loads((model_dir / "manifest.json").read_text())
         blobs = checked_files(model_dir, self.manifest, ("outfit", "pose"))
@@ -83,14 +90,18 @@ class DeePSDModel:
         self.num_keys = int(self.manifest["files"]["pose"]["outputs"][0]["shape"][-1])
         # a model trained with its weights restricted to candidate joints takes them as an input
         self.joint_candidates: dict | None = self.manifest.get("joint_candidates")
+        if scale_bodies not in (None, "height", "torso"):
+            raise ValueError(f"scale_bodies must be None, 'height' or 'torso', got {scale_bodies!r}")
         trained = self.manifest.get("training", {}).get("config", {}).get("bodies")
-        self.trained_heights = trained_heights(tuple(trained)) if trained and scale_bodies else None
+        ranges = trained_ranges(tuple(trained)) if trained and scale_bodies else None
+        self.trained_heights = None if ranges is None else ranges[0]
+        self.trained_torso = None if ranges is None or scale_bodies != "torso" else ranges[1]
 
     def body_scale(self, body: Body | None) -> BodyScale | None:
         """How the network reads a garment on `body` (None: as it is)."""
         if body is None or self.trained_heights is None:
             return None
-        scale = body_scale(body.vertices, body.joints[0], self.trained_heights)
+        scale = body_scale(body.vertices, body.joints, self.trained_heights, self.trained_torso)
         return None if scale.identity else scale
 
     def _inputs(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None) -> dict[str, np.ndarray]:
@@ -120,7 +131,7 @@ class DeePSDModel:
     def _unscaled(self, blend_shapes: np.ndarray, body: Body | None) -> np.ndarray:
         """Blend shapes (P, N, 3) the network answered in its scaled frame -> metres on `body`."""
         scale = self.body_scale(body)
-        return blend_shapes if scale is None else (blend_shapes / np.float32(scale.scale)).astype(np.float32)
+        return blend_shapes if scale is None else scale.unscale(blend_shapes)
 
     def blend_shapes_data(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None = None) -> np.ndarray:
         """D_data alone (P, N, 3): the model without its physics branch Chi (for evaluation); seams welded."""

@@ -26,13 +26,13 @@ def test_trained_heights_come_from_the_manifest_bodies():
     lo, hi = model.trained_heights
     heights = [float(np.ptp(load_body(b).vertices[:, 1])) for b in bodies]
     assert (lo, hi) == pytest.approx((min(heights), max(heights)))
-    assert DeePSDModel(scale_bodies=False).trained_heights is None
+    assert DeePSDModel(scale_bodies=None).trained_heights is None
 
 
 def test_a_trained_body_is_rigged_as_it_is(outfit):
     body = load_body("neutral")
     a = DeePSDModel().rig(outfit.vertices, outfit.faces, body)
-    b = DeePSDModel(scale_bodies=False).rig(outfit.vertices, outfit.faces, body)
+    b = DeePSDModel(scale_bodies=None).rig(outfit.vertices, outfit.faces, body)
     assert DeePSDModel().body_scale(body) is None
     assert np.array_equal(a.weights, b.weights) and np.array_equal(a.blend_shapes, b.blend_shapes)
 
@@ -43,5 +43,5 @@ def test_bodies_past_the_range_read_the_same_and_answer_in_their_own_size(outfit
     assert np.allclose(rigs[1.2].weights, rigs[1.3].weights, atol=1e-5)
     assert np.allclose(rigs[1.3].blend_shapes, rigs[1.2].blend_shapes * (1.3 / 1.2), atol=1e-6)
     # and not what the model says when it reads the tall body as it is
-    as_is = DeePSDModel(scale_bodies=False).rig(outfit.vertices * 1.2, outfit.faces, scaled(body, 1.2))
+    as_is = DeePSDModel(scale_bodies=None).rig(outfit.vertices * 1.2, outfit.faces, scaled(body, 1.2))
     assert np.abs(as_is.weights - rigs[1.2].weights).max() > 1e-2
