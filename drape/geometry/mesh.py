@@ -91,6 +91,26 @@ def weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return np.asarray(vertices)[first], regroup_faces(faces, group), group
 
 
+def mean_edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Mean length (in the vertices' units) of the mesh's unique edges."""
+    v, e = np.asarray(vertices, dtype=np.float64), unique_edges(faces)
+    return float(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1).mean())
+
+
+def densify(vertices: np.ndarray, faces: np.ndarray, edge_length: float,
+            max_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Midpoint subdivision (trimesh's: each triangle into 4, a new vertex on every edge) of a mesh (N, 3),
+    (F, 3), level after level while its mean edge length is above `edge_length` and the next level stays
+    within `max_vertices` -> (vertices (M, 3), faces (F', 3)); the first N vertices are the input's, unmoved.
+    """
+    import trimesh
+
+    v, f = np.asarray(vertices), np.asarray(faces)
+    while mean_edge_length(v, f) > edge_length and len(v) + len(unique_edges(f)) <= max_vertices:
+        v, f = trimesh.remesh.subdivide(v, f)
+    return v, f
+
+
 def regroup_faces(faces: np.ndarray, group: np.ndarray) -> np.ndarray:
     """Faces (F, 3) re-indexed by `group` (N,) (see `weld`), without the faces that collapse -> (F', 3)."""
     f = group[np.asarray(faces, dtype=np.int64)]

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drape.geometry.body_scale import BodyScale, body_height, body_scale, torso_size
-from drape.geometry.mesh import neighbour_table, vertex_normals, weld
+from drape.geometry.mesh import densify, neighbour_table, vertex_normals, weld
 from drape.geometry.skeleton import PARENTS, as_pose_array, forward_kinematics
 from drape.runtime.model_files import checked_files, cpu_session
 
@@ -76,13 +76,20 @@ def trained_ranges(bodies: tuple[str, ...]) -> tuple[Range, tuple[Range, Range]]
     return (min(heights), max(heights)), ((min(widths), max(widths)), (min(depths), max(depths)))
 
 
+DENSIFY_MAX_VERTICES = 20_000  # the finest mesh a coarse outfit is read as (rig time grows with it: bench/deepsd.py)
+
+
 class DeePSDModel:
     """The two ONNX files of a DeePSD export, checked against their manifest's sha256."""
 
-    def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, scale_bodies: str | None = "height"):
+    def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, scale_bodies: str | None = "height",
+                 densify_edge: float | None = None):
         """scale_bodies: "height" reads a garment on a body taller or shorter than every body trained on as if
         the body were scaled into the trained range of heights (`drape.geometry.body_scale`); "torso" also
-        brings its torso's width and depth into the trained range; None reads it as it is."""
+        brings its torso's width and depth into the trained range; None reads it as it is. densify_edge (m): a
+        mesh whose mean edge is longer is read subdivided (`drape.geometry.mesh.densify`) toward it; None: as
+        it is."""
+        self.densify_edge = densify_edge
         model_dir = Path(model_dir)
         self.manifest = json.loads((model_dir / "manifest.json").read_text())
         blobs = checked_files(model_dir, self.manifest, ("outfit", "pose"))
@@ -120,13 +127,22 @@ class DeePSDModel:
             inputs["joint_mask"] = mask.astype(np.float32)
         return inputs
 
+    def _run(self, outputs: list[str], vertices: np.ndarray, faces: np.ndarray, body: Body | None) -> list[np.ndarray]:
+        """The outfit network's `outputs` for the mesh, per input vertex (the vertex axis last but one). Coincident
+        vertices (UV seams) are welded for the network and get the same answer, so that seams cannot open; a
+        mesh coarser than `densify_edge` is read subdivided (its own vertices are the first of the finer mesh)."""
+        welded, welded_faces, group = weld(vertices, faces)
+        v, f = welded, welded_faces
+        if self.densify_edge is not None:
+            v, f = densify(welded, welded_faces, self.densify_edge, DENSIFY_MAX_VERTICES)
+        answers = self.sessions["outfit"].run(outputs, self._inputs(v, f, body))
+        return [a[..., : len(welded), :][..., group, :] for a in answers]
+
     def rig(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None = None) -> Rig:
         """Blend weights and pose-space blend shapes of an outfit in rest pose on `body` (needed by a model with
-        `joint_candidates`; the others ignore it). Coincident vertices (UV seams) are welded for the network
-        and get the same rig, so that seams cannot open."""
-        welded, welded_faces, group = weld(vertices, faces)
-        w, d = self.sessions["outfit"].run(["weights", "blend_shapes"], self._inputs(welded, welded_faces, body))
-        return Rig(weights=w[group], blend_shapes=self._unscaled(d, body)[:, group])
+        `joint_candidates`; the others ignore it); seams welded, coarse meshes read subdivided (`_run`)."""
+        w, d = self._run(["weights", "blend_shapes"], vertices, faces, body)
+        return Rig(weights=w, blend_shapes=self._unscaled(d, body))
 
     def _unscaled(self, blend_shapes: np.ndarray, body: Body | None) -> np.ndarray:
         """Blend shapes (P, N, 3) the network answered in its scaled frame -> metres on `body`."""
@@ -134,10 +150,8 @@ class DeePSDModel:
         return blend_shapes if scale is None else scale.unscale(blend_shapes)
 
     def blend_shapes_data(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None = None) -> np.ndarray:
-        """D_data alone (P, N, 3): the model without its physics branch Chi (for evaluation); seams welded."""
-        welded, welded_faces, group = weld(vertices, faces)
-        d = self.sessions["outfit"].run(["blend_shapes_data"], self._inputs(welded, welded_faces, body))[0]
-        return self._unscaled(d, body)[:, group]
+        """D_data alone (P, N, 3): the model without its physics branch Chi (for evaluation); as `rig` reads it."""
+        return self._unscaled(self._run(["blend_shapes_data"], vertices, faces, body)[0], body)
 
     def pose_keys(self, poses: np.ndarray) -> np.ndarray:
         """(T, 24, 3) or (T, 72) axis-angle -> (T, P) pose keys."""

@@ -7,9 +7,11 @@ from drape.geometry.mesh import (
     boundary_edges,
     connected_components,
     cotangent_laplacian,
+    densify,
     face_adjacency,
     face_normals,
     is_edge_manifold,
+    mean_edge_length,
     neighbour_table,
     uniform_laplacian,
     unique_edges,
@@ -88,3 +90,17 @@ def test_cotangent_laplacian_linear_precision_and_sphere_curvature():
     hn = cotangent_laplacian(vs, fs) @ vs
     cos = np.einsum("nc,nc->n", hn, vs) / (np.linalg.norm(hn, axis=1) * np.linalg.norm(vs, axis=1))
     assert cos.min() > 0.99
+
+
+def test_densify_halves_edges_until_the_target_and_keeps_the_input_vertices_first():
+    v, f = sphere(subdiv=1)
+    e0 = mean_edge_length(v, f)
+    assert densify(v, f, edge_length=2 * e0, max_vertices=10**6)[0] is v  # fine enough: untouched
+    dv, df = densify(v, f, edge_length=0.3 * e0, max_vertices=10**6)  # two levels: e0 / 2, e0 / 4
+    assert mean_edge_length(dv, df) <= 0.3 * e0 < mean_edge_length(v, f) / 2
+    assert np.array_equal(dv[: len(v)], v) and len(df) == 16 * len(f)
+    assert is_edge_manifold(df) and len(np.unique(connected_components(df, len(dv)))) == 1
+    # edges counted independently: V - E + F = 2 on a sphere at every level
+    assert len(dv) - len(unique_edges(df)) + len(df) == 2
+    capped, _ = densify(v, f, edge_length=0.3 * e0, max_vertices=len(v) + len(unique_edges(f)))  # one level fits
+    assert len(capped) == len(v) + len(unique_edges(f))

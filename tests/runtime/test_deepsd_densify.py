@@ -1,0 +1,39 @@
+"""DeePSD reads a mesh coarser than `densify_edge` subdivided and answers for the mesh's own vertices: the same
+rows as rigging the subdivided mesh itself; a mesh already fine enough is rigged as it is."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from drape.assets.body import load_body
+from drape.assets.outfits import generate_outfit
+from drape.geometry.mesh import mean_edge_length
+from drape.runtime.deepsd import DeePSDModel
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    o = generate_outfit("tshirt", vertices=400, seed=5, body="neutral")
+    return o.vertices, o.faces
+
+
+def test_a_coarse_mesh_answers_from_its_subdivision(coarse):
+    v, f = coarse
+    body = load_body("neutral")
+    target = 0.6 * mean_edge_length(v, f)  # one level of midpoint subdivision halves the edges
+    rig = DeePSDModel(densify_edge=target).rig(v, f, body)
+    fine_v, fine_f = trimesh.remesh.subdivide(v, f)
+    fine = DeePSDModel().rig(fine_v.astype(np.float32), fine_f, body)
+    assert rig.weights.shape == (len(v), 24) and rig.blend_shapes.shape[1:] == (len(v), 3)
+    assert np.allclose(rig.weights, fine.weights[: len(v)], atol=1e-6)
+    assert np.allclose(rig.blend_shapes, fine.blend_shapes[:, : len(v)], atol=1e-7)
+    as_is = DeePSDModel().rig(v, f, body)
+    assert np.abs(as_is.weights - rig.weights).max() > 1e-3  # and the subdivision changed the answer
+
+
+def test_a_fine_mesh_is_read_as_it_is(coarse):
+    v, f = coarse
+    body = load_body("neutral")
+    a = DeePSDModel(densify_edge=2 * mean_edge_length(v, f)).rig(v, f, body)
+    b = DeePSDModel().rig(v, f, body)
+    assert np.array_equal(a.weights, b.weights) and np.array_equal(a.blend_shapes, b.blend_shapes)
