@@ -76,6 +76,9 @@ def trained_ranges(bodies: tuple[str, ...]) -> tuple[Range, tuple[Range, Range]]
     return (min(heights), max(heights)), ((min(widths), max(widths)), (min(depths), max(depths)))
 
 
+# a mesh whose mean edge is longer than this (m) is read subdivided: chosen on the validation split
+# (bench/deepsd_coarse.py at 400 and 3,000 vertices; docs/deepsd_experiments.md)
+DENSIFY_EDGE = 0.025
 DENSIFY_MAX_VERTICES = 20_000  # the finest mesh a coarse outfit is read as (rig time grows with it: bench/deepsd.py)
 
 
@@ -83,7 +86,7 @@ class DeePSDModel:
     """The two ONNX files of a DeePSD export, checked against their manifest's sha256."""
 
     def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, scale_bodies: str | None = "height",
-                 densify_edge: float | None = None):
+                 densify_edge: float | None = DENSIFY_EDGE):
         """scale_bodies: "height" reads a garment on a body taller or shorter than every body trained on as if
         the body were scaled into the trained range of heights (`drape.geometry.body_scale`); "torso" also
         brings its torso's width and depth into the trained range; None reads it as it is. densify_edge (m): a
@@ -111,10 +114,9 @@ class DeePSDModel:
         scale = body_scale(body.vertices, body.joints, self.trained_heights, self.trained_torso)
         return None if scale.identity else scale
 
-    def _inputs(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None) -> dict[str, np.ndarray]:
-        scale = self.body_scale(body)
-        if scale is not None:  # the network reads garment and body as if the body were in its trained range
-            vertices = scale.apply(vertices)
+    def _inputs(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None,
+                scale: BodyScale | None) -> dict[str, np.ndarray]:
+        """The outfit network's inputs for vertices (N, 3) already in its frame (scaled by `scale`)."""
         inputs = network_inputs(vertices, faces)
         if self.joint_candidates is not None:
             if body is None:
@@ -128,30 +130,29 @@ class DeePSDModel:
         return inputs
 
     def _run(self, outputs: list[str], vertices: np.ndarray, faces: np.ndarray, body: Body | None) -> list[np.ndarray]:
-        """The outfit network's `outputs` for the mesh, per input vertex (the vertex axis last but one). Coincident
-        vertices (UV seams) are welded for the network and get the same answer, so that seams cannot open; a
-        mesh coarser than `densify_edge` is read subdivided (its own vertices are the first of the finer mesh)."""
+        """The outfit network's `outputs` for the mesh, per input vertex (the vertex axis last but one), blend
+        shapes in metres on `body`. The network reads garment and body scaled into its trained heights
+        (`body_scale`); coincident vertices (UV seams) welded, so that seams cannot open; a mesh whose mean edge
+        is longer than `densify_edge` there subdivided (its own vertices are the first of the finer mesh)."""
         welded, welded_faces, group = weld(vertices, faces)
-        v, f = welded, welded_faces
+        scale = self.body_scale(body)
+        v, f = (welded if scale is None else scale.apply(welded)), welded_faces
         if self.densify_edge is not None:
-            v, f = densify(welded, welded_faces, self.densify_edge, DENSIFY_MAX_VERTICES)
-        answers = self.sessions["outfit"].run(outputs, self._inputs(v, f, body))
-        return [a[..., : len(welded), :][..., group, :] for a in answers]
+            v, f = densify(v, f, self.densify_edge, DENSIFY_MAX_VERTICES)
+        answers = self.sessions["outfit"].run(outputs, self._inputs(v, f, body, scale))
+        answers = [a[..., : len(welded), :][..., group, :] for a in answers]
+        return [a if scale is None or name == "weights" else scale.unscale(a)
+                for name, a in zip(outputs, answers, strict=True)]
 
     def rig(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None = None) -> Rig:
         """Blend weights and pose-space blend shapes of an outfit in rest pose on `body` (needed by a model with
-        `joint_candidates`; the others ignore it); seams welded, coarse meshes read subdivided (`_run`)."""
+        `joint_candidates`; the others ignore it), as `_run` reads it."""
         w, d = self._run(["weights", "blend_shapes"], vertices, faces, body)
-        return Rig(weights=w, blend_shapes=self._unscaled(d, body))
-
-    def _unscaled(self, blend_shapes: np.ndarray, body: Body | None) -> np.ndarray:
-        """Blend shapes (P, N, 3) the network answered in its scaled frame -> metres on `body`."""
-        scale = self.body_scale(body)
-        return blend_shapes if scale is None else scale.unscale(blend_shapes)
+        return Rig(weights=w, blend_shapes=d)
 
     def blend_shapes_data(self, vertices: np.ndarray, faces: np.ndarray, body: Body | None = None) -> np.ndarray:
         """D_data alone (P, N, 3): the model without its physics branch Chi (for evaluation); as `rig` reads it."""
-        return self._unscaled(self._run(["blend_shapes_data"], vertices, faces, body)[0], body)
+        return self._run(["blend_shapes_data"], vertices, faces, body)[0]
 
     def pose_keys(self, poses: np.ndarray) -> np.ndarray:
         """(T, 24, 3) or (T, 72) axis-angle -> (T, P) pose keys."""
