@@ -34,11 +34,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="drape/training/configs/deepsd_candidates_loose_prior.json")
     parser.add_argument("--vertices", type=int, default=400)
-    parser.add_argument("--edges", default="none,0.04,0.025,0.015", help="densify_edge values (m); none: as it is")
+    parser.add_argument("--edges", default="none,0.04,0.025,0.015", help="densify_edge values (m); none: as it is; "
+                        "a value ending in 'r' (e.g. 0.025r) also averages over the finer one-ring (densify_ring)")
     args = parser.parse_args()
     with open(args.config) as fh:
         cfg = json.load(fh)
-    models = {e: DeePSDModel(MODEL_DIR, densify_edge=None if e == "none" else float(e)) for e in args.edges.split(",")}
+    models = {e: DeePSDModel(MODEL_DIR, densify_edge=None if e == "none" else float(e.rstrip("r")),
+                             densify_ring=e.endswith("r")) for e in args.edges.split(",")}
     first = next(iter(models.values()))
     print(f"DeePSD {first.manifest['version']}; validation of {args.config}; outfits at {args.vertices} vertices")
     poses_fit = fit_poses()

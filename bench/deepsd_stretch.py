@@ -22,7 +22,7 @@ from drape.runtime.sparse_rig import fit_poses, sparse_rig
 from drape.training.deepsd_data import load_outfit
 from drape.training.deepsd_validation import validation_motions, validation_specs
 
-EDGES = {"none": None, "0.04": 0.04, "0.025": 0.025}
+EDGES = {"none": None, "0.04": 0.04, "0.025": 0.025, "0.025r": 0.025}  # r: densify_ring
 
 
 def main() -> None:
@@ -31,7 +31,7 @@ def main() -> None:
     args = parser.parse_args()
     with open(args.config) as fh:
         cfg = json.load(fh)
-    models = {name: DeePSDModel(densify_edge=e) for name, e in EDGES.items()}
+    models = {name: DeePSDModel(densify_edge=e, densify_ring=name.endswith("r")) for name, e in EDGES.items()}
     poses_fit = fit_poses()
     keys_fit = models["none"].pose_keys(poses_fit)
     for vertices in (400, 3000):

@@ -86,13 +86,14 @@ class DeePSDModel:
     """The two ONNX files of a DeePSD export, checked against their manifest's sha256."""
 
     def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, scale_bodies: str | None = "height",
-                 densify_edge: float | None = DENSIFY_EDGE):
+                 densify_edge: float | None = DENSIFY_EDGE, densify_ring: bool = True):
         """scale_bodies: "height" reads a garment on a body taller or shorter than every body trained on as if
         the body were scaled into the trained range of heights (`drape.geometry.body_scale`); "torso" also
         brings its torso's width and depth into the trained range; None reads it as it is. densify_edge (m): a
         mesh whose mean edge is longer is read subdivided (`drape.geometry.mesh.densify`) toward it; None: as
-        it is."""
-        self.densify_edge = densify_edge
+        it is. densify_ring: a subdivided mesh's vertex answers the mean of its own answer and its finer
+        one-ring's mean (chosen on validation: bench.deepsd_coarse, edges "0.025r")."""
+        self.densify_edge, self.densify_ring = densify_edge, densify_ring
         model_dir = Path(model_dir)
         self.manifest = json.loads((model_dir / "manifest.json").read_text())
         blobs = checked_files(model_dir, self.manifest, ("outfit", "pose"))
@@ -140,6 +141,11 @@ class DeePSDModel:
         if self.densify_edge is not None:
             v, f = densify(v, f, self.densify_edge, DENSIFY_MAX_VERTICES)
         answers = self.sessions["outfit"].run(outputs, self._inputs(v, f, body, scale))
+        if self.densify_ring and len(v) > len(welded):
+            idx, w = neighbour_table(f, len(v))
+            idx, w = idx[: len(welded)], w[: len(welded)]
+            answers = [0.5 * (a[..., : len(welded), :] + np.einsum("nk,...nkc->...nc", w, a[..., idx, :]))
+                       for a in answers]
         answers = [a[..., : len(welded), :][..., group, :] for a in answers]
         return [a if scale is None or name == "weights" else scale.unscale(a)
                 for name, a in zip(outputs, answers, strict=True)]

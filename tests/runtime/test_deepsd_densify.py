@@ -21,7 +21,7 @@ def test_a_coarse_mesh_answers_from_its_subdivision(coarse):
     v, f = coarse
     body = load_body("neutral")
     target = 0.6 * mean_edge_length(v, f)  # one level of midpoint subdivision halves the edges
-    rig = DeePSDModel(densify_edge=target).rig(v, f, body)
+    rig = DeePSDModel(densify_edge=target, densify_ring=False).rig(v, f, body)
     fine_v, fine_f = trimesh.remesh.subdivide(v, f)
     fine = DeePSDModel(densify_edge=None).rig(fine_v.astype(np.float32), fine_f, body)
     assert rig.weights.shape == (len(v), 24) and rig.blend_shapes.shape[1:] == (len(v), 3)
@@ -37,3 +37,22 @@ def test_a_fine_mesh_is_read_as_it_is(coarse):
     a = DeePSDModel(densify_edge=2 * mean_edge_length(v, f)).rig(v, f, body)
     b = DeePSDModel(densify_edge=None).rig(v, f, body)
     assert np.array_equal(a.weights, b.weights) and np.array_equal(a.blend_shapes, b.blend_shapes)
+
+
+def test_with_the_ring_a_vertex_answers_the_mean_of_itself_and_its_finer_one_ring(coarse):
+    from drape.geometry.mesh import adjacency_matrix
+
+    v, f = coarse
+    body = load_body("neutral")
+    target = 0.6 * mean_edge_length(v, f)
+    ring = DeePSDModel(densify_edge=target, densify_ring=True).rig(v, f, body)
+    fine_v, fine_f = trimesh.remesh.subdivide(v, f)
+    fine = DeePSDModel(densify_edge=None).rig(fine_v.astype(np.float32), fine_f, body)
+    adj = adjacency_matrix(fine_f, len(fine_v)).tocsr()
+    for i in (0, len(v) // 2, len(v) - 1):  # an independent mean over the sparse adjacency
+        nbrs = adj.indices[adj.indptr[i]:adj.indptr[i + 1]]
+        expect = 0.5 * (fine.weights[i] + fine.weights[nbrs].mean(axis=0))
+        assert np.allclose(ring.weights[i], expect, atol=1e-6)
+        expect_d = 0.5 * (fine.blend_shapes[:, i] + fine.blend_shapes[:, nbrs].mean(axis=1))
+        assert np.allclose(ring.blend_shapes[:, i], expect_d, atol=1e-7)
+    assert np.allclose(ring.weights.sum(axis=1), 1, atol=1e-5)
