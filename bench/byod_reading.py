@@ -1,5 +1,5 @@
 """How each way DeePSD reads a garment changes bench.byod's case: the ArcSim t-shirt of ../shared/data/external
-(426 vertices, 73 mm edges) fitted onto bench.byod's user body (the `heavy` preset x 1.05, 2.05 m: outside the
+(426 vertices, 67 mm mean edges) fitted onto bench.byod's user body (the `heavy` preset x 1.05, 2.05 m: outside the
 trained heights), posed along a CMU clip (every 4th frame) by the dense rig of the shipped weights read as they
 are (`scale_bodies=None, densify_edge=None`), scaled into the trained heights, scaled and subdivided, and that with
 each vertex's answer averaged over its finer one-ring (the service's default); beside the nearest-body-weights baseline. Prints the share of the shirt's vertices inside
