@@ -1,8 +1,8 @@
 """How each way DeePSD reads a garment changes bench.byod's case: the ArcSim t-shirt of ../shared/data/external
 (426 vertices, 67 mm mean edges) fitted onto bench.byod's user body (the `heavy` preset x 1.05, 2.05 m: outside the
 trained heights), posed along a CMU clip (every 4th frame) by the dense rig of the shipped weights read as they
-are (`scale_bodies=None, densify_edge=None`), scaled into the trained heights, scaled and subdivided, and that with
-each vertex's answer averaged over its finer one-ring (the service's default); beside the nearest-body-weights baseline. Prints the share of the shirt's vertices inside
+are (`scale_bodies=None, densify_edge=None`), scaled into the trained heights, scaled and subdivided (the service's default), and that with
+each vertex's answer averaged over its finer one-ring (`densify_ring`); beside the nearest-body-weights baseline. Prints the share of the shirt's vertices inside
 the body (median frame; exact closest-triangle signed distance), the largest edge length over its rest length,
 and the share of edge-frames over 2x.
 
@@ -48,8 +48,8 @@ def main(clip_path: Path = CLIP) -> None:
     frames = {"baseline": pose_mesh(verts, nearest_vertex_weights(verts, body.vertices, body.weights), body.joints,
                                     poses, trans)}
     readings = {"as it is": DeePSDModel(scale_bodies=None, densify_edge=None),
-                "scaled": DeePSDModel(densify_edge=None), "scaled + subdivided": DeePSDModel(densify_ring=False),
-                "+ ring (served)": DeePSDModel()}
+                "scaled": DeePSDModel(densify_edge=None), "scaled + subdivided (served)": DeePSDModel(),
+                "+ ring": DeePSDModel(densify_ring=True)}
     for name, model in readings.items():
         frames[name] = pose_outfit(verts, model.rig(verts, faces, body), model.pose_keys(poses), body.joints, poses,
                                    trans)

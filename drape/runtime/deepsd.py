@@ -86,13 +86,14 @@ class DeePSDModel:
     """The two ONNX files of a DeePSD export, checked against their manifest's sha256."""
 
     def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, scale_bodies: str | None = "height",
-                 densify_edge: float | None = DENSIFY_EDGE, densify_ring: bool = True):
+                 densify_edge: float | None = DENSIFY_EDGE, densify_ring: bool = False):
         """scale_bodies: "height" reads a garment on a body taller or shorter than every body trained on as if
         the body were scaled into the trained range of heights (`drape.geometry.body_scale`); "torso" also
         brings its torso's width and depth into the trained range; None reads it as it is. densify_edge (m): a
         mesh whose mean edge is longer is read subdivided (`drape.geometry.mesh.densify`) toward it; None: as
         it is. densify_ring: a subdivided mesh's vertex answers the mean of its own answer and its finer
-        one-ring's mean (chosen on validation: bench.deepsd_coarse, edges "0.025r")."""
+        one-ring's mean (better on validation, bench.deepsd_coarse "0.025r", but off: averaged weights reach
+        joints beyond a vertex's 4 candidates, so the served 4-influence rig would no longer be the network's own)."""
         self.densify_edge, self.densify_ring = densify_edge, densify_ring
         model_dir = Path(model_dir)
         self.manifest = json.loads((model_dir / "manifest.json").read_text())
