@@ -29,7 +29,7 @@ from drape.geometry.queries import nearest_vertex_weights
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, pose_outfit
 from drape.runtime.sparse_rig import fit_poses, sparse_rig
 from drape.training.deepsd_data import load_outfit
-from drape.training.deepsd_validation import measure_poser, validation_specs
+from drape.training.deepsd_validation import measure_poser, summarise, validation_specs
 
 # name -> (preset, scale along x, y, z)
 BODIES = {"val_tall": ("neutral", (1.12, 1.12, 1.12)), "val_short": ("female", (0.90, 0.90, 0.90)),
@@ -86,9 +86,9 @@ def main() -> None:
     print(f"\nmean over {len(totals['baseline'])} outfit x body pairs (score = inside % + edge mm, as the "
           f"checkpoint choice scores):")
     for m, rows in totals.items():
-        inside = float(np.mean([r["inside_triangle_pct"] for r in rows]))
-        edge = float(np.mean([r["edge_error_mm"] for r in rows]))
-        print(f"{m:9} inside {inside:.2f}%  edge {edge:.2f} mm  score {inside + edge:.3f}")
+        mean = summarise(rows)
+        print(f"{m:9} inside {mean['inside_triangle_pct']:.2f}%  edge {mean['edge_error_mm']:.2f} mm  "
+              f"score {mean['score']:.3f}")
 
 
 if __name__ == "__main__":

@@ -84,11 +84,17 @@ def _measure(cfg: dict, rig: Callable[[np.ndarray, np.ndarray, Body], Poser], lo
         verts, faces = load_outfit(spec)
         body = load_body(spec.body)
         per_outfit[spec.key] = measure_poser(cfg, verts, faces, spec.body, body, rig(verts, faces, body))
-    inside_pct = float(np.mean([o["inside_triangle_pct"] for o in per_outfit.values()]))
-    edge_mm = float(np.mean([o["edge_error_mm"] for o in per_outfit.values()]))
-    log(f"validation: {inside_pct:.2f}% inside, {edge_mm:.2f} mm edge error")
-    return {"score": inside_pct + edge_mm, "inside_triangle_pct": inside_pct, "edge_error_mm": edge_mm,
-            "outfits": per_outfit}
+    record = summarise(list(per_outfit.values()))
+    log(f"validation: {record['inside_triangle_pct']:.2f}% inside, {record['edge_error_mm']:.2f} mm edge error")
+    return {**record, "outfits": per_outfit}
+
+
+def summarise(rows: list[dict]) -> dict:
+    """`measure_poser` results of several outfits -> {"score": inside % + edge mm, "inside_triangle_pct",
+    "edge_error_mm"}: the means over outfits, scored as the checkpoint choice scores them."""
+    inside_pct = float(np.mean([r["inside_triangle_pct"] for r in rows]))
+    edge_mm = float(np.mean([r["edge_error_mm"] for r in rows]))
+    return {"score": inside_pct + edge_mm, "inside_triangle_pct": inside_pct, "edge_error_mm": edge_mm}
 
 
 def weights_off_prior(weights: np.ndarray, prior: np.ndarray) -> float:
