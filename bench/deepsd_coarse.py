@@ -1,5 +1,5 @@
 """Does DeePSD rig a coarse garment (long edges, as garments made in other tools often come: the ArcSim t-shirt
-of ../shared/data/external has 426 vertices, 67 mm mean edges; DeePSD trained on 800-4,500-vertex outfits, 11-59 mm)
+of ../shared/data/external has 426 vertices, 67 mm mean edges; DeePSD trained on 800-4,500-vertex outfits; at 3,000 vertices the validation outfits have 13-36 mm)
 better when it reads it subdivided (drape.geometry.mesh.densify, its own vertices answered from the finer
 mesh)? On the VALIDATION split only (never the held-out table): the config's validation outfit types and seeds,
 generated at `--vertices` (default 400) on their validation bodies, posed along the validation motions and
