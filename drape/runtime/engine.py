@@ -36,6 +36,8 @@ from drape.geometry.refine import (
 )
 from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
+from drape.runtime.collision_fit import fit_poses as collision_fit_poses
+from drape.runtime.collision_fit import served_rig
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 from drape.runtime.intrinsic import (
     DECODE_BLOCK,
@@ -51,7 +53,7 @@ from drape.runtime.layers import (
     LayerTemplate,
     OuterModel,
 )
-from drape.runtime.sparse_rig import INFLUENCES, fit_poses, sparse_rig
+from drape.runtime.sparse_rig import INFLUENCES, fit_poses
 
 POSE_BLOCK = 128  # frames posed per call (then handed out a chunk at a time)
 
@@ -287,7 +289,9 @@ class Engine:
 
     def __init__(self, model_dir: str | Path = MODEL_DIR, threads: int = 2, cache_bytes: int = 512 * 2**20,
                  observe: Callable[[str, float], None] | None = None, refine_workers: int = 1,
-                 intrinsic_dir: str | Path | None = INTRINSIC_DIR):
+                 intrinsic_dir: str | Path | None = INTRINSIC_DIR, collision_fit: bool = True):
+        """collision_fit: the served rig's blend shapes are fit to keep the garment out of its body
+        (drape.runtime.collision_fit); False serves the 4- (or 8-) influence rig of the network as it is."""
         self.model = DeePSDModel(model_dir, threads=threads)
         self.garments = GarmentRegistry(intrinsic_dir, threads=threads)
         self.layers = LayerCatalog()
@@ -297,6 +301,8 @@ class Engine:
         files = self.model.manifest["files"]
         self.model_tag = f"deepsd-{self.model.manifest['version']}-{files['outfit']['sha256'][:16]}"
         self._fit: tuple[np.ndarray, np.ndarray] | None = None  # the sparse rig's fit poses and their keys
+        self.collision_fit = collision_fit
+        self._collision_fit: tuple[np.ndarray, np.ndarray] | None = None  # the collision fit's poses and keys
 
     def fit_frames(self) -> tuple[np.ndarray, np.ndarray]:
         """The sparse rig's fit poses (T, 24, 3) and their pose keys (T, P), made once."""
@@ -305,18 +311,26 @@ class Engine:
             self._fit = poses, self.model.pose_keys(poses)
         return self._fit
 
+    def collision_frames(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The collision fit's poses (T, 24, 3) and their pose keys (T, P), made once; None when it is off."""
+        if self.collision_fit and self._collision_fit is None:
+            poses = collision_fit_poses()
+            self._collision_fit = poses, self.model.pose_keys(poses)
+        return self._collision_fit
+
     def outfit_id(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> str:
         """Content hash of the canonical mesh (float32 vertices, int32 faces), the body, the rig's influences
         per vertex and the model."""
         h = hashlib.sha256()
         h.update(np.ascontiguousarray(vertices, dtype="<f4").tobytes())
         h.update(np.ascontiguousarray(faces, dtype="<i4").tobytes())
-        h.update(f"|{body}|{self.model_tag}|i{influences}".encode())
+        h.update(f"|{body}|{self.model_tag}|i{influences}|c{int(self.collision_fit)}".encode())
         return h.hexdigest()[:32]
 
     def rig(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> RiggedOutfit:
         """The served rig of an outfit: at most `influences` (4 or 8) skin weights per vertex, blend shapes
-        refit for them (drape.runtime.sparse_rig); cached by content."""
+        refit for them (drape.runtime.sparse_rig) and to keep the garment out of the body
+        (drape.runtime.collision_fit); cached by content."""
         if influences not in INFLUENCES:
             raise ValueError(f"influences must be one of {INFLUENCES}, got {influences}")
         v = np.ascontiguousarray(vertices, dtype=np.float32)
@@ -330,7 +344,7 @@ class Engine:
         dense = self.model.rig(v, f, body_mesh)
         self._observe("outfit", time.perf_counter() - t)
         t = time.perf_counter()
-        rig = sparse_rig(v, dense, body_mesh.joints, influences, *self.fit_frames())
+        rig = served_rig(v, dense, body_mesh, influences, self.fit_frames(), self.collision_frames())
         self._observe("sparse_rig", time.perf_counter() - t)
         out = RiggedOutfit(oid, body, v, f, rig, influences)
         self.cache.put(oid, out)
@@ -531,6 +545,7 @@ class Engine:
         for _ in self.pose_chunks(outfit, np.zeros((2, 24, 3)), np.zeros((2, 3))):
             pass
         self.fit_frames()
+        self.collision_frames()
         self.garments.warm_up()
         if self.refine_pool.workers >= 2:
             self.refine_pool.start()

@@ -5,7 +5,8 @@ Methods, per outfit:
   no_chi:   drape's weights + D_data only (the model without its physics branch);
   model:    drape's dense weights (24 a vertex) + D = D_data + D_phys (the network's own rig);
   served:   the model's rig as the service serves it by default: 4 influences a vertex, blend shapes
-            refit for them (drape.runtime.sparse_rig); served8: the same with 8 influences.
+            refit for them (drape.runtime.sparse_rig) and to keep the garment out of the body
+            (drape.runtime.collision_fit); served8: the same with 8 influences.
 Metrics over the evaluated frames: collision share (garment vertices inside the
 body, signed distance < 0; nearest-vertex and closest-triangle variants), mean
 edge-length error vs the template (mm), bending (1 - cos of neighbouring face normals).
@@ -32,8 +33,10 @@ from drape.geometry.queries import (
     nearest_vertex_weights,
     signed_distance_nearest_vertex,
 )
+from drape.runtime.collision_fit import fit_poses as collision_fit_poses
+from drape.runtime.collision_fit import served_rig
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
-from drape.runtime.sparse_rig import fit_poses, sparse_rig
+from drape.runtime.sparse_rig import fit_poses
 from drape.training import DEFAULT_GROUND_TRUTH
 from drape.training.deepsd_data import OutfitSpec, eval_specs, load_outfit
 
@@ -44,11 +47,12 @@ LOOSE = ("skirt", "dress")
 def method_poser(model: DeePSDModel, verts: np.ndarray, faces: np.ndarray, body):  # noqa: ANN001, ANN201
     """One outfit rigged by every method; returns pose(poses (T, 24, 3), trans (T, 3)) -> {method: (T, N, 3)}."""
     rig = model.rig(verts, faces, body)
-    poses_fit = fit_poses()
-    keys_fit = model.pose_keys(poses_fit)
+    poses_fit, poses_collision = fit_poses(), collision_fit_poses()
+    fit = poses_fit, model.pose_keys(poses_fit)
+    collision = poses_collision, model.pose_keys(poses_collision)
     rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces, body)),
-            "served": sparse_rig(verts, rig, body.joints, 4, poses_fit, keys_fit),
-            "served8": sparse_rig(verts, rig, body.joints, 8, poses_fit, keys_fit)}
+            "served": served_rig(verts, rig, body, 4, fit, collision),
+            "served8": served_rig(verts, rig, body, 8, fit, collision)}
     base_w = nearest_vertex_weights(verts, body.vertices, body.weights)
 
     def pose(poses: np.ndarray, trans: np.ndarray) -> dict[str, np.ndarray]:

@@ -4,7 +4,7 @@ The split (a config's `validation`): the evaluation's outfit types with other se
 the config's bodies in turn), posed along motions no training or evaluation uses: procedural motions of
 `procedural_seeds`, legs-apart ones (`procedural_spread`: {"seeds", "spread"}, if any) and real CMU clips (`clips`, imported from the config's mocap folder onto each body at its
 fps). Each candidate checkpoint is exported to ONNX and measured as it would be served (the
-`influences`-influence rig of drape.runtime.sparse_rig): the share of vertices inside the posed body (exact
+`influences`-influence rig of drape.runtime.sparse_rig, collision-fit by drape.runtime.collision_fit): the share of vertices inside the posed body (exact
 closest-triangle signed distance; %) on `frames_per_clip` frames of each motion, and the mean edge-length
 error against the template (mm). Score: inside % + edge error mm (1% inside weighs as 1 mm of edge error);
 the lowest wins. The shipped model and the nearest-body-weights baseline are measured in the same run, for
@@ -29,8 +29,10 @@ from drape.geometry.lbs import pose_mesh
 from drape.geometry.mesh import vertex_normals
 from drape.geometry.metrics import edge_length_error_mm
 from drape.geometry.queries import MeshDistance, nearest_vertex_weights
+from drape.runtime.collision_fit import fit_poses as collision_fit_poses
+from drape.runtime.collision_fit import served_rig
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, pose_outfit
-from drape.runtime.sparse_rig import fit_poses, sparse_rig
+from drape.runtime.sparse_rig import fit_poses
 from drape.training.deepsd_data import OutfitSpec, load_outfit
 
 
@@ -107,11 +109,12 @@ def weights_off_prior(weights: np.ndarray, prior: np.ndarray) -> float:
 
 
 def validate(cfg: dict, model_dir: str | Path, log: Callable[[str], object] = print) -> dict:
-    """The model in `model_dir`, as served (its sparse rig), on the validation split: {"score",
+    """The model in `model_dir`, as served (its sparse, collision-fit rig), on the validation split: {"score",
     "inside_triangle_pct", "edge_error_mm", "outfits": {key: {...}}}."""
     model = DeePSDModel(model_dir)
-    poses_fit = fit_poses()
-    keys_fit = model.pose_keys(poses_fit)
+    poses_fit, poses_collision = fit_poses(), collision_fit_poses()
+    fit = poses_fit, model.pose_keys(poses_fit)
+    collision = poses_collision, model.pose_keys(poses_collision)
     influences = cfg["validation"]["influences"]
 
     off_prior: list[float] = []  # per validation outfit, in _measure's order (validation_specs)
@@ -119,7 +122,7 @@ def validate(cfg: dict, model_dir: str | Path, log: Callable[[str], object] = pr
     def rig(verts: np.ndarray, faces: np.ndarray, body: Body) -> Poser:
         dense = model.rig(verts, faces, body)
         off_prior.append(weights_off_prior(dense.weights, nearest_vertex_weights(verts, body.vertices, body.weights)))
-        r = sparse_rig(verts, dense, body.joints, influences, poses_fit, keys_fit)
+        r = served_rig(verts, dense, body, influences, fit, collision)
         return lambda poses, trans: pose_outfit(verts, r, model.pose_keys(poses), body.joints, poses, trans)
 
     record = _measure(cfg, rig, log)

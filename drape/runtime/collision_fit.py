@@ -1,0 +1,112 @@
+"""The served rig's blend shapes fit to keep the garment out of its body, once per outfit at rig time.
+
+DeePSD's physics training keeps most cloth out of the body, not all: on the validation split the sleeved
+tops' cloth at the shoulders (the upper arm's skin) and the collar sinks 5-10 mm into the body (median over
+inside vertices) on 2-6% of their vertices. A rig is linear in the pose keys, so a correction that depends on
+the pose the way the network's blend shapes do can be fit by least squares: at fit poses, pose the rig, move
+every garment vertex that is inside the body or within `eps` of it onto the closest body point + eps along
+the normal there (`pushed_targets`), and refit the blend shapes to the posed rig moved `gain` times that push
+(`drape.runtime.sparse_rig.sparse_rig`, its ridge solve through the rig's own blended rotations; a least-squares
+fit over many poses takes back part of every push, so a gain above 1 lands closer to the pushed cloth); `rounds`
+times, each round from the rig the last gave. Fit poses (`fit_poses`): frames of the embedded clips and the
+procedural motions DeePSD trains on, never a validation or evaluation motion.
+
+The body is the part of its mesh within `reach` of the garment at rest (faces with a vertex that close),
+posed by its own skin; closest points are those of the refinement (`drape.geometry.refine.BodySurface`).
+Shapes: rest_vertices (N, 3) m; body vertices (M, 3) m, faces (G, 3), weights (M, 24), joints (24, 3) m;
+poses (T, 24, 3) rad; keys (T, P).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from drape.geometry.refine import BodySurface
+from drape.runtime.deepsd import Rig, pose_outfit
+from drape.runtime.sparse_rig import sparse_rig
+
+if TYPE_CHECKING:
+    from drape.assets.body import Body
+
+EPS = 0.005  # m: the clearance a pushed vertex gets (DeePSD's training collision margin)
+ROUNDS = 1
+GAIN = 3.0
+REACH = 0.1  # m: body faces farther than this from every garment vertex at rest are left out
+# fit poses: every 4th of the sparse rig's 300 (frames of the embedded clips DeePSD trained on) and every 12th frame
+# of three of its procedural training motions (drape.training.deepsd_data: seeds 500 + i, 300 frames)
+CLIP_STRIDE = 4
+PROCEDURAL_SEEDS = (501, 502, 503)
+PROCEDURAL_STRIDE = 12
+
+
+def fit_poses() -> np.ndarray:
+    """(150, 24, 3) rad: the collision fit's poses."""
+    from drape.assets.procedural import generate_motion
+    from drape.runtime.sparse_rig import fit_poses as clip_poses
+
+    procedural = np.concatenate([generate_motion(300, seed=s).poses for s in PROCEDURAL_SEEDS])
+    return np.concatenate([clip_poses()[::CLIP_STRIDE], procedural[::PROCEDURAL_STRIDE]]).astype(np.float64)
+
+
+def body_near(rest_vertices: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray,
+              reach: float = REACH) -> tuple[np.ndarray, np.ndarray]:
+    """The body's faces with a vertex within `reach` of the garment at rest -> (used body vertex indices (S,),
+    those faces (G', 3) re-indexed into them)."""
+    d = cKDTree(np.asarray(rest_vertices, dtype=np.float64)).query(np.asarray(body_vertices, dtype=np.float64),
+                                                                    distance_upper_bound=reach)[0]
+    faces = np.asarray(body_faces, dtype=np.int64)
+    keep = faces[np.isfinite(d)[faces].any(axis=1)]
+    used, local = np.unique(keep, return_inverse=True)
+    return used, local.reshape(keep.shape)
+
+
+def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, poses: np.ndarray,
+                   keys: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, body_weights: np.ndarray,
+                   eps: float = EPS, reach: float = REACH) -> np.ndarray:
+    """The rig posed at `poses` (no translation) with every vertex closer to the body than eps (or inside it)
+    moved onto its closest body point + eps along the body's normal there -> (T, N, 3) float32 m."""
+    posed = pose_outfit(rest_vertices, rig, keys, rest_joints, poses)
+    used, faces = body_near(rest_vertices, body_vertices, body_faces, reach)
+    if len(used) == 0:
+        return posed
+    skin = Rig(np.asarray(body_weights, dtype=np.float32)[used], np.zeros((1, len(used), 3), dtype=np.float32))
+    bodies = pose_outfit(np.asarray(body_vertices)[used], skin, np.zeros((len(poses), 1), dtype=np.float32),
+                         rest_joints, poses)
+    surface = BodySurface(faces, len(used))
+    for t in range(len(posed)):
+        b, x = bodies[t].astype(np.float64), posed[t].astype(np.float64)
+        sd, cp, n = surface.query(b, surface.normals(b), x)
+        near = sd < eps
+        posed[t, near] = cp[near] + eps * n[near]
+    return posed
+
+
+def collision_fit(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, influences: int,
+                  poses: np.ndarray, keys: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray,
+                  body_weights: np.ndarray, eps: float = EPS, rounds: int = ROUNDS, gain: float = GAIN,
+                  reach: float = REACH) -> Rig:
+    """`rig` with at most `influences` weights per vertex and its blend shapes refit, `rounds` times, to its own
+    posed vertices moved `gain` times their push out of the body (`pushed_targets`) at the fit poses -> Rig."""
+    out = rig
+    for _ in range(rounds):
+        posed = pose_outfit(rest_vertices, out, keys, rest_joints, poses)
+        pushed = pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces,
+                                body_weights, eps, reach)
+        targets = posed + np.float32(gain) * (pushed - posed)
+        out = sparse_rig(rest_vertices, out, rest_joints, influences, poses, keys, targets=targets)
+    return out
+
+
+def served_rig(rest_vertices: np.ndarray, dense: Rig, body: Body, influences: int,
+               sparse_fit: tuple[np.ndarray, np.ndarray], collision: tuple[np.ndarray, np.ndarray] | None) -> Rig:
+    """What the service serves for a network's `dense` rig of an outfit (rest_vertices (N, 3) m) on `body`: at
+    most `influences` weights per vertex (`sparse_rig` at sparse_fit = (poses, keys)), then, unless `collision` is
+    None, the collision fit at collision = (poses, keys) (`fit_poses` and their pose keys)."""
+    rig = sparse_rig(rest_vertices, dense, body.joints, influences, *sparse_fit)
+    if collision is None:
+        return rig
+    return collision_fit(rest_vertices, rig, body.joints, influences, *collision, body.vertices, body.faces,
+                         body.weights)
