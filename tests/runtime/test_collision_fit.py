@@ -1,9 +1,6 @@
 """The collision fit of the served rig: pushed targets against an independent exact distance, a rig with nothing
 to push left as it is, fewer vertices inside the body on clips the fit never saw, and the engine serving it."""
 
-import json
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -24,8 +21,6 @@ from drape.runtime.deepsd import DeePSDModel, pose_outfit
 from drape.runtime.sparse_rig import fit_poses as clip_poses
 from drape.runtime.sparse_rig import sparse_rig
 
-CONFIGS = Path(__file__).resolve().parents[2] / "drape" / "training" / "configs"
-
 
 @pytest.fixture(scope="module")
 def shipped():
@@ -42,7 +37,7 @@ def tshirt(shipped):
 def test_the_fit_poses_are_training_motions_never_validation_or_evaluation_ones():
     poses = fit_poses()
     assert poses.shape == (150, 24, 3) and np.isfinite(poses).all()
-    cfg = json.loads((CONFIGS / "deepsd_candidates_loose_prior.json").read_text())
+    cfg = DeePSDModel().manifest["training"]["config"]  # the shipped model's
     trained = {cfg["seed"] + 500 + i for i in range(cfg["procedural_motions"])}
     assert set(PROCEDURAL_SEEDS) <= trained
     v = cfg["validation"]

@@ -1,0 +1,122 @@
+"""The served rig's collision fit (drape.runtime.collision_fit), chosen on DeePSD's validation split.
+
+Validation only (never the held-out table of `drape eval deepsd`): the shipped config's validation outfits (the
+eval's 11 outfit types with seeds 80000 + i on the next body in turn) posed along its validation motions
+(procedural seeds 7001, 7002, legs-apart 7101, real CMU 05_04_dance, 06_03_sports, 06_01_walk; 6 frames each),
+(the shipped manifest's training config), measured as `drape.training.deepsd_validation` measures a checkpoint: vertices inside the posed body (exact
+closest triangle, %), edge error against the template (mm), score = their sum (lower is better). Variants,
+each refitting the 4-influence rig's blend shapes to targets at the fit poses:
+
+  served      the rig without a collision fit (what was served before)
+  push_gG_rR  R rounds; targets = the posed rig moved G times its push out of the body (`pushed_targets`: each
+              vertex within 5 mm of the body, or inside, onto its closest body point + 5 mm)
+  refine_gG   one round; the push replaced by the service's refinement of each fit frame
+              (drape.geometry.refine.Refiner: a smooth displacement field, stretch relief), moved G times
+
+Fit poses: `--poses 150` is `collision_fit.fit_poses()` (every 4th of the sparse rig's 300 clip frames, every 12th
+of three procedural training motions); 300 and 600 take every 2nd / 6th and all / every 3rd. Prints per outfit
+and the means, with the seconds each fit takes on a 3,000-vertex outfit.
+Run: .venv/bin/python -m bench.deepsd_collision_fit [--variants served,push_g3_r1] [--outfits tshirt,jacket]
+     [--poses 150]  (all variants, 11 outfits: ~12 minutes on the 2-core machine)
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from drape.assets.body import Body, load_body
+from drape.assets.procedural import generate_motion
+from drape.geometry.refine import BodySurface, Refiner, RefineReport
+from drape.runtime import collision_fit as cf
+from drape.runtime.deepsd import DeePSDModel, Rig, pose_outfit
+from drape.runtime.sparse_rig import fit_poses as clip_poses
+from drape.runtime.sparse_rig import sparse_rig
+from drape.training.deepsd_data import load_outfit
+from drape.training.deepsd_validation import measure_poser, summarise, validation_specs
+
+VARIANTS = {  # name: (targets, rounds, gain)
+    "served": (None, 0, 0.0),
+    "push_g1_r1": ("push", 1, 1.0), "push_g1_r2": ("push", 2, 1.0), "push_g1_r3": ("push", 3, 1.0),
+    "push_g2_r2": ("push", 2, 2.0), "push_g3_r1": ("push", 1, 3.0), "push_g5_r1": ("push", 1, 5.0),
+    "refine_g1": ("refine", 1, 1.0), "refine_g3": ("refine", 1, 3.0),
+}
+STRIDES = {150: (4, 12), 300: (2, 6), 600: (1, 3)}  # fit poses: (clip frame stride, procedural frame stride)
+
+
+def poses_for(count: int) -> np.ndarray:
+    clip, proc = STRIDES[count]
+    procedural = np.concatenate([generate_motion(300, seed=s).poses for s in cf.PROCEDURAL_SEEDS])
+    return np.concatenate([clip_poses()[::clip], procedural[::proc]]).astype(np.float64)
+
+
+def refined_targets(verts: np.ndarray, faces: np.ndarray, rig: Rig, body: Body, poses: np.ndarray,
+                    keys: np.ndarray) -> np.ndarray:
+    """The rig posed at the fit poses, each frame refined out of the body (the near part, as `pushed_targets`)."""
+    posed = pose_outfit(verts, rig, keys, body.joints, poses)
+    used, faces_near = cf.body_near(verts, body.vertices, body.faces)
+    skin = Rig(body.weights[used].astype(np.float32), np.zeros((1, len(used), 3), np.float32))
+    bodies = pose_outfit(body.vertices[used], skin, np.zeros((len(poses), 1), np.float32), body.joints, poses)
+    surface, refiner, report = BodySurface(faces_near, len(used)), Refiner(faces, len(verts)), RefineReport()
+    return np.stack([refiner.refine_frame(posed[t].astype(np.float64), bodies[t].astype(np.float64), surface, report)
+                     for t in range(len(poses))]).astype(np.float32)
+
+
+def fit_variant(name: str, verts: np.ndarray, faces: np.ndarray, rig: Rig, body: Body, poses: np.ndarray,
+                keys: np.ndarray) -> Rig:
+    targets, rounds, gain = VARIANTS[name]
+    for _ in range(rounds):
+        posed = pose_outfit(verts, rig, keys, body.joints, poses)
+        moved = (refined_targets(verts, faces, rig, body, poses, keys) if targets == "refine" else
+                 cf.pushed_targets(verts, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights))
+        rig = sparse_rig(verts, rig, body.joints, 4, poses, keys, targets=posed + np.float32(gain) * (moved - posed))
+    return rig
+
+
+def poser(model: DeePSDModel, verts: np.ndarray, rig: Rig, body: Body):  # noqa: ANN201
+    return lambda ps, tr: pose_outfit(verts, rig, model.pose_keys(ps), body.joints, ps, tr)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--variants", default=",".join(VARIANTS))
+    p.add_argument("--outfits", default=None, help="comma list of outfit types, '+' joining layers (default: all 11)")
+    p.add_argument("--poses", type=int, default=150, choices=sorted(STRIDES))
+    args = p.parse_args()
+    names = args.variants.split(",")
+    model = DeePSDModel()
+    cfg = model.manifest["training"]["config"]  # the shipped model's own validation split
+    poses = poses_for(args.poses)
+    keys = model.pose_keys(poses)
+    clip_fit = clip_poses()
+    clip_keys = model.pose_keys(clip_fit)
+    rows: dict[str, list[dict]] = {n: [] for n in names}
+    seconds: dict[str, list[float]] = {n: [] for n in names}
+    print(f"validation ({len(poses)} fit poses): inside % / edge error mm / fit seconds")
+    for spec in validation_specs(cfg):
+        if args.outfits and spec.types.replace(",", "+") not in args.outfits.split(","):
+            continue
+        verts, faces = load_outfit(spec)
+        body = load_body(spec.body)
+        served = sparse_rig(verts, model.rig(verts, faces, body), body.joints, 4, clip_fit, clip_keys)
+        line = []
+        for n in names:
+            t0 = time.perf_counter()
+            rig = fit_variant(n, verts, faces, served, body, poses, keys)
+            seconds[n].append(time.perf_counter() - t0)
+            r = measure_poser(cfg, verts, faces, spec.body, body, poser(model, verts, rig, body))
+            rows[n].append(r)
+            line.append(f"{n} {r['inside_triangle_pct']:.2f}% {r['edge_error_mm']:.2f}mm {seconds[n][-1]:.1f}s")
+        print(f"{spec.key:38s} " + " | ".join(line), flush=True)
+    base = summarise(rows[names[0]])["score"]
+    print(f"\nmeans over outfits (score ratio to {names[0]}):")
+    for n in names:
+        s = summarise(rows[n])
+        print(f"  {n:12s} inside {s['inside_triangle_pct']:.2f}%  edge {s['edge_error_mm']:.3f} mm  score "
+              f"{s['score']:.3f} ({s['score'] / base:.3f}x)  fit {np.mean(seconds[n]):.1f} s")
+
+
+if __name__ == "__main__":
+    main()
