@@ -18,6 +18,14 @@ of three procedural training motions); 300 and 600 take every 2nd / 6th and all 
 and the means, with the seconds each fit takes on a 3,000-vertex outfit.
 Run: .venv/bin/python -m bench.deepsd_collision_fit [--variants served,push_g3_r1] [--outfits tshirt,jacket]
      [--poses 150]  (all variants, 11 outfits: ~12 minutes on the 2-core machine)
+     .venv/bin/python -m bench.deepsd_collision_fit --latency: what a rig request costs with the fit, against the
+     same engine without it in the same run (Engine.rig of a t-shirt + trousers of 1k, 10k and 30k vertices on the
+     neutral body; the median of 3 cold rigs each, the content cache cleared between them)
+     .venv/bin/python -m bench.deepsd_collision_fit --where [--outfits ...]: where the served rig without the fit
+     leaves cloth inside the body on the validation split: the share of inside vertices whose closest body point,
+     2 mm out along its normal, is still inside the body (the body overlapping itself), the share the nearest body
+     vertex's normal calls outside (DeePSD's training collider), depth percentiles (mm) and the joints that skin
+     the nearest body vertex most
 """
 
 from __future__ import annotations
@@ -79,12 +87,95 @@ def poser(model: DeePSDModel, verts: np.ndarray, rig: Rig, body: Body):  # noqa:
     return lambda ps, tr: pose_outfit(verts, rig, model.pose_keys(ps), body.joints, ps, tr)
 
 
+def latency() -> None:
+    from drape.assets.outfits import generate_outfit
+    from drape.runtime.cache import LRUBytesCache
+    from drape.runtime.engine import Engine
+
+    engines = {"without": Engine(refine_workers=1, collision_fit=False), "with": Engine(refine_workers=1)}
+    for e in engines.values():
+        e.warm_up()
+    print("rig latency (s): without the collision fit | with it | ratio")
+    for n in (1000, 10000, 30000):
+        o = generate_outfit(["tshirt", "trousers"], vertices=n, seed=5)
+        t = {}
+        for name, e in engines.items():
+            runs = []
+            for _ in range(3):
+                e.cache = LRUBytesCache(e.cache.max_bytes)  # a cold rig each time
+                t0 = time.perf_counter()
+                e.rig(o.vertices, o.faces, "neutral")
+                runs.append(time.perf_counter() - t0)
+            t[name] = float(np.median(runs))
+        print(f"  {len(o.vertices):6d} vertices: {t['without']:.3f} | {t['with']:.3f} | {t['with'] / t['without']:.1f}x",
+              flush=True)
+    for e in engines.values():
+        e.close()
+
+
+def where(outfits: list[str] | None) -> None:
+    from collections import Counter
+
+    from scipy.spatial import cKDTree
+
+    from drape.geometry.mesh import vertex_normals
+    from drape.geometry.queries import MeshDistance, signed_distance_nearest_vertex
+    from drape.geometry.skeleton import JOINT_NAMES
+    from drape.training.deepsd_validation import validation_motions
+
+    model = DeePSDModel()
+    cfg = model.manifest["training"]["config"]
+    clip_fit = clip_poses()
+    clip_keys = model.pose_keys(clip_fit)
+    for spec in validation_specs(cfg):
+        if outfits and spec.types.replace(",", "+") not in outfits:
+            continue
+        verts, faces = load_outfit(spec)
+        body = load_body(spec.body)
+        rig = sparse_rig(verts, model.rig(verts, faces, body), body.joints, 4, clip_fit, clip_keys)
+        total = inside = overlap = nearest_out = 0
+        depths: list[float] = []
+        joints: Counter = Counter()
+        for motion in validation_motions(cfg, spec.body):
+            fr = np.linspace(0, motion.num_frames - 1, cfg["validation"]["frames_per_clip"]).round().astype(int)
+            ps, tr = motion.poses[fr].astype(np.float64), motion.trans[fr].astype(np.float64)
+            posed = pose_outfit(verts, rig, model.pose_keys(ps), body.joints, ps, tr)
+            for g, b in zip(posed.astype(np.float64), body.pose(ps, tr).astype(np.float64), strict=True):
+                normals = vertex_normals(b, body.faces)
+                dist = MeshDistance(b, body.faces, normals)
+                sd = dist.signed_distance(g)
+                mask = sd < 0
+                total += len(g)
+                inside += int(mask.sum())
+                if mask.any():
+                    cp, n, _ = dist.closest(g[mask])
+                    overlap += int((dist.signed_distance(cp + 0.002 * n) < 0).sum())
+                    nearest_out += int((signed_distance_nearest_vertex(g[mask], b, normals)[0] >= 0).sum())
+                    depths += list(-1000 * sd[mask])
+                    near = cKDTree(b).query(g[mask])[1]
+                    joints.update(JOINT_NAMES[j] for j in body.weights[near].argmax(axis=1))
+        d = np.array(depths) if depths else np.zeros(1)
+        share = max(inside, 1)
+        print(f"{spec.key}: inside {100 * inside / total:.2f}%; of those in the body's overlap "
+              f"{100 * overlap / share:.0f}%, outside by the nearest vertex {100 * nearest_out / share:.0f}%; depth mm "
+              f"p50 {np.median(d):.1f} p90 {np.quantile(d, 0.9):.1f} max {d.max():.1f}; joints "
+              + ", ".join(f"{j} {100 * c / share:.0f}%" for j, c in joints.most_common(4)), flush=True)
+
+
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--variants", default=",".join(VARIANTS))
     p.add_argument("--outfits", default=None, help="comma list of outfit types, '+' joining layers (default: all 11)")
     p.add_argument("--poses", type=int, default=150, choices=sorted(STRIDES))
+    p.add_argument("--latency", action="store_true", help="time rig requests with and without the fit instead")
+    p.add_argument("--where", action="store_true", help="where the rig without the fit leaves cloth inside")
     args = p.parse_args()
+    if args.latency:
+        latency()
+        return
+    if args.where:
+        where(args.outfits.split(",") if args.outfits else None)
+        return
     names = args.variants.split(",")
     model = DeePSDModel()
     cfg = model.manifest["training"]["config"]  # the shipped model's own validation split
