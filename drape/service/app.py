@@ -58,7 +58,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             catalog.motions()
             engine = Engine(settings.model_dir, settings.ort_threads, settings.outfit_cache_bytes,
                             observe=metrics.observe_inference, refine_workers=settings.refine_workers,
-                            intrinsic_dir=settings.intrinsic_dir)
+                            intrinsic_dir=settings.intrinsic_dir, collision_fit=settings.collision_fit)
             engine.warm_up()
             app.state.engine = engine
             app.state.bodies = BodyStore(settings.max_bodies, settings.max_body_store_bytes, settings.body_dir,

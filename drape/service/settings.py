@@ -47,6 +47,9 @@ class Settings(BaseSettings):
     body_dir: Path | None = None
     stream_chunk_frames: int = 32
     refine_workers: int = 2  # processes a chunk's refinement is split over (1: in the serving process)
+    # the served rig's blend shapes fit to keep the garment out of its body (drape.runtime.collision_fit); off: rig
+    # requests answer faster (bench.deepsd_collision_fit --latency) with more cloth inside the body
+    collision_fit: bool = True
     api_key: str | None = None
     cors_origins: list[str] = []
 
