@@ -12,6 +12,9 @@ each refitting the 4-influence rig's blend shapes to targets at the fit poses:
               vertex within 5 mm of the body, or inside, onto its closest body point + 5 mm)
   refine_gG   one round; the push replaced by the service's refinement of each fit frame
               (drape.geometry.refine.Refiner: a smooth displacement field, stretch relief), moved G times
+  push_g3_r1_tight / _deep3 / _tight_deep3: push_g3_r1 on cloth that lies on the body at rest only (pushed fully
+              within 1.5 cm of the body's vertices at rest, not at all beyond 3 cm), and/or leaving vertices deeper
+              than 3 cm inside where they are
 
 Fit poses: `--poses 150` is `collision_fit.fit_poses()` (every 4th of the sparse rig's 300 clip frames, every 12th
 of three procedural training motions); 300 and 600 take every 2nd / 6th and all / every 3rd. Prints per outfit
@@ -45,11 +48,15 @@ from drape.runtime.sparse_rig import sparse_rig
 from drape.training.deepsd_data import load_outfit
 from drape.training.deepsd_validation import measure_poser, summarise, validation_specs
 
-VARIANTS = {  # name: (targets, rounds, gain)
+VARIANTS: dict[str, tuple] = {  # name: (targets, rounds, gain[, pushed_targets keywords])
     "served": (None, 0, 0.0),
     "push_g1_r1": ("push", 1, 1.0), "push_g1_r2": ("push", 2, 1.0), "push_g1_r3": ("push", 3, 1.0),
     "push_g2_r2": ("push", 2, 2.0), "push_g3_r1": ("push", 1, 3.0), "push_g5_r1": ("push", 1, 5.0),
     "refine_g1": ("refine", 1, 1.0), "refine_g3": ("refine", 1, 3.0),
+    # only cloth lying on the body at rest (fully nearer than 1.5 cm, none beyond 3 cm), no vertex deeper than 3 cm
+    "push_g3_r1_tight": ("push", 1, 3.0, {"tight": (0.015, 0.03)}),
+    "push_g3_r1_deep3": ("push", 1, 3.0, {"deepest": 0.03}),
+    "push_g3_r1_tight_deep3": ("push", 1, 3.0, {"tight": (0.015, 0.03), "deepest": 0.03}),
 }
 STRIDES = {150: (4, 12), 300: (2, 6), 600: (1, 3)}  # fit poses: (clip frame stride, procedural frame stride)
 
@@ -74,11 +81,13 @@ def refined_targets(verts: np.ndarray, faces: np.ndarray, rig: Rig, body: Body, 
 
 def fit_variant(name: str, verts: np.ndarray, faces: np.ndarray, rig: Rig, body: Body, poses: np.ndarray,
                 keys: np.ndarray) -> Rig:
-    targets, rounds, gain = VARIANTS[name]
+    targets, rounds, gain, *extra = VARIANTS[name]
+    options = extra[0] if extra else {}
     for _ in range(rounds):
         posed = pose_outfit(verts, rig, keys, body.joints, poses)
         moved = (refined_targets(verts, faces, rig, body, poses, keys) if targets == "refine" else
-                 cf.pushed_targets(verts, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights))
+                 cf.pushed_targets(verts, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights,
+                                   **options))
         rig = sparse_rig(verts, rig, body.joints, 4, poses, keys, targets=posed + np.float32(gain) * (moved - posed))
     return rig
 

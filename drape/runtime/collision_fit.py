@@ -4,9 +4,10 @@ DeePSD's physics training keeps most cloth out of the body, not all: on the vali
 tops' cloth at the shoulders (the upper arm's skin) and the collar sinks 5-10 mm into the body (median over
 inside vertices) on 2-6% of their vertices. A rig is linear in the pose keys, so a correction that depends on
 the pose the way the network's blend shapes do can be fit by least squares: at fit poses, pose the rig, move
-every garment vertex that is inside the body or within `eps` of it onto the closest body point + eps along
-the normal there (`pushed_targets`), and refit the blend shapes to the posed rig moved `gain` times that push
-(`drape.runtime.sparse_rig.sparse_rig`, its ridge solve through the rig's own blended rotations; a least-squares
+every garment vertex that is inside the body (by at most `DEEPEST`: deeper is a limb through the cloth, as a
+leg through a skirt in a cartwheel, which no pose-linear correction should chase) or within `eps` of it onto the
+closest body point + eps along the normal there (`pushed_targets`), and refit the blend shapes to the posed rig
+moved `gain` times that push (`drape.runtime.sparse_rig.sparse_rig`, its ridge solve through the rig's own blended rotations; a least-squares
 fit over many poses takes back part of every push, so a gain above 1 lands closer to the pushed cloth); `rounds`
 times, each round from the rig the last gave. Fit poses (`fit_poses`): frames of the embedded clips and the
 procedural motions DeePSD trains on, never a validation or evaluation motion.
@@ -34,6 +35,7 @@ if TYPE_CHECKING:
 EPS = 0.005  # m: the clearance a pushed vertex gets (DeePSD's training collision margin)
 ROUNDS = 1
 GAIN = 3.0
+DEEPEST = 0.03  # m: a vertex deeper inside the body than this at a fit pose is not pushed (a limb through the cloth)
 REACH = 0.1  # m: body faces farther than this from every garment vertex at rest are left out
 # fit poses: every 4th of the sparse rig's 300 (frames of the embedded clips DeePSD trained on) and every 12th frame
 # of three of its procedural training motions (drape.training.deepsd_data: seeds 500 + i, 300 frames)
@@ -65,10 +67,18 @@ def body_near(rest_vertices: np.ndarray, body_vertices: np.ndarray, body_faces: 
 
 def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, poses: np.ndarray,
                    keys: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, body_weights: np.ndarray,
-                   eps: float = EPS, reach: float = REACH) -> np.ndarray:
+                   eps: float = EPS, reach: float = REACH, tight: tuple[float, float] | None = None,
+                   deepest: float | None = None) -> np.ndarray:
     """The rig posed at `poses` (no translation) with every vertex closer to the body than eps (or inside it)
-    moved onto its closest body point + eps along the body's normal there -> (T, N, 3) float32 m."""
+    moved onto its closest body point + eps along the body's normal there -> (T, N, 3) float32 m.
+    tight = (near, far) m: only cloth that lies on the body at rest is pushed: a vertex nearer than `near` to the
+    body's vertices at rest fully, one farther than `far` not at all, linearly between. deepest (m): a vertex
+    deeper inside than this is left where it is (a limb through the cloth, not cloth sunk into the skin)."""
     posed = pose_outfit(rest_vertices, rig, keys, rest_joints, poses)
+    share = np.ones(len(posed[0]))
+    if tight is not None:
+        rest_gap = cKDTree(np.asarray(body_vertices, dtype=np.float64)).query(np.asarray(rest_vertices, np.float64))[0]
+        share = np.clip((tight[1] - rest_gap) / (tight[1] - tight[0]), 0.0, 1.0)
     used, faces = body_near(rest_vertices, body_vertices, body_faces, reach)
     if len(used) == 0:
         return posed
@@ -79,22 +89,24 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
     for t in range(len(posed)):
         b, x = bodies[t].astype(np.float64), posed[t].astype(np.float64)
         sd, cp, n = surface.query(b, surface.normals(b), x)
-        near = sd < eps
-        posed[t, near] = cp[near] + eps * n[near]
+        near = (sd < eps) & (share > 0)
+        if deepest is not None:
+            near &= sd > -deepest
+        posed[t, near] = x[near] + share[near, None] * (cp[near] + eps * n[near] - x[near])
     return posed
 
 
 def collision_fit(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, influences: int,
                   poses: np.ndarray, keys: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray,
                   body_weights: np.ndarray, eps: float = EPS, rounds: int = ROUNDS, gain: float = GAIN,
-                  reach: float = REACH) -> Rig:
+                  reach: float = REACH, deepest: float | None = DEEPEST) -> Rig:
     """`rig` with at most `influences` weights per vertex and its blend shapes refit, `rounds` times, to its own
     posed vertices moved `gain` times their push out of the body (`pushed_targets`) at the fit poses -> Rig."""
     out = rig
     for _ in range(rounds):
         posed = pose_outfit(rest_vertices, out, keys, rest_joints, poses)
         pushed = pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces,
-                                body_weights, eps, reach)
+                                body_weights, eps, reach, deepest=deepest)
         targets = posed + np.float32(gain) * (pushed - posed)
         out = sparse_rig(rest_vertices, out, rest_joints, influences, poses, keys, targets=targets)
     return out

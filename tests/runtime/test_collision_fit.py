@@ -65,6 +65,23 @@ def test_pushed_targets_lie_outside_the_body_by_an_exact_distance(shipped, tshir
         assert missed.mean() <= 0.005, (missed.sum(), before[missed])
 
 
+def test_cloth_deeper_than_deepest_is_left_where_it_is(shipped, tshirt):
+    o, body, rig = tshirt
+    poses = load_clip("dance_b").poses[::10][:8].astype(np.float64)
+    keys = shipped.pose_keys(poses)
+    posed = pose_outfit(o.vertices, rig, keys, body.joints, poses)
+    for deepest, tight in ((0.0, None), (0.03, None), (None, (0.0, 1e-9))):
+        pushed = pushed_targets(o.vertices, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights,
+                                deepest=deepest, tight=tight)
+        moved = np.linalg.norm(pushed - posed, axis=2) > 0
+        if tight is not None:  # no vertex lies on the body's vertices at rest: nothing is pushed
+            assert not moved.any()
+            continue
+        for t, b in enumerate(body.pose(poses)):
+            before = MeshDistance(b.astype(np.float64), body.faces).signed_distance(posed[t].astype(np.float64))
+            assert np.all(before[moved[t]] > -deepest - 1e-3), (deepest, before[moved[t]].min())
+
+
 def test_a_garment_away_from_the_body_keeps_its_rig(shipped, tshirt):
     o, body, rig = tshirt
     far = o.vertices + np.array([0.0, 0.0, 2.0], dtype=np.float32)  # 2 m in front of the body
