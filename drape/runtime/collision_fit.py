@@ -20,6 +20,7 @@ poses (T, 24, 3) rad; keys (T, P).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -36,6 +37,7 @@ EPS = 0.005  # m: the clearance a pushed vertex gets (DeePSD's training collisio
 ROUNDS = 1
 GAIN = 3.0
 DEEPEST = 0.03  # m: a vertex deeper inside the body than this at a fit pose is not pushed (a limb through the cloth)
+THREADS = 2
 REACH = 0.1  # m: body faces farther than this from every garment vertex at rest are left out
 # fit poses: every 4th of the sparse rig's 300 (frames of the embedded clips DeePSD trained on) and every 12th frame
 # of three of its procedural training motions (drape.training.deepsd_data: seeds 500 + i, 300 frames)
@@ -68,12 +70,13 @@ def body_near(rest_vertices: np.ndarray, body_vertices: np.ndarray, body_faces: 
 def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, poses: np.ndarray,
                    keys: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, body_weights: np.ndarray,
                    eps: float = EPS, reach: float = REACH, tight: tuple[float, float] | None = None,
-                   deepest: float | None = None) -> np.ndarray:
+                   deepest: float | None = None, threads: int = THREADS) -> np.ndarray:
     """The rig posed at `poses` (no translation) with every vertex closer to the body than eps (or inside it)
     moved onto its closest body point + eps along the body's normal there -> (T, N, 3) float32 m.
     tight = (near, far) m: only cloth that lies on the body at rest is pushed: a vertex nearer than `near` to the
     body's vertices at rest fully, one farther than `far` not at all, linearly between. deepest (m): a vertex
-    deeper inside than this is left where it is (a limb through the cloth, not cloth sunk into the skin)."""
+    deeper inside than this is left where it is (a limb through the cloth, not cloth sunk into the skin).
+    threads: frames queried at once (the answer does not depend on it)."""
     posed = pose_outfit(rest_vertices, rig, keys, rest_joints, poses)
     share = np.ones(len(posed[0]))
     if tight is not None:
@@ -86,13 +89,21 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
     bodies = pose_outfit(np.asarray(body_vertices)[used], skin, np.zeros((len(poses), 1), dtype=np.float32),
                          rest_joints, poses)
     surface = BodySurface(faces, len(used))
-    for t in range(len(posed)):
+
+    def push(t: int) -> None:  # frame t in place; frames are independent
         b, x = bodies[t].astype(np.float64), posed[t].astype(np.float64)
         sd, cp, n = surface.query(b, surface.normals(b), x)
         near = (sd < eps) & (share > 0)
         if deepest is not None:
             near &= sd > -deepest
         posed[t, near] = x[near] + share[near, None] * (cp[near] + eps * n[near] - x[near])
+
+    if threads > 1:  # the KD-tree queries and numpy's larger passes release the GIL
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(push, range(len(posed))))
+    else:
+        for t in range(len(posed)):
+            push(t)
     return posed
 
 
