@@ -82,6 +82,15 @@ def test_cloth_deeper_than_deepest_is_left_where_it_is(shipped, tshirt):
             assert np.all(before[moved[t]] > -deepest - 1e-3), (deepest, before[moved[t]].min())
 
 
+def test_the_answer_does_not_depend_on_the_threads(shipped, tshirt):
+    o, body, rig = tshirt
+    poses = fit_poses()[::5]
+    keys = shipped.pose_keys(poses)
+    one, two = (pushed_targets(o.vertices, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights,
+                               deepest=0.03, threads=n) for n in (1, 2))
+    assert np.array_equal(one, two)
+
+
 def test_a_garment_away_from_the_body_keeps_its_rig(shipped, tshirt):
     o, body, rig = tshirt
     far = o.vertices + np.array([0.0, 0.0, 2.0], dtype=np.float32)  # 2 m in front of the body
