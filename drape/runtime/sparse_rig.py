@@ -22,6 +22,7 @@ from drape.runtime.deepsd import Rig, pose_outfit
 
 INFLUENCES = (4, 8)  # what the service offers; 4 by default (three.js, most engines)
 RIDGE = 1e-3
+BLOCK_VERTEX_FRAMES = 400_000  # vertices x frames refit at once (64 frames up to 6,250 vertices)
 FIT_FRAMES = 300  # 300 and 1,000 fit frames gave the same held-out figures (runs/sparse_rig_check.py)
 # the embedded clips DeePSD trained on: all but its held-out evaluation clips (walk, kick, dance_b;
 # tests/runtime/test_sparse_rig.py checks this against the training config)
@@ -77,6 +78,8 @@ def sparse_rig(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, inf
     T, P = keys64.shape
     rhs = np.zeros((P, rig.blend_shapes.shape[1] * 3))
     w64 = weights.astype(np.float64)
+    # frames a block: the (N, block, 3, 3) float64 blended rotations stay under ~30 MB at any vertex count
+    block = max(1, min(block, BLOCK_VERTEX_FRAMES // max(len(rest_vertices), 1)))
     for s in range(0, T, block):  # the translation changes nothing here: none is applied
         p, k = poses[s:s + block], keys32[s:s + block]
         dense = pose_outfit(rest_vertices, rig, k, rest_joints, p) if targets is None else targets[s:s + block]
