@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -48,7 +49,7 @@ from drape.runtime import collision_fit as cf
 from drape.runtime.deepsd import DeePSDModel, Rig, pose_outfit
 from drape.runtime.sparse_rig import fit_poses as clip_poses
 from drape.runtime.sparse_rig import sparse_rig
-from drape.training.deepsd_data import load_outfit
+from drape.training.deepsd_data import OutfitSpec, load_outfit
 from drape.training.deepsd_validation import measure_poser, summarise, validation_specs
 
 VARIANTS: dict[str, tuple] = {  # name: (targets, rounds, gain[, pushed_targets keywords])
@@ -95,6 +96,15 @@ def fit_variant(name: str, verts: np.ndarray, faces: np.ndarray, rig: Rig, body:
     return rig
 
 
+def validation_outfits(cfg: dict, outfits: list[str] | None) -> Iterator[tuple[OutfitSpec, np.ndarray, np.ndarray, Body]]:
+    """The config's validation outfits (those of the types in `outfits`, '+' joining layers; all when None) ->
+    (spec, vertices (N, 3) m, faces, body) each."""
+    for spec in validation_specs(cfg):
+        if outfits is None or spec.types.replace(",", "+") in outfits:
+            verts, faces = load_outfit(spec)
+            yield spec, verts, faces, load_body(spec.body)
+
+
 def poser(model: DeePSDModel, verts: np.ndarray, rig: Rig, body: Body):  # noqa: ANN201
     return lambda ps, tr: pose_outfit(verts, rig, model.pose_keys(ps), body.joints, ps, tr)
 
@@ -139,11 +149,7 @@ def where(outfits: list[str] | None) -> None:
     cfg = model.manifest["training"]["config"]
     clip_fit = clip_poses()
     clip_keys = model.pose_keys(clip_fit)
-    for spec in validation_specs(cfg):
-        if outfits and spec.types.replace(",", "+") not in outfits:
-            continue
-        verts, faces = load_outfit(spec)
-        body = load_body(spec.body)
+    for spec, verts, faces, body in validation_outfits(cfg, outfits):
         rig = sparse_rig(verts, model.rig(verts, faces, body), body.joints, 4, clip_fit, clip_keys)
         total = inside = overlap = nearest_out = 0
         depths: list[float] = []
@@ -181,11 +187,7 @@ def pushes(outfits: list[str] | None) -> None:
     cfg = model.manifest["training"]["config"]
     poses = cf.fit_poses()
     keys = model.pose_keys(poses)
-    for spec in validation_specs(cfg):
-        if outfits and spec.types.replace(",", "+") not in outfits:
-            continue
-        verts, faces = load_outfit(spec)
-        body = load_body(spec.body)
+    for spec, verts, faces, body in validation_outfits(cfg, outfits):
         rig = model.rig(verts, faces, body)
         posed = pose_outfit(verts, rig, keys, body.joints, poses)
         moved = cf.pushed_targets(verts, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights)
@@ -210,14 +212,15 @@ def main() -> None:
     p.add_argument("--where", action="store_true", help="where the rig without the fit leaves cloth inside")
     p.add_argument("--pushes", action="store_true", help="how far the plain push moves cloth at the fit poses")
     args = p.parse_args()
+    outfits = args.outfits.split(",") if args.outfits else None
     if args.pushes:
-        pushes(args.outfits.split(",") if args.outfits else None)
+        pushes(outfits)
         return
     if args.latency:
         latency()
         return
     if args.where:
-        where(args.outfits.split(",") if args.outfits else None)
+        where(outfits)
         return
     names = args.variants.split(",")
     model = DeePSDModel()
@@ -229,11 +232,7 @@ def main() -> None:
     rows: dict[str, list[dict]] = {n: [] for n in names}
     seconds: dict[str, list[float]] = {n: [] for n in names}
     print(f"validation ({len(poses)} fit poses): inside % / edge error mm / fit seconds")
-    for spec in validation_specs(cfg):
-        if args.outfits and spec.types.replace(",", "+") not in args.outfits.split(","):
-            continue
-        verts, faces = load_outfit(spec)
-        body = load_body(spec.body)
+    for spec, verts, faces, body in validation_outfits(cfg, outfits):
         served = sparse_rig(verts, model.rig(verts, faces, body), body.joints, 4, clip_fit, clip_keys)
         line = []
         for n in names:
