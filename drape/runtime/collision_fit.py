@@ -20,6 +20,7 @@ poses (T, 24, 3) rad; keys (T, P).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
@@ -123,11 +124,23 @@ def collision_fit(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, 
     return out
 
 
+Frames = tuple[np.ndarray, np.ndarray]  # fit poses (T, 24, 3) rad and their pose keys (T, P)
+
+
+def served_fit_frames(pose_keys: Callable[[np.ndarray], np.ndarray]) -> tuple[Frames, Frames]:
+    """What `served_rig` fits on, with a model's pose keys: (the sparse rig's fit frames, the collision fit's)."""
+    from drape.runtime.sparse_rig import fit_poses as clip_poses
+
+    sparse, collision = clip_poses(), fit_poses()
+    return (sparse, pose_keys(sparse)), (collision, pose_keys(collision))
+
+
 def served_rig(rest_vertices: np.ndarray, dense: Rig, body: Body, influences: int,
-               sparse_fit: tuple[np.ndarray, np.ndarray], collision: tuple[np.ndarray, np.ndarray] | None) -> Rig:
+               sparse_fit: Frames, collision: Frames | None) -> Rig:
     """What the service serves for a network's `dense` rig of an outfit (rest_vertices (N, 3) m) on `body`: at
     most `influences` weights per vertex (`sparse_rig` at sparse_fit = (poses, keys)), then, unless `collision` is
-    None, the collision fit at collision = (poses, keys) (`fit_poses` and their pose keys)."""
+    None, the collision fit at collision = (poses, keys) (`fit_poses` and their pose keys; both from
+    `served_fit_frames`)."""
     rig = sparse_rig(rest_vertices, dense, body.joints, influences, *sparse_fit)
     if collision is None:
         return rig

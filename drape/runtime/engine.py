@@ -36,8 +36,7 @@ from drape.geometry.refine import (
 )
 from drape.geometry.skeleton import PARENTS, forward_kinematics
 from drape.runtime.cache import LRUBytesCache
-from drape.runtime.collision_fit import fit_poses as collision_fit_poses
-from drape.runtime.collision_fit import served_rig
+from drape.runtime.collision_fit import Frames, served_fit_frames, served_rig
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 from drape.runtime.intrinsic import (
     DECODE_BLOCK,
@@ -53,7 +52,7 @@ from drape.runtime.layers import (
     LayerTemplate,
     OuterModel,
 )
-from drape.runtime.sparse_rig import INFLUENCES, fit_poses
+from drape.runtime.sparse_rig import INFLUENCES
 
 POSE_BLOCK = 128  # frames posed per call (then handed out a chunk at a time)
 
@@ -300,23 +299,22 @@ class Engine:
         self._observe = observe or (lambda stage, seconds: None)
         files = self.model.manifest["files"]
         self.model_tag = f"deepsd-{self.model.manifest['version']}-{files['outfit']['sha256'][:16]}"
-        self._fit: tuple[np.ndarray, np.ndarray] | None = None  # the sparse rig's fit poses and their keys
         self.collision_fit = collision_fit
-        self._collision_fit: tuple[np.ndarray, np.ndarray] | None = None  # the collision fit's poses and keys
+        self._frames: tuple[Frames, Frames] | None = None  # what the served rig fits on (served_fit_frames), made once
 
-    def fit_frames(self) -> tuple[np.ndarray, np.ndarray]:
-        """The sparse rig's fit poses (T, 24, 3) and their pose keys (T, P), made once."""
-        if self._fit is None:
-            poses = fit_poses()
-            self._fit = poses, self.model.pose_keys(poses)
-        return self._fit
+    def served_frames(self) -> tuple[Frames, Frames]:
+        """The sparse rig's and the collision fit's poses (T, 24, 3) and pose keys (T, P), made once."""
+        if self._frames is None:
+            self._frames = served_fit_frames(self.model.pose_keys)
+        return self._frames
 
-    def collision_frames(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The collision fit's poses (T, 24, 3) and their pose keys (T, P), made once; None when it is off."""
-        if self.collision_fit and self._collision_fit is None:
-            poses = collision_fit_poses()
-            self._collision_fit = poses, self.model.pose_keys(poses)
-        return self._collision_fit
+    def fit_frames(self) -> Frames:
+        """The sparse rig's fit poses and their pose keys."""
+        return self.served_frames()[0]
+
+    def collision_frames(self) -> Frames | None:
+        """The collision fit's poses and their pose keys; None when it is off."""
+        return self.served_frames()[1] if self.collision_fit else None
 
     def outfit_id(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> str:
         """Content hash of the canonical mesh (float32 vertices, int32 faces), the body, the rig's influences
@@ -544,8 +542,7 @@ class Engine:
         outfit = RiggedOutfit("warm-up", "neutral", v, f, rig)
         for _ in self.pose_chunks(outfit, np.zeros((2, 24, 3)), np.zeros((2, 3))):
             pass
-        self.fit_frames()
-        self.collision_frames()
+        self.served_frames()
         self.garments.warm_up()
         if self.refine_pool.workers >= 2:
             self.refine_pool.start()

@@ -33,10 +33,8 @@ from drape.geometry.queries import (
     nearest_vertex_weights,
     signed_distance_nearest_vertex,
 )
-from drape.runtime.collision_fit import fit_poses as collision_fit_poses
-from drape.runtime.collision_fit import served_rig
+from drape.runtime.collision_fit import served_fit_frames, served_rig
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
-from drape.runtime.sparse_rig import fit_poses
 from drape.training import DEFAULT_GROUND_TRUTH
 from drape.training.deepsd_data import OutfitSpec, eval_specs, load_outfit
 
@@ -47,9 +45,7 @@ LOOSE = ("skirt", "dress")
 def method_poser(model: DeePSDModel, verts: np.ndarray, faces: np.ndarray, body):  # noqa: ANN001, ANN201
     """One outfit rigged by every method; returns pose(poses (T, 24, 3), trans (T, 3)) -> {method: (T, N, 3)}."""
     rig = model.rig(verts, faces, body)
-    poses_fit, poses_collision = fit_poses(), collision_fit_poses()
-    fit = poses_fit, model.pose_keys(poses_fit)
-    collision = poses_collision, model.pose_keys(poses_collision)
+    fit, collision = served_fit_frames(model.pose_keys)
     rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces, body)),
             "served": served_rig(verts, rig, body, 4, fit, collision),
             "served8": served_rig(verts, rig, body, 8, fit, collision)}

@@ -29,10 +29,8 @@ from drape.geometry.lbs import pose_mesh
 from drape.geometry.mesh import vertex_normals
 from drape.geometry.metrics import edge_length_error_mm
 from drape.geometry.queries import MeshDistance, nearest_vertex_weights
-from drape.runtime.collision_fit import fit_poses as collision_fit_poses
-from drape.runtime.collision_fit import served_rig
+from drape.runtime.collision_fit import served_fit_frames, served_rig
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, pose_outfit
-from drape.runtime.sparse_rig import fit_poses
 from drape.training.deepsd_data import OutfitSpec, load_outfit
 
 
@@ -112,9 +110,7 @@ def validate(cfg: dict, model_dir: str | Path, log: Callable[[str], object] = pr
     """The model in `model_dir`, as served (its sparse, collision-fit rig), on the validation split: {"score",
     "inside_triangle_pct", "edge_error_mm", "outfits": {key: {...}}}."""
     model = DeePSDModel(model_dir)
-    poses_fit, poses_collision = fit_poses(), collision_fit_poses()
-    fit = poses_fit, model.pose_keys(poses_fit)
-    collision = poses_collision, model.pose_keys(poses_collision)
+    fit, collision = served_fit_frames(model.pose_keys)
     influences = cfg["validation"]["influences"]
 
     off_prior: list[float] = []  # per validation outfit, in _measure's order (validation_specs)

@@ -10,10 +10,8 @@ from drape.assets.body import load_body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
 from drape.geometry.mesh_io import save_mesh
-from drape.runtime.collision_fit import fit_poses as collision_fit_poses
-from drape.runtime.collision_fit import served_rig
+from drape.runtime.collision_fit import served_fit_frames, served_rig
 from drape.runtime.deepsd import DeePSDModel, pose_outfit
-from drape.runtime.sparse_rig import fit_poses
 
 
 @pytest.fixture(scope="module")
@@ -26,10 +24,9 @@ def test_animate_equals_library_posing(server_url, settings, outfit):
         verts = client.animate(outfit=(outfit.vertices, outfit.faces), motion="kick")
     clip = load_clip("kick")
     model = DeePSDModel(settings.model_dir)
-    fit, collision = fit_poses(), collision_fit_poses()
     body = load_body("neutral")
     rig = served_rig(outfit.vertices, model.rig(outfit.vertices, outfit.faces, body), body, 4,
-                     (fit, model.pose_keys(fit)), (collision, model.pose_keys(collision)))  # 4 influences, collision fit
+                     *served_fit_frames(model.pose_keys))  # 4 influences, collision fit
     poses, trans = clip.poses.astype(np.float64), clip.trans.astype(np.float64)
     ref = pose_outfit(outfit.vertices, rig, model.pose_keys(poses), load_body("neutral").joints, poses, trans)
     assert verts.shape == (clip.num_frames, len(outfit.vertices), 3) and verts.dtype == np.float32
