@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.runtime.intrinsic import IntrinsicGarment
-from drape.training.intrinsic import set_latent_error_of, validation_masks
+from drape.training.intrinsic import set_latent_error_of, training_datasets, validation_masks
 from drape.training.intrinsic_data import Frames, load_frames
 
 
@@ -59,7 +59,7 @@ def main() -> None:
     for g in garments.values():
         w = int(g.window)
         if w not in by_window:
-            frames, _, _ = load_frames(config["dataset"], w, ("train",))
+            frames, _, _ = load_frames(training_datasets(config), w, ("train",))
             by_window[w] = parts(frames, config["val_params"], val_motions)
     names = list(next(iter(by_window.values())))
     print(f"config {args.config}: validation = last {config['val_params']} parameter sets + motions {val_motions}")

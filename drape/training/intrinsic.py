@@ -17,6 +17,9 @@ phase's checkpoints the validation error is measured: phase 1, mean vertex error
 autoencoder; phase 2, mean vertex error (mm) of decoding each validation set's mean latent along
 its frames' motion windows (what one keyframe gives); the best checkpoint of each phase is kept.
 
+Data: the config's `dataset` and, optionally, `extra_datasets` (folders simulated with the same template
+and parameter sampler, e.g. more training motions; `training_datasets`), their training splits read together.
+
 Checkpoints (git-ignored) go to `checkpoints/intrinsic/<template>/`; a rerun resumes. Seeded.
 """
 
@@ -38,6 +41,12 @@ CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 def load_config(template: str | None = None, path: str | Path | None = None) -> dict:
     p = Path(path) if path else CONFIG_DIR / f"intrinsic_{template}.json"
     return json.loads(p.read_text())
+
+
+def training_datasets(config: dict) -> list[str]:
+    """The dataset folders a config trains on: `dataset` (its template mesh, its test split: the evaluation's),
+    then any `extra_datasets` (more training sequences of the same template and parameter sampler)."""
+    return [config["dataset"], *config.get("extra_datasets", [])]
 
 
 def validation_masks(frames: Frames, val_params: int, val_motions: tuple[str, ...] | list[str] = ()
@@ -157,7 +166,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     torch.manual_seed(config["seed"])
     rng = np.random.default_rng(config["seed"])
     window = config["model"]["window"]
-    frames, faces, manifest = load_frames(config["dataset"], window, ("train",))
+    frames, faces, manifest = load_frames(training_datasets(config), window, ("train",))
     train_f, val_f = split_validation(frames, config["val_params"], config.get("val_motions", ()))
     log(f"{len(train_f)} training frames ({len(np.unique(train_f.params))} parameter sets, "
         f"{len(np.unique(train_f.motions))} motions), {len(val_f)} validation frames "

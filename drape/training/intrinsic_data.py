@@ -13,6 +13,7 @@ frame (F,) int (the frame within its sequence).
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,20 +40,29 @@ class Frames:
                       self.frame[mask], self.motion_names)
 
 
-def load_frames(dataset: str | Path, window: int, splits: tuple[str, ...] = ("train",),
+def load_frames(dataset: str | Path | Sequence[str | Path], window: int, splits: tuple[str, ...] = ("train",),
                 garment: str | None = None) -> tuple[Frames, np.ndarray, dict]:
-    """Every accepted item of the given splits -> (Frames, faces (F, 3) int32, the manifest)."""
-    root = Path(dataset)
-    manifest = json.loads((root / "manifest.json").read_text())
-    body = load_body(manifest["body"])
-    items = [it for it in manifest["items"] if it["split"] in splits
+    """Every accepted item of the given splits -> (Frames, faces (F, 3) int32, the first dataset's manifest).
+
+    dataset: one dataset folder, or several simulated for the same template on the same body with the same
+    parameter sampler (`--params`, `--seed`: a parameter-set index means the same cloth in each; checked), e.g.
+    more training motions simulated into a folder of their own."""
+    roots = [Path(dataset)] if isinstance(dataset, (str, Path)) else [Path(d) for d in dataset]
+    manifests = [json.loads((r / "manifest.json").read_text()) for r in roots]
+    for r, m in zip(roots[1:], manifests[1:], strict=True):
+        for key in ("body", "params", "garments", "frames"):
+            if m.get(key) != manifests[0].get(key):
+                raise ValueError(f"{r}: its {key!r} differs from {roots[0]}'s; datasets read together must be "
+                                 "simulated with the same template, body, frames and parameter sampler")
+    body = load_body(manifests[0]["body"])
+    items = [(r, it) for r, m in zip(roots, manifests, strict=True) for it in m["items"] if it["split"] in splits
              and (garment is None or it["garment"] == garment)]
     if not items:
-        raise ValueError(f"{root}: no accepted items in splits {splits}")
-    names = sorted({it["motion"] for it in items})
+        raise ValueError(f"{', '.join(map(str, roots))}: no accepted items in splits {splits}")
+    names = sorted({it["motion"] for _, it in items})
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("vertices", "windows", "params", "motions", "frame")}
     faces = None
-    for it in items:
+    for root, it in items:
         with np.load(root / it["file"], allow_pickle=False) as z:
             verts, poses, trans = z["vertices"], z["poses"].astype(np.float64), z["trans"].astype(np.float64)
             faces = z["faces"] if faces is None else faces
@@ -65,4 +75,4 @@ def load_frames(dataset: str | Path, window: int, splits: tuple[str, ...] = ("tr
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     frames = Frames(cat["vertices"], cat["windows"], cat["params"], cat["motions"], cat["frame"], names)
     assert faces is not None
-    return frames, np.asarray(faces, np.int32), manifest
+    return frames, np.asarray(faces, np.int32), manifests[0]

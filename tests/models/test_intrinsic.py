@@ -178,3 +178,38 @@ def test_the_validation_bench_counts_the_frames_a_model_trained_on():
     assert trained_on(val, {"training": {"train_sequences": {"a": [0, 1, 2], "c": [0, 1, 2]}}}) == 0
     assert trained_on(val, {"training": {"train_sequences": {"a": [3], "b": [0, 4], "walk": [3]}}}) == 6
     assert trained_on(val, {}) is None
+
+
+def test_several_datasets_read_as_their_union_and_must_share_the_parameter_sampler(synthetic_dataset, tmp_path):
+    """A dataset split in two folders by motion (as more training motions are simulated into a folder of
+    their own) loads the same frames as the whole; a folder sampled with other parameters is refused."""
+    import shutil
+
+    from drape.training.intrinsic_data import load_frames
+
+    whole = json.loads((synthetic_dataset / "manifest.json").read_text())
+    whole["params"] = ["the same sampler"]
+    folders = []
+    for name, keep in (("a", {"walk"}), ("b", {"dance_a", "kick"})):
+        d = tmp_path / name
+        (d / "items").mkdir(parents=True)
+        items = [it for it in whole["items"] if it["motion"] in keep]
+        for it in items:
+            shutil.copy(synthetic_dataset / it["file"], d / it["file"])
+        (d / "manifest.json").write_text(json.dumps({**whole, "items": items}))
+        folders.append(d)
+    ref, faces_ref, _ = load_frames(synthetic_dataset, 5)
+    got, faces, manifest = load_frames(folders, 5)
+    assert got.motion_names == ref.motion_names and np.array_equal(faces, faces_ref)
+
+    def rows(f):  # order-free comparison: (params, motion name, frame) -> vertices and windows
+        return {(int(p), f.motion_names[m], int(t)): (v, w)
+                for p, m, t, v, w in zip(f.params, f.motions, f.frame, f.vertices, f.windows, strict=True)}
+
+    r, g = rows(ref), rows(got)
+    assert r.keys() == g.keys() and len(g) == len(got)
+    assert all(np.array_equal(r[k][0], g[k][0]) and np.array_equal(r[k][1], g[k][1]) for k in r)
+    other = json.loads((folders[1] / "manifest.json").read_text())
+    (folders[1] / "manifest.json").write_text(json.dumps({**other, "params": ["another sampler"]}))
+    with pytest.raises(ValueError, match="'params' differs"):
+        load_frames(folders, 5)
