@@ -95,7 +95,7 @@ intrinsic-data-long: $(VENV)/.dev-installed
 		--frames 300 --holdout-params 4 --holdout-motions 2 --splits test --workers $(WORKERS) --out .
 
 # more distinct training motions for the same template (docs/intrinsic.md "More distinct motions"), into a
-# folder of their own that `intrinsic_skirt_motions.json` reads beside data/intrinsic/skirt (`extra_datasets`): the
+# folder of their own that `intrinsic_skirt.json` (skirt 0.3.0) reads beside data/intrinsic/skirt (`extra_datasets`): the
 # same 44 parameter sets (--params 44 --seed 21; the training split only, the test items stay the main dataset's),
 # 6 more seeded procedural motions (2 mostly standing, 2 mostly walking, 2 mixed) and the 10 real CMU clips of
 # ../shared/data/mocap whose skirt simulations passed the quality gate in a first look (05_10, 05_14-05_17 and 05_19

@@ -251,6 +251,9 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
         model.load_state_dict(best[1])
     summary["phases"]["invariant"] = {"steps": ic["steps"], "val_set_latent_error_mm": best[0], "last": parts}
     summary["seconds"] = round(time.perf_counter() - t0, 1)
+    done = ckpt / "best.pt"
+    if start == ic["steps"] and done.exists():  # nothing left to train: the run that trained it took its time
+        summary["seconds"] = torch.load(done, weights_only=False)["summary"].get("seconds", summary["seconds"])
     summary["latent_mean"], summary["latent_std"] = latent_statistics(model, train_f)
     torch.save({"model": model.state_dict(), "config": config, "model_config": model.cfg.to_dict(),
                 "summary": summary, "faces": faces}, ckpt / "best.pt")

@@ -128,6 +128,7 @@ def test_training_lowers_the_validation_errors_and_resumes(synthetic_dataset, tm
     assert summary["phases"]["invariant"]["val_set_latent_error_mm"] < 20.0, logs
     again, summary2 = train(config, tmp_path / "ckpt", log=logs.append)  # resumes: nothing left to do
     assert summary2["phases"] == summary["phases"]
+    assert summary2["seconds"] == summary["seconds"]  # the training's wall time, not the resumed export's
 
 
 def test_the_invariant_phase_regularisers_are_seeded_and_change_the_run(synthetic_dataset, tmp_path):
