@@ -31,7 +31,7 @@ from drape.models.intrinsic import (
     ShapeEncodeGraph,
 )
 
-VERSION = "0.2.0"
+VERSION = "0.3.0"
 
 
 def export_intrinsic(model: IntrinsicSpace, out: str | Path, *, template: str = "template",
