@@ -94,10 +94,10 @@ intrinsic-data-long: $(VENV)/.dev-installed
 		--motions motions/proc1.npz,motions/cmu_05_12_dance.npz,motions/cmu_05_18_dance.npz \
 		--frames 300 --holdout-params 4 --holdout-motions 2 --splits test --workers $(WORKERS) --out .
 
-# more distinct training motions for the same template (docs/intrinsic.md "More distinct motions"), into a
+# more distinct training motions for the same template (docs/intrinsic.md "Version 0.3.0: more distinct motions"), into a
 # folder of their own that `intrinsic_skirt.json` (skirt 0.3.0) reads beside data/intrinsic/skirt (`extra_datasets`): the
 # same 44 parameter sets (--params 44 --seed 21; the training split only, the test items stay the main dataset's),
-# 6 more seeded procedural motions (2 mostly standing, 2 mostly walking, 2 mixed) and the 10 real CMU clips of
+# 6 more seeded procedural motions (2 mostly standing, 2 mostly walking, 2 at the default share 0.6) and the 10 real CMU clips of
 # ../shared/data/mocap whose skirt simulations passed the quality gate in a first look (05_10, 05_14-05_17 and 05_19
 # dances failed on every parameter set tried: legs through the skirt; DeePSD's held-out real clips and the long
 # held-out 05_12 / 05_18 are never used); 16 x 40 sequences of 120 frames, ~0.4 s per frame per core
@@ -107,12 +107,9 @@ INTRINSIC_MORE_MOTIONS = $(subst $(space),$(comma),$(strip $(patsubst %,motions/
 intrinsic-data-motions: $(VENV)/.dev-installed
 	mkdir -p $(INTRINSIC_MORE_DIR)/motions
 	test -f $(INTRINSIC_MORE_DIR)/skirt.obj || cp $(INTRINSIC_DIR)/skirt.obj $(INTRINSIC_MORE_DIR)/skirt.obj
-	for s in 6 7; do test -f $(INTRINSIC_MORE_DIR)/motions/proc$$s.npz || $(BIN)/drape motions generate --frames 150 \
-		--seed $$s --fps 30 --walk 0.2 --out $(INTRINSIC_MORE_DIR)/motions/proc$$s.npz; done
-	for s in 8 9; do test -f $(INTRINSIC_MORE_DIR)/motions/proc$$s.npz || $(BIN)/drape motions generate --frames 150 \
-		--seed $$s --fps 30 --walk 0.9 --out $(INTRINSIC_MORE_DIR)/motions/proc$$s.npz; done
-	for s in 10 11; do test -f $(INTRINSIC_MORE_DIR)/motions/proc$$s.npz || $(BIN)/drape motions generate --frames 150 \
-		--seed $$s --fps 30 --out $(INTRINSIC_MORE_DIR)/motions/proc$$s.npz; done
+	for sw in 6:0.2 7:0.2 8:0.9 9:0.9 10:0.6 11:0.6; do s=$${sw%:*}; test -f $(INTRINSIC_MORE_DIR)/motions/proc$$s.npz || \
+		$(BIN)/drape motions generate --frames 150 --seed $$s --fps 30 --walk $${sw#*:} \
+		--out $(INTRINSIC_MORE_DIR)/motions/proc$$s.npz || exit 1; done
 	for c in $(INTRINSIC_MORE_CMU); do test -f $(INTRINSIC_MORE_DIR)/motions/cmu_$$c.npz || \
 		$(BIN)/drape motions import $(MOCAP)/$$c.bvh --fps 30 --out $(INTRINSIC_MORE_DIR)/motions/cmu_$$c.npz; done
 	cd $(INTRINSIC_MORE_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \
