@@ -496,6 +496,11 @@ def _sim_dataset(args: argparse.Namespace) -> None:
                              "only by the sampled material")
         garments = {Path(g).stem: load_mesh(g) for g in args.garment}
         params = sample_params(args.params, seed=args.seed)
+    if args.substeps is not None:
+        if not 1 <= args.substeps <= 64:
+            raise SystemExit(f"--substeps must be in [1, 64], got {args.substeps}")
+        # the solver's steps per frame, not a sampled parameter: the same sets, each run finer in time
+        params = [type(p).model_validate(p.model_dump() | {"substeps": args.substeps}) for p in params]
     motions = [_motion_arg(m) for m in args.motions.split(",")]
     manifest = build_dataset(
         args.out, garments, params, motions, args.frames, body=args.body,
@@ -577,7 +582,8 @@ def build_parser() -> argparse.ArgumentParser:
     outfits = sub.add_parser("outfits", help="template outfits").add_subparsers(dest="what", required=True)
     o = outfits.add_parser("generate", help="generate an outfit in rest pose")
     o.add_argument("--type", required=True,
-                   help="tshirt, tanktop, longsleeve, trousers, shorts, skirt, dress, jacket, or a comma list")
+                   help="tshirt, tanktop, longsleeve, trousers, shorts, skirt, dress, jacket, long_skirt, "
+                        "or a comma list")
     o.add_argument("--vertices", type=int, default=4000)
     o.add_argument("--seed", type=int, default=0)
     o.add_argument("--body", default="neutral")
@@ -699,6 +705,9 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--holdout-params", type=int, default=2)
     sd.add_argument("--holdout-motions", type=int, default=1)
     sd.add_argument("--splits", help="simulate only these splits, comma list of train,test,test_params,test_motions")
+    sd.add_argument("--substeps", type=int, default=None,
+                    help="simulation steps per motion frame for every parameter set (default: the sets' own, 4); "
+                         "a long skirt needs 8 (docs/sim.md)")
     sd.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
     sd.add_argument("--ray", metavar="ADDRESS", default=None, help="run the items as tasks on this Ray cluster")
     sd.add_argument("--out", required=True)

@@ -81,3 +81,21 @@ def test_export_pc2_and_glb_from_an_npz_stream(tmp_path):
     assert len(doc.meshes[0].primitives[0].targets) == 6
     times = doc.accessors[doc.animations[0].samplers[0].input]
     assert abs(times.max[0] - 6 / 24) < 1e-6
+
+
+def test_sim_dataset_substeps_run_every_parameter_set_finer(tmp_path):
+    import json
+
+    garment = tmp_path / "long_skirt.obj"
+    drape("outfits", "generate", "--type", "long_skirt", "--vertices", "300", "--seed", "3", "--out", str(garment))
+    out = tmp_path / "data"
+    drape("sim", "dataset", "--garment", str(garment), "--params", "2", "--seed", "21", "--motions", "walk,run",
+          "--frames", "2", "--holdout-params", "1", "--holdout-motions", "1", "--splits", "test", "--substeps", "6",
+          "--workers", "1", "--out", str(out))
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [p["substeps"] for p in manifest["params"]] == [6, 6]  # the default sets run 4
+    (item,) = manifest["items"] + manifest["rejected"]
+    assert item["key"].startswith("long_skirt__p01__")
+    r = subprocess.run([sys.executable, "-m", "drape.cli", "sim", "dataset", "--garment", str(garment), "--motions",
+                        "walk,run", "--substeps", "0", "--out", str(tmp_path / "bad")], capture_output=True, text=True)
+    assert r.returncode != 0 and "--substeps must be in [1, 64]" in r.stderr

@@ -31,8 +31,10 @@ from drape.geometry.mesh import uniform_laplacian, vertex_normals
 from drape.geometry.queries import MeshDistance
 from drape.geometry.skeleton import JOINT_INDEX
 
-GARMENT_TYPES = ("tshirt", "tanktop", "longsleeve", "trousers", "shorts", "skirt", "dress", "jacket")
-LAYER = {"trousers": 0, "shorts": 0, "skirt": 0, "dress": 1, "tanktop": 1, "tshirt": 1, "longsleeve": 1, "jacket": 2}
+GARMENT_TYPES = ("tshirt", "tanktop", "longsleeve", "trousers", "shorts", "skirt", "dress", "jacket", "long_skirt")
+LAYER = {"trousers": 0, "shorts": 0, "skirt": 0, "long_skirt": 0, "dress": 1, "tanktop": 1, "tshirt": 1,
+         "longsleeve": 1, "jacket": 2}
+SKIRTS = ("skirt", "long_skirt")  # tubes from the waist down, open at the hem
 CLEARANCE = 0.004  # metres; the generator's own target, above the 2 mm promise
 
 
@@ -360,7 +362,7 @@ class _Generator:
         C = self._columns(2 * np.pi * 0.17)
         C -= C % 4
         thetas = self._ring_dirs(C, 0.0)
-        if kind == "skirt":
+        if kind in SKIRTS:
             rows = self.tube(parts.pelvis, style.hem_y, self.y_waist, style, thetas, self.y_waist)
         else:
             rows = self.tube(parts.pelvis, self.y_crotch, self.y_waist, style, thetas)
@@ -369,7 +371,7 @@ class _Generator:
         for r in range(len(rows) - 1):
             b.strip(idx[r], idx[r + 1])
         b.orient(first, self.centre, np.array([0.0, 1.0, 0.0]))
-        if kind == "skirt":
+        if kind in SKIRTS:
             return
         bottom = idx[0]
         pts = np.concatenate(b.points)
@@ -408,6 +410,8 @@ def _style(kind: str, rng: np.random.Generator, gen: _Generator, looseness: floa
         return _Style(ease, 0.25 + 0.2 * looseness, lerp(knee + 0.08, ankle + 0.12), 0.0)
     if kind == "skirt":
         return _Style(ease + 0.004, 0.25 + 0.25 * looseness, lerp(hip - 0.1, knee - 0.06), 0.0)
+    if kind == "long_skirt":  # mid-calf (length 0) to just above the ankle (1)
+        return _Style(ease + 0.004, 0.3 + 0.25 * looseness, lerp(knee - 0.14, ankle + 0.08), 0.0)
     if kind == "shorts":
         return _Style(ease, 0.0, lerp(hip - 0.06, knee + 0.12), 0.0)
     if kind == "trousers":
@@ -454,7 +458,7 @@ def _build(body: Body, kinds: list[str], spacing: float, seed: int, looseness: f
             style.ease += 0.008
         b = _Builder()
         parts = _parts(body, inner)
-        if kind in ("trousers", "shorts", "skirt"):
+        if kind in ("trousers", "shorts", *SKIRTS):
             gen.bottoms(b, parts, style, kind)
         else:
             gen.top(b, parts, style, kind)

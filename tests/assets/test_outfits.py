@@ -67,6 +67,19 @@ def test_controls_change_the_shape():
     assert long_.vertices[:, 1].min() < short.vertices[:, 1].min() - 0.1
 
 
+def test_long_skirt_hangs_below_the_knee_skirt_and_above_the_ankles():
+    body = BODY
+    knee = float(body.joints[body.joint_names.index("left_knee"), 1])
+    ankle = float(body.joints[body.joint_names.index("left_ankle"), 1])
+    knee_skirt = generate_outfit("skirt", vertices=2000, seed=3, length=1.0)
+    for length in (0.0, 1.0):
+        o = generate_outfit("long_skirt", vertices=3000, seed=3, length=length)
+        hem = o.vertices[:, 1].min()
+        assert hem < knee_skirt.vertices[:, 1].min() - 0.05  # longer than the longest knee skirt
+        assert ankle < hem < knee  # mid-calf (length 0) .. just above the ankle (1)
+        assert o.garments == ["long_skirt"] and abs(len(o.vertices) - 3000) <= 300
+
+
 def test_layers_outer_wraps_inner():
     from drape.geometry.metrics import layer_collision_share
 
