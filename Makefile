@@ -120,7 +120,8 @@ intrinsic-data-motions: $(VENV)/.dev-installed
 # mid-calf and the ankle) x the same 44 parameter sets (--seed 21, 4 held out) x 5 training motions (procedural seeds
 # 1-2 as in intrinsic-data, DeepMimic dance_b, CMU 05_01_walk, and 06_01_walk, the config's validation motion) +
 # walk, dance_a (held out) x 120 frames. At the default 4 substeps the walking legs went through it (1 of 6 walks
-# accepted): it runs 8 substeps a frame (docs/sim.md "A long skirt"), ~2 s per frame per core, ~17 core-hours;
+# accepted): it runs 8 substeps a frame (docs/sim.md "A long skirt"), ~2 s per frame per core, ~17 core-hours for
+# the 208 sequences of the training and test splits (the only ones training and `drape eval intrinsic` read);
 # resumable (rerun to continue), train items first.
 INTRINSIC_LONG_SKIRT_DIR ?= data/intrinsic/long_skirt
 intrinsic-data-long-skirt: $(VENV)/.dev-installed
@@ -135,7 +136,7 @@ intrinsic-data-long-skirt: $(VENV)/.dev-installed
 		--out $(INTRINSIC_LONG_SKIRT_DIR)/motions/cmu_$$c.npz || exit 1; done
 	cd $(INTRINSIC_LONG_SKIRT_DIR) && ../../../$(BIN)/drape sim dataset --garment long_skirt.obj --params 44 \
 		--seed 21 --motions motions/proc1.npz,motions/proc2.npz,dance_b,motions/cmu_05_01_walk.npz,motions/cmu_06_01_walk.npz,walk,dance_a \
-		--frames 120 --holdout-params 4 --holdout-motions 2 --substeps 8 --workers $(WORKERS) --out .
+		--frames 120 --holdout-params 4 --holdout-motions 2 --splits train,test --substeps 8 --workers $(WORKERS) --out .
 
 # two-layer ground truth (issue 22; docs/sim.md "Two layers"): an inner and an outer garment simulated together
 # on the neutral body, for the served combinations (a t-shirt under an open jacket, a tank top under a long
