@@ -1,11 +1,15 @@
 """Do more substeps keep the legs out of the skirt on the real CMU dances the intrinsic dataset's gate rejects?
 
-Re-simulates items of `make intrinsic-data`'s dataset that the quality gate rejected (their parameter set,
-motion and frames from the dataset's manifest and rejected/ folder) with the parameter set's `substeps`
-replaced by each value of --substeps (the first, 4, is what the dataset used), and prints the gate's body
-penetration figures (p99 and max, mm; bars 5 and 30 mm), the share of vertex-frames inside the body and
-the wall time. Needs data/intrinsic/skirt (git-ignored; `make intrinsic-data`).
+Re-simulates items of an intrinsic dataset (by default `make intrinsic-data`'s: items its quality gate
+rejected): each key `GARMENT__pNN__MOTION` names the garment mesh `DIR/GARMENT.obj`, the parameter set NN of
+the dataset's manifest and the motion (`DIR/motions/MOTION.npz`, else the embedded clip of that name; an item
+of any split, simulated or not), run for the dataset's frames with the set's `substeps` replaced by each value
+of --substeps, and prints the gate's body penetration figures (p99 and max, mm; bars 5 and 30 mm), the share
+of vertex-frames inside the body and the wall time. Needs the dataset's folder (git-ignored; its make target).
 Run: .venv/bin/python -m bench.sim_substeps [--dataset DIR] [--items KEY ...] [--substeps 4 8 16]
+  e.g. the long skirt's walk at 4 and 8 substeps (docs/sim.md "A long skirt"):
+  .venv/bin/python -m bench.sim_substeps --dataset data/intrinsic/long_skirt --items long_skirt__p00__walk \
+      --substeps 4 8
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import time
 from pathlib import Path
 
 from drape.assets.body import load_body
-from drape.assets.motion import load_motion_npz
+from drape.assets.motion import load_clip, load_motion_npz
 from drape.geometry.mesh_io import load_mesh
 from drape.sim.params import SimParams
 from drape.sim.quality import QualityGate
@@ -34,13 +38,14 @@ def main() -> None:
     root = Path(args.dataset)
     manifest = json.loads((root / "manifest.json").read_text())
     gate = QualityGate(**manifest["gate"])
-    vertices, faces = load_mesh(root / "skirt.obj")
     body = load_body(manifest["body"])
     print("item  substeps  penetration p99 mm  max mm  inside %  passes  s")
     for key in args.items:
-        _, p, motion_name = key.split("__")
+        garment, p, motion_name = key.split("__")
+        vertices, faces = load_mesh(root / f"{garment}.obj")
         params = SimParams(**manifest["params"][int(p[1:])])
-        motion = load_motion_npz(root / "motions" / f"{motion_name}.npz", name=motion_name)
+        npz = root / "motions" / f"{motion_name}.npz"
+        motion = load_motion_npz(npz, name=motion_name) if npz.exists() else load_clip(motion_name)
         for substeps in args.substeps:
             t0 = time.perf_counter()
             r = simulate(vertices, faces, body, motion, params.model_copy(update={"substeps": substeps}),
