@@ -1,9 +1,10 @@
 """GET /viewer/: the page, its vendored three.js, the generated outfits it offers, and the page itself driven
 in headless Chromium against a live server (playwright-core from node, tests/schemas/threejs_player.py):
 pick an outfit and a clip, Play, a frame renders, the slider moves, no console error, nothing loaded from
-outside the service; then two garments worn together (the layers tab: a combination of GET /v1/layers). The screenshot goes to build/viewer.png on every run, and to docs/viewer.png where
-that is missing or with DRAPE_VIEWER_SCREENSHOT=1 (renders differ in their bytes from run to run, so a
-plain test run leaves the committed one alone)."""
+outside the service; then two garments worn together (the layers tab: a combination of GET /v1/layers), then a
+garment template from one keyframe (a sampled design of the intrinsic space). The screenshots go to
+build/viewer*.png on every run, and to docs/ where that is missing or with DRAPE_VIEWER_SCREENSHOT=1 (renders
+differ in their bytes from run to run, so a plain test run leaves the committed ones alone)."""
 
 import os
 import re
@@ -65,7 +66,8 @@ try {
   out.status = await page.textContent('#status');
   await page.screenshot({path: shot});
   // two garments worn together: the first combination of GET /v1/layers, with its thickness input
-  out.layerOptions = await page.$$eval('#outfit optgroup option', (os) => os.map((o) => o.value));
+  out.layerOptions = await page.$$eval('#outfit optgroup option', (os) => os.map((o) => o.value)
+    .filter((v) => v.startsWith('layers:')));
   await page.selectOption('#outfit', out.layerOptions[0]);
   out.thickness = {shown: await page.isVisible('#thickness'), min: await page.getAttribute('#thickness', 'min'),
                    max: await page.getAttribute('#thickness', 'max')};
@@ -78,6 +80,21 @@ try {
   out.layers = {state: await page.evaluate(() => ({...window.drapeViewer})), frames: seen,
                 status: await page.textContent('#status')};
   await page.screenshot({path: shot.replace(/\.png$/, '_layers.png')});
+  // a garment template from one keyframe: a sampled design of the intrinsic space (GET /v1/garments)
+  out.templateOptions = await page.$$eval('#outfit optgroup option', (os) => os.map((o) => o.value)
+    .filter((v) => v.startsWith('intrinsic:')));
+  await page.selectOption('#outfit', out.templateOptions[0]);
+  out.design = {shown: await page.isVisible('#design'), bodyDisabled: await page.isDisabled('#body')};
+  await page.fill('#design', '3');
+  await page.click('#play');
+  await page.waitForFunction(() => (window.drapeViewer.keyframed && window.drapeViewer.playing
+                                    && window.drapeViewer.framesRendered >= 3) || window.drapeViewer.error,
+                             null, {timeout: 180000});
+  const played = [];
+  for (let i = 0; i < 4; i++) { played.push(Number(await page.inputValue('#frame'))); await page.waitForTimeout(400); }
+  out.keyframed = {state: await page.evaluate(() => ({...window.drapeViewer})), frames: played,
+                   status: await page.textContent('#status')};
+  await page.screenshot({path: shot.replace(/\.png$/, '_intrinsic.png')});
 } finally {
   await browser.close();
 }
@@ -175,6 +192,23 @@ def test_the_page_plays_an_outfit_in_chromium(server_url):
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     if not DOCS_SCREENSHOT.with_name("viewer_layers.png").exists() or os.environ.get("DRAPE_VIEWER_SCREENSHOT") == "1":
         shutil.copyfile(shot, DOCS_SCREENSHOT.with_name("viewer_layers.png"))
+    # the keyframe tab: each intrinsic template of GET /v1/garments, a sampled design played from
+    # POST /v1/garments/{name}/animate's GLB
+    import httpx
+
+    intrinsic = [g["name"] for g in httpx.get(f"{server_url}/v1/garments").json()["garments"]
+                 if "intrinsic" in g["models"]]
+    assert out["templateOptions"] == [f"intrinsic:{name}" for name in intrinsic] and intrinsic
+    assert out["design"] == {"shown": True, "bodyDisabled": True}
+    keyframed = out["keyframed"]
+    assert keyframed["state"]["error"] is None and keyframed["state"]["frames"] == 47
+    assert keyframed["state"]["layers"] is None
+    assert keyframed["state"]["keyframed"]["garment"] == intrinsic[0] and keyframed["state"]["keyframed"]["design"] == 3
+    assert f"{intrinsic[0]} (intrinsic" in keyframed["status"] and len(set(keyframed["frames"])) >= 2, keyframed["frames"]
+    shot = SCREENSHOT.with_name("viewer_intrinsic.png")
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    if not DOCS_SCREENSHOT.with_name("viewer_intrinsic.png").exists() or os.environ.get("DRAPE_VIEWER_SCREENSHOT") == "1":
+        shutil.copyfile(shot, DOCS_SCREENSHOT.with_name("viewer_intrinsic.png"))
 
 
 def test_the_page_asks_for_the_api_key_when_the_service_has_one(settings):

@@ -1,7 +1,10 @@
 // drape viewer: rig an outfit (POST /v1/outfits/rig, multipart), animate it (POST /v1/outfits/animate,
 // Accept: model/gltf-binary) and play the GLB with three.js: body and garment, orbit controls, play/pause and
 // a frame slider. Or two garments worn together (a combination of GET /v1/layers): POST /v1/layers/animate's
-// GLB (both layers as one vertex-animated mesh, inner first), the inner layer orange, the outer blue.
+// GLB (both layers as one vertex-animated mesh, inner first), the inner layer orange, the outer blue. Or a garment
+// template of the intrinsic space (GET /v1/garments, models "intrinsic") from one keyframe: a design drawn by
+// POST /v1/garments/{name}/sample (the design number is its seed), its latent the keyframe at frame 0 of
+// POST /v1/garments/{name}/animate's GLB (a vertex-animated mesh).
 // Every address is relative to /viewer/, so the page works under any prefix.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
@@ -11,9 +14,10 @@ const API = new URL('../v1/', window.location.href);
 const $ = (id) => document.getElementById(id);
 // what the page is doing, for people and for tests
 const state = window.drapeViewer = {ready: false, loaded: false, playing: false, frame: 0, frames: 0,
-  framesRendered: 0, error: null, webgl: null, layers: null};
+  framesRendered: 0, error: null, webgl: null, layers: null, keyframed: null};
 const motions = new Map();
 const combinations = new Map();  // "layers:<inner>:<outer>" -> GET /v1/layers entry + the inner's vertex count
+const templates = new Map();  // "intrinsic:<name>" -> GET /v1/garments entry of a template with an intrinsic model
 
 // ---- the service ---------------------------------------------------------------------------------------
 
@@ -69,6 +73,18 @@ async function loadCatalogue() {
         const value = `layers:${c.inner}:${c.outer}`;
         combinations.set(value, {...c, innerVertices: sizes.get(c.inner)});
         option(group, value, `${c.inner} under ${c.outer} (${c.model})`);
+      }
+      $('outfit').append(group);
+    }
+    templates.clear();
+    const intrinsic = garments.garments.filter((g) => g.models.includes('intrinsic'));
+    if (intrinsic.length) {
+      const group = document.createElement('optgroup');
+      group.label = 'a garment from one keyframe';
+      for (const g of intrinsic) {
+        const value = `intrinsic:${g.name}`;
+        templates.set(value, g);
+        option(group, value, `${g.name}, a sampled design (intrinsic ${g.version})`);
       }
       $('outfit').append(group);
     }
@@ -137,6 +153,31 @@ function chosenLayers() {
   return combinations.get($('outfit').value) || null;
 }
 
+function chosenTemplate() {
+  return templates.get($('outfit').value) || null;
+}
+
+async function playKeyframed(g) {
+  const clip = $('clip').value;
+  const seed = Math.max(0, Math.round(Number($('design').value) || 0));
+  say(`Drawing design ${seed} of the ${g.name}…`);
+  const t0 = performance.now();
+  const headers = {'content-type': 'application/json'};
+  const sample = await api(`garments/${g.name}/sample`, {method: 'POST', headers,
+    body: JSON.stringify({count: 1, seed, motion: {clip}, frame: 0})});
+  const latent = (await sample.json()).latents[0];
+  say(`Animating the ${g.name} along ${clip}${$('refine').checked ? ' with refinement' : ''}…`);
+  const answer = await api(`garments/${g.name}/animate`, {method: 'POST',
+    headers: {...headers, accept: 'model/gltf-binary'},
+    body: JSON.stringify({motion: {clip}, keyframes: [{frame: 0, latent}], refine: $('refine').checked})});
+  const glb = await answer.arrayBuffer();
+  await show(glb, motions.get(clip));
+  state.keyframed = {garment: g.name, design: seed, version: g.version};
+  say(`${g.name} (intrinsic ${g.version}), design ${seed}, ${clip}: ${state.frames} frames, ` +
+      `${(glb.byteLength / 2 ** 20).toFixed(1)} MB GLB in ${((performance.now() - t0) / 1000).toFixed(1)} s.\n` +
+      'One keyframe at frame 0; another design number draws another garment. Drag to orbit, scroll to zoom.');
+}
+
 async function playLayers(c) {
   const clip = $('clip').value;
   const thickness = Number($('thickness').value) / 1000;
@@ -156,12 +197,18 @@ async function playLayers(c) {
 async function play() {
   $('play').disabled = true;
   try {
+    state.layers = null;
+    state.keyframed = null;
     const layers = chosenLayers();
     if (layers) {
       await playLayers(layers);
       return;
     }
-    state.layers = null;
+    const template = chosenTemplate();
+    if (template) {
+      await playKeyframed(template);
+      return;
+    }
     say('Rigging the outfit…');
     const [mesh, fileName] = await outfitMesh();
     const form = new FormData();
@@ -275,7 +322,7 @@ async function show(buffer, clip, layers = null) {
         .applyMatrix4(o.matrixWorld).getCenter(new THREE.Vector3());
     });
     controls.target.copy(centre);
-    camera.position.set(centre.x + 0.4, centre.y + 0.3, centre.z + 2.6);
+    camera.position.set(centre.x + 0.6, centre.y + 0.4, centre.z + 4.2);  // room for a walk towards the camera
   }
   setPlaying(true);
   state.loaded = true;
@@ -306,7 +353,8 @@ $('outfit').addEventListener('change', () => {
   $('mesh').hidden = $('outfit').value !== 'file';
   const c = chosenLayers();
   $('thicknessLabel').hidden = !c;
-  $('body').disabled = Boolean(c);  // the layer templates are dressed on their own body
+  $('designLabel').hidden = !chosenTemplate();
+  $('body').disabled = Boolean(c || chosenTemplate());  // the templates are dressed on their own body
   if (c) {
     const [low, high] = c.thickness.map((m) => m * 1000);
     $('thickness').min = String(low);
