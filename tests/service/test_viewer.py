@@ -2,7 +2,8 @@
 in headless Chromium against a live server (playwright-core from node, tests/schemas/threejs_player.py):
 pick an outfit and a clip, Play, a frame renders, the slider moves, no console error, nothing loaded from
 outside the service; then two garments worn together (the layers tab: a combination of GET /v1/layers), then a
-garment template from one keyframe (a sampled design of the intrinsic space). The screenshots go to
+garment template from one keyframe (a sampled design of the intrinsic space), then an uploaded mocap file
+(BVH) through both the keyframe group and a generated outfit. The screenshots go to
 build/viewer*.png on every run, and to docs/ where that is missing or with DRAPE_VIEWER_SCREENSHOT=1 (renders
 differ in their bytes from run to run, so a plain test run leaves the committed ones alone)."""
 
@@ -27,7 +28,7 @@ CLIP = "kick"  # 47 frames: frames x ~2,500 vertices within the test service's 3
 
 DRIVE_JS = BROWSER_JS + r"""
 import fs from 'node:fs';
-const [base, shot, outPath] = process.argv.slice(2);
+const [base, shot, bvh, outPath] = process.argv.slice(2);
 const origin = new URL(base).origin;
 const out = {problems: [], external: [], frames: []};
 const browser = await launch();
@@ -95,6 +96,20 @@ try {
   out.keyframed = {state: await page.evaluate(() => ({...window.drapeViewer})), frames: played,
                    status: await page.textContent('#status')};
   await page.screenshot({path: shot.replace(/\.png$/, '_intrinsic.png')});
+  // an uploaded mocap file (the routes' multipart motion_file): the keyframed garment, then a generated outfit
+  out.uploads = [];
+  await page.selectOption('#clip', 'file');
+  out.fileShown = await page.isVisible('#motionFile');
+  await page.setInputFiles('#motionFile', bvh);
+  for (const outfit of [out.templateOptions[0], 'tshirt']) {
+    await page.selectOption('#outfit', outfit);
+    await page.evaluate(() => { window.drapeViewer.loaded = false; });
+    await page.click('#play');
+    await page.waitForFunction(() => (window.drapeViewer.loaded && window.drapeViewer.framesRendered >= 3)
+                               || window.drapeViewer.error, null, {timeout: 180000});
+    out.uploads.push({outfit, state: await page.evaluate(() => ({...window.drapeViewer})),
+                      status: await page.textContent('#status')});
+  }
 } finally {
   await browser.close();
 }
@@ -165,10 +180,14 @@ def test_an_unknown_outfit_is_a_404_problem(http):
     assert "tshirt" in r.json()["detail"]
 
 
-def test_the_page_plays_an_outfit_in_chromium(server_url):
+def test_the_page_plays_an_outfit_in_chromium(server_url, tmp_path):
+    from tests.cmu_bvh import cmu_bvh
+
     SCREENSHOT.parent.mkdir(exist_ok=True)
     SCREENSHOT.unlink(missing_ok=True)
-    out = run_node(DRIVE_JS, server_url, str(SCREENSHOT), timeout=400)
+    bvh = tmp_path / "jump_120fps.bvh"
+    bvh.write_bytes(cmu_bvh(frames=120, fps=120.0))  # 1 s: 30 frames once imported at the routes' 30 fps
+    out = run_node(DRIVE_JS, server_url, str(SCREENSHOT), str(bvh), timeout=500)
     print(f"\nWebGL {out['webgl']}; slider {out['frames']}; status {out['status']!r}")
     assert out["url"].endswith("/viewer/")
     assert out["problems"] == [] and out["external"] == []
@@ -209,6 +228,12 @@ def test_the_page_plays_an_outfit_in_chromium(server_url):
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     if not DOCS_SCREENSHOT.with_name("viewer_intrinsic.png").exists() or os.environ.get("DRAPE_VIEWER_SCREENSHOT") == "1":
         shutil.copyfile(shot, DOCS_SCREENSHOT.with_name("viewer_intrinsic.png"))
+    # an uploaded BVH drives both the keyframed garment and a rigged outfit
+    assert out["fileShown"]
+    assert [u["outfit"] for u in out["uploads"]] == [f"intrinsic:{intrinsic[0]}", "tshirt"]
+    for u in out["uploads"]:
+        assert u["state"]["error"] is None and u["state"]["loaded"] and u["state"]["frames"] == 30, u
+        assert "jump_120fps.bvh: 30 frames" in u["status"], u["status"]
 
 
 def test_the_page_asks_for_the_api_key_when_the_service_has_one(settings):

@@ -4,7 +4,8 @@
 // GLB (both layers as one vertex-animated mesh, inner first), the inner layer orange, the outer blue. Or a garment
 // template of the intrinsic space (GET /v1/garments, models "intrinsic") from one keyframe: a design drawn by
 // POST /v1/garments/{name}/sample (the design number is its seed), its latent the keyframe at frame 0 of
-// POST /v1/garments/{name}/animate's GLB (a vertex-animated mesh).
+// POST /v1/garments/{name}/animate's GLB (a vertex-animated mesh). The motion is an embedded clip or an uploaded
+// mocap file (a CMU-named BVH or an AMASS-style npz: the routes' multipart `motion_file`, imported at 30 fps).
 // Every address is relative to /viewer/, so the page works under any prefix.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
@@ -62,6 +63,7 @@ async function loadCatalogue() {
       motions.set(m.name, m);
       option($('clip'), m.name, `${m.name} (${m.frames} frames)`);
     }
+    option($('clip'), 'file', 'upload a mocap file (BVH, AMASS npz)…');
     if (motions.has('walk')) $('clip').value = 'walk';
     for (const old of $('outfit').querySelectorAll('optgroup')) old.remove();
     combinations.clear();
@@ -157,19 +159,37 @@ function chosenTemplate() {
   return templates.get($('outfit').value) || null;
 }
 
+// The chosen motion: {clip, name} of an embedded clip, or {file, name} of an uploaded mocap file.
+function chosenMotion() {
+  if ($('clip').value !== 'file') return {clip: $('clip').value, name: $('clip').value};
+  const file = $('motionFile').files[0];
+  if (!file) throw new Error('Choose a mocap file (a CMU-named BVH or an AMASS-style npz).');
+  return {file, name: file.name};
+}
+
+// A garment route's body: JSON with the clip, or a multipart form with the file and the rest as `request`.
+function garmentBody(request, motion) {
+  if (motion.clip) return {body: JSON.stringify({...request, motion: {clip: motion.clip}}),
+    headers: {'content-type': 'application/json'}};
+  const form = new FormData();
+  form.append('motion_file', motion.file, motion.file.name);
+  form.append('request', JSON.stringify(request));
+  return {body: form, headers: {}};
+}
+
 async function playKeyframed(g) {
-  const clip = $('clip').value;
+  const motion = chosenMotion();
+  const clip = motion.name;
   const seed = Math.max(0, Math.round(Number($('design').value) || 0));
   say(`Drawing design ${seed} of the ${g.name}…`);
   const t0 = performance.now();
-  const headers = {'content-type': 'application/json'};
-  const sample = await api(`garments/${g.name}/sample`, {method: 'POST', headers,
-    body: JSON.stringify({count: 1, seed, motion: {clip}, frame: 0})});
+  const sample = await api(`garments/${g.name}/sample`, {method: 'POST',
+    ...garmentBody({count: 1, seed, frame: 0}, motion)});
   const latent = (await sample.json()).latents[0];
   say(`Animating the ${g.name} along ${clip}${$('refine').checked ? ' with refinement' : ''}…`);
-  const answer = await api(`garments/${g.name}/animate`, {method: 'POST',
-    headers: {...headers, accept: 'model/gltf-binary'},
-    body: JSON.stringify({motion: {clip}, keyframes: [{frame: 0, latent}], refine: $('refine').checked})});
+  const request = garmentBody({keyframes: [{frame: 0, latent}], refine: $('refine').checked}, motion);
+  const answer = await api(`garments/${g.name}/animate`, {method: 'POST', body: request.body,
+    headers: {...request.headers, accept: 'model/gltf-binary'}});
   const glb = await answer.arrayBuffer();
   await show(glb, motions.get(clip));
   state.keyframed = {garment: g.name, design: seed, version: g.version};
@@ -180,6 +200,7 @@ async function playKeyframed(g) {
 
 async function playLayers(c) {
   const clip = $('clip').value;
+  if (clip === 'file') throw new Error('Two garments worn together take an embedded clip: choose one.');
   const thickness = Number($('thickness').value) / 1000;
   say(`Animating ${c.inner} under ${c.outer} along ${clip}${$('refine').checked ? ' with refinement' : ''}…`);
   const t0 = performance.now();
@@ -216,12 +237,20 @@ async function play() {
     form.append('body', $('body').value);
     const rig = await api('outfits/rig', {method: 'POST', body: form, headers: {accept: 'application/x-npz'}});
     const outfitId = npyText(npzMember(await rig.arrayBuffer(), 'outfit_id'));
-    const clip = $('clip').value;
+    const motion = chosenMotion();
+    const clip = motion.name;
     say(`Animating ${clip}${$('refine').checked ? ' with refinement' : ''}…`);
     const t0 = performance.now();
-    const answer = await api('outfits/animate', {method: 'POST',
-      headers: {'content-type': 'application/json', accept: 'model/gltf-binary'},
-      body: JSON.stringify({outfit_id: outfitId, motion: {clip}, refine: $('refine').checked})});
+    let body = JSON.stringify({outfit_id: outfitId, motion: {clip}, refine: $('refine').checked});
+    let headers = {'content-type': 'application/json', accept: 'model/gltf-binary'};
+    if (motion.file) {  // the upload form: motion_file, outfit_id, refine
+      body = new FormData();
+      body.append('motion_file', motion.file, motion.file.name);
+      body.append('outfit_id', outfitId);
+      body.append('refine', String($('refine').checked));
+      headers = {accept: 'model/gltf-binary'};
+    }
+    const answer = await api('outfits/animate', {method: 'POST', headers, body});
     const glb = await answer.arrayBuffer();
     await show(glb, motions.get(clip));
     say(`${clip}: ${state.frames} frames, ${(glb.byteLength / 2 ** 20).toFixed(1)} MB GLB in ` +
@@ -362,6 +391,7 @@ $('outfit').addEventListener('change', () => {
     $('thickness').value = String(Math.min(high, Math.max(low, Number($('thickness').value) || 6)));
   }
 });
+$('clip').addEventListener('change', () => { $('motionFile').hidden = $('clip').value !== 'file'; });
 $('key').addEventListener('change', loadCatalogue);
 
 function resize() {
