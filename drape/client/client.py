@@ -98,17 +98,21 @@ class LayerFrames:
 
 
 def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float, refine: bool) -> dict[str, Any]:
-    """The layers animate request as JSON (the route takes JSON only): the motion as a clip name or poses."""
-    if isinstance(motion, bytes | Path):
-        raise ValueError("animate_layers takes a clip name or poses (a motion file: import it first, "
-                         "drape.assets.motion.import_motion or `drape motions import`)")
+    """The layers animate request's httpx arguments: JSON with the motion as a clip name or poses; with a motion
+    file (a path: BVH or AMASS npz), a multipart form with the file as `motion_file` (the server retargets it
+    onto the combination's body, 30 fps) and the rest of the request as JSON text in `request`."""
+    fields = {"inner": inner, "outer": outer, "thickness": float(thickness), "refine": bool(refine)}
+    if isinstance(motion, os.PathLike):
+        path = Path(motion)
+        return {"files": {"motion_file": (path.name, path.read_bytes())}, "data": {"request": json.dumps(fields)}}
+    if isinstance(motion, bytes):
+        raise ValueError("animate_layers takes a clip name, poses or the Path of a motion file, not bytes")
     arrays = _motion_arrays(motion)
     m: dict[str, Any] = ({"clip": str(arrays["clip"])} if "clip" in arrays else
                          {"poses": np.asarray(arrays["poses"]).reshape(len(arrays["poses"]), -1).tolist(),
                           **({"translation": arrays["translation"].tolist()} if "translation" in arrays else {}),
                           **({"fps": float(arrays["fps"])} if "fps" in arrays else {})})
-    return {"json": {"inner": inner, "outer": outer, "thickness": float(thickness), "motion": m,
-                     "refine": bool(refine)}}
+    return {"json": {**fields, "motion": m}}
 
 
 def _layer_frames(response: httpx.Response) -> LayerFrames:
@@ -567,7 +571,8 @@ class Client(_Base):
 
     def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
                        refine: bool = False, format: Format = "array") -> LayerFrames | bytes:
-        """Two templates worn together (a combination of `layers()`) along `motion` (a clip name or poses):
+        """Two templates worn together (a combination of `layers()`) along `motion` (a clip name, poses, or the
+        Path of a BVH / AMASS npz file, imported by the service onto the combination's body at 30 fps):
         both layers' frames (format="glb" / "pc2": the two as one mesh, inner first, as bytes). thickness: the
         inner garment's, m; refine: both out of the body and the outer kept thickness + 1 mm outside the inner."""
         req = _layers_request(inner, outer, motion, thickness, refine)

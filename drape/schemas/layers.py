@@ -28,18 +28,25 @@ class LayerList(BaseModel):
     layers: list[LayerInfo]
 
 
-class LayersAnimateRequest(BaseModel):
-    """Two templates worn together (a combination of GET /v1/layers), the inner's thickness, a motion."""
+class LayersFields(BaseModel):
+    """Two templates worn together (a combination of GET /v1/layers) and the inner's thickness: a layers animate
+    request without its motion (the `request` field of the multipart form, beside its motion_file)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [
-        {"inner": "tshirt", "outer": "jacket", "thickness": 0.006, "motion": {"clip": "walk"}, "refine": True}]})
+    model_config = ConfigDict(extra="forbid", strict=True)
     inner: str = Field(max_length=128, description="the inner template (GET /v1/layers)")
     outer: str = Field(max_length=128, description="the outer template")
     thickness: float = Field(0.006, description="the inner garment's thickness H_in, metres, within the "
                                                 "combination's range")
-    motion: MotionInput
     refine: bool | RefineOptions = Field(False, description="the post step: both layers out of the body, the "
                                                             "outer kept thickness + 1 mm outside the inner")
+
+
+class LayersAnimateRequest(LayersFields):
+    """Two templates worn together (a combination of GET /v1/layers), the inner's thickness, a motion."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [
+        {"inner": "tshirt", "outer": "jacket", "thickness": 0.006, "motion": {"clip": "walk"}, "refine": True}]})
+    motion: MotionInput
 
 
 class LayersAnimateResponse(BaseModel):

@@ -66,10 +66,10 @@ def _precheck_motion(doc: Any, settings: Settings) -> None:
         _count(doc.get("poses"), settings.max_frames, "frames", "motion.poses")
 
 
-def _document(data: bytes) -> dict:
-    doc = parse_json(data)
+def _document(data: bytes, field: str = "body") -> dict:
+    doc = parse_json(data, field)
     if not isinstance(doc, dict):
-        raise InvalidInput(f"expected a JSON object, got {type(doc).__name__}", "body")
+        raise InvalidInput(f"expected a JSON object, got {type(doc).__name__}", field)
     return doc
 
 
@@ -465,7 +465,7 @@ def garment_request(route: str, kind: str, data: bytes, settings: Settings, body
     if kind == "multipart/form-data":
         parts = _form(data, content_type, GARMENT_FORM)
         text = parts.get("request")
-        doc = _document(text.data) if text is not None else {}
+        doc = _document(text.data, "request") if text is not None else {}
         _precheck_garment(route, doc, settings)
         request = _model(GARMENT_FIELDS[route], doc).model_dump()
         request["motion"] = _form_motion(parts, body, settings)
@@ -551,10 +551,28 @@ def _garment_npz(route: str, data: bytes, settings: Settings) -> dict:
 
 # ---- the layer routes ----------------------------------------------------------------------------
 
-def layers_request(data: bytes, settings: Settings) -> dict:
-    """A JSON layers animate request (LayersAnimateRequest) -> its fields as a dict."""
-    from drape.schemas.layers import LayersAnimateRequest
+LAYERS_FORM = ("motion_file", "fps", "up", "request")
 
+
+def layers_request(data: bytes, settings: Settings, engine: Engine, kind: str = "", content_type: str = "",
+                   ) -> dict:
+    """A layers animate request -> its fields as a dict shaped like LayersAnimateRequest. JSON: the model itself.
+    A multipart form: motion_file (a BVH or AMASS npz, retargeted onto the combination's body), fps, up, and
+    `request`: the JSON request without its motion (LayersFields); the combination is checked (404 / 422, as
+    the JSON request's) before the file is imported."""
+    from drape.schemas.layers import LayersAnimateRequest, LayersFields
+    from drape.service.layers import find_combination
+
+    if kind == "multipart/form-data":
+        parts = _form(data, content_type, LAYERS_FORM)
+        text = parts.get("request")
+        if text is None:
+            raise InvalidInput("the request's fields are required as JSON text (inner, outer, thickness, refine)",
+                               "request")
+        request = _model(LayersFields, _document(text.data, "request")).model_dump()
+        combo = find_combination(engine, request["inner"], request["outer"])
+        request["motion"] = _form_motion(parts, combo.inner.body, settings)
+        return request
     doc = _document(data)
     _precheck_motion(doc.get("motion"), settings)
     return _model(LayersAnimateRequest, doc).model_dump()

@@ -107,14 +107,15 @@ def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str,
     return parts
 
 
-def parse_json(data: bytes) -> Any:
-    """JSON -> Python objects; a 400 naming the problem for broken or too deeply nested documents."""
+def parse_json(data: bytes, field: str = "body") -> Any:
+    """JSON -> Python objects; a 400 naming the problem (and `field`: the body, or a form field holding JSON
+    text) for broken or too deeply nested documents."""
     try:
         return json.loads(data)
     except RecursionError:
-        raise MalformedInput("JSON nested too deeply", "body") from None
+        raise MalformedInput("JSON nested too deeply", field) from None
     except (ValueError, UnicodeDecodeError) as exc:
-        raise MalformedInput(f"not valid JSON ({str(exc)[:200]})", "body") from exc
+        raise MalformedInput(f"not valid JSON ({str(exc)[:200]})", field) from exc
 
 
 def media_type(request: Request) -> str:

@@ -39,20 +39,27 @@ class LayersPlan:
         return len(self.poses)
 
 
+def find_combination(engine: Engine, inner: str, outer: str) -> LayerCombination:
+    """The served combination of these templates: 404 naming an unknown template, 422 listing the combinations
+    when the two are not worn together."""
+    names = {t.name for t in engine.layers.templates()}
+    for field, name in (("inner", inner), ("outer", outer)):
+        if name not in names:
+            raise NotFound(f"unknown layer template {quoted(name, 80)}; the served ones: "
+                           f"{', '.join(sorted(names))} (GET /v1/layers)", field)
+    combo = engine.layers.find(inner, outer)
+    if combo is None:
+        pairs = ", ".join(f"{c.inner.name} under {c.outer.name}" for c in engine.layers.combinations())
+        raise InvalidInput(f"{inner!r} under {outer!r} is not served; the combinations: {pairs} (GET /v1/layers)",
+                           "outer")
+    return combo
+
+
 def plan_layers(settings: Settings, engine: Engine, request: dict, max_posed: int | None) -> LayersPlan:
     """Check a layers animate request (a dict shaped like LayersAnimateRequest): both templates served (404
     naming the unknown one), worn together (422 listing the combinations), the thickness in the combination's
     range, the motion, and both layers' frames within the answer's bound."""
-    names = {t.name for t in engine.layers.templates()}
-    for field in ("inner", "outer"):
-        if request[field] not in names:
-            raise NotFound(f"unknown layer template {quoted(request[field], 80)}; the served ones: "
-                           f"{', '.join(sorted(names))} (GET /v1/layers)", field)
-    combo = engine.layers.find(request["inner"], request["outer"])
-    if combo is None:
-        pairs = ", ".join(f"{c.inner.name} under {c.outer.name}" for c in engine.layers.combinations())
-        raise InvalidInput(f"{request['inner']!r} under {request['outer']!r} is not served; the combinations: "
-                           f"{pairs} (GET /v1/layers)", "outer")
+    combo = find_combination(engine, request["inner"], request["outer"])
     lo, hi = combo.thickness
     thickness = request["thickness"]
     if not lo <= thickness <= hi:

@@ -222,7 +222,7 @@ def test_a_motion_file_upload(http, garment, shape):
     problem(http.post(f"/v1/garments/{NAME}/sample", files={"motion_file": ("c.bvh", b"junk")},
                       data={"request": json.dumps({"count": 1})}), 422, "motion_file")
     problem(http.post(f"/v1/garments/{NAME}/sample", files={"motion_file": ("c.bvh", bvh)},
-                      data={"request": "[1]"}), 422, "body")
+                      data={"request": "[1]"}), 422, "request: expected a JSON object")
 
 
 def test_the_routes_take_a_computing_slot(app, http, motion):

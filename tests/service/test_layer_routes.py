@@ -109,3 +109,47 @@ def test_layers_bad_inputs(http):
     problem(post(refine={"eps": -1.0}), 422, "eps")
     problem(post(colour="red"), 422, "colour")
     problem(http.post("/v1/layers/animate", content=b"x", headers={"content-type": "application/x-npz"}), 415)
+
+
+def test_a_motion_file_animates_the_layers_as_its_imported_poses_would(server_url, tmp_path):
+    """A BVH upload (multipart motion_file + the rest of the request as JSON text in `request`) is the clip the
+    importer makes of it on the combination's body: both layers equal the JSON request with those poses; through
+    the client's Path too."""
+    from drape.assets.motion import import_motion
+    from tests.cmu_bvh import cmu_bvh
+
+    bvh = tmp_path / "jump.bvh"
+    bvh.write_bytes(cmu_bvh(frames=24, fps=120.0))  # 6 frames at 30 fps
+    clip = import_motion(bvh.read_bytes(), load_body("neutral"), fps=30.0, name="jump").motion
+    fields = {"inner": "tshirt", "outer": "jacket", "thickness": 0.005}
+    with drape.Client(server_url) as client:
+        uploaded = client.animate_layers(motion=bvh, **fields)
+        sent = client.animate_layers(motion={"poses": clip.poses, "translation": clip.trans, "fps": 30.0}, **fields)
+        glb = client.animate_layers(motion=bvh, format="glb", **fields)
+    assert uploaded.inner_vertices.shape[0] == clip.num_frames == 6
+    assert np.abs(uploaded.inner_vertices - sent.inner_vertices).max() < 1e-5
+    assert np.abs(uploaded.outer_vertices - sent.outer_vertices).max() < 1e-5
+    assert glb[:4] == b"glTF"
+
+
+def test_layers_motion_file_bad_inputs(http, tmp_path):
+    from tests.cmu_bvh import cmu_bvh
+
+    bvh = cmu_bvh(frames=8, fps=30.0)
+    ok = {"inner": "tshirt", "outer": "jacket"}
+    ok_text = json.dumps(ok)
+
+    def post(request=ok_text, files=None, **data):
+        form = {"request": request, **data} if request is not None else data
+        return http.post("/v1/layers/animate", data=form,
+                         files=files if files is not None else {"motion_file": ("a.bvh", bvh)})
+
+    assert post().status_code == 200
+    problem(post(files={"other": ("a.bvh", bvh)}), 422, "other")  # an unknown field, named
+    problem(post(files={"request": (None, json.dumps(ok))}, request=None), 422, "motion_file")
+    problem(post(request=None), 422, "request")
+    problem(post(request=json.dumps({**ok, "inner": "cardigan"})), 404, "cardigan")  # before the file is read
+    problem(post(request=json.dumps({**ok, "motion": {"clip": "kick"}})), 422, "motion")  # the file is the motion
+    problem(post(files={"motion_file": ("a.bvh", b"HIERARCHY nonsense")}), 422, "motion_file")
+    problem(post(request="{not json"), 400, "request: not valid JSON")
+    problem(post(request="[1, 2]"), 422, "request: expected a JSON object")

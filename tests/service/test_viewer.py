@@ -3,7 +3,7 @@ in headless Chromium against a live server (playwright-core from node, tests/sch
 pick an outfit and a clip, Play, a frame renders, the slider moves, no console error, nothing loaded from
 outside the service; then two garments worn together (the layers tab: a combination of GET /v1/layers), then a
 garment template from one keyframe (a sampled design of the intrinsic space), then an uploaded mocap file
-(BVH) through both the keyframe group and a generated outfit. The screenshots go to
+(BVH) through the keyframe group, the layers group and a generated outfit. The screenshots go to
 build/viewer*.png on every run, and to docs/ where that is missing or with DRAPE_VIEWER_SCREENSHOT=1 (renders
 differ in their bytes from run to run, so a plain test run leaves the committed ones alone)."""
 
@@ -101,7 +101,7 @@ try {
   await page.selectOption('#clip', 'file');
   out.fileShown = await page.isVisible('#motionFile');
   await page.setInputFiles('#motionFile', bvh);
-  for (const outfit of [out.templateOptions[0], 'tshirt']) {
+  for (const outfit of [out.templateOptions[0], out.layerOptions[0], 'tshirt']) {
     await page.selectOption('#outfit', outfit);
     await page.evaluate(() => { window.drapeViewer.loaded = false; });
     await page.click('#play');
@@ -230,7 +230,7 @@ def test_the_page_plays_an_outfit_in_chromium(server_url, tmp_path):
         shutil.copyfile(shot, DOCS_SCREENSHOT.with_name("viewer_intrinsic.png"))
     # an uploaded BVH drives both the keyframed garment and a rigged outfit
     assert out["fileShown"]
-    assert [u["outfit"] for u in out["uploads"]] == [f"intrinsic:{intrinsic[0]}", "tshirt"]
+    assert [u["outfit"] for u in out["uploads"]] == [f"intrinsic:{intrinsic[0]}", out["layerOptions"][0], "tshirt"]
     for u in out["uploads"]:
         assert u["state"]["error"] is None and u["state"]["loaded"] and u["state"]["frames"] == 30, u
         assert "jump_120fps.bvh: 30 frames" in u["status"], u["status"]

@@ -28,6 +28,9 @@ from drape.service.problems import problem_responses
 from drape.service.routers.outfits import (
     BINARY,
     ERRORS,
+    FORM_FPS,
+    FORM_UP,
+    MOTION_FILE,
     STREAM_FORMATS,
     max_posed,
     stream_answer,
@@ -35,6 +38,7 @@ from drape.service.routers.outfits import (
 )
 
 router = APIRouter(prefix="/v1/layers", tags=["layers"])
+FORM = "multipart/form-data"
 
 
 @router.get("", response_model=LayerList, responses=problem_responses(401))
@@ -51,7 +55,13 @@ def list_layers(request: Request) -> LayerList:
         JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY,
         PC2: BINARY, GLB: BINARY}}, **ERRORS},
     openapi_extra={"requestBody": {"required": True, "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateRequest"}}}}})
+        JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateRequest"}},
+        FORM: {"schema": {"type": "object", "required": ["motion_file", "request"], "properties": {
+            "motion_file": {**MOTION_FILE, "description": MOTION_FILE["description"] + "; retargeted onto the "
+                            "combination's body"},
+            "fps": FORM_FPS, "up": FORM_UP,
+            "request": {"type": "string", "contentMediaType": JSON, "description":
+                        "the rest of the request as JSON text (LayersFields: inner, outer, thickness, refine)"}}}}}}})
 async def animate_layers(request: Request) -> Response:
     """An inner and an outer template worn together (a combination of GET /v1/layers), the inner's thickness
     (m) and a motion (+ refine) -> both layers' vertices, world space, metres. Each layer is posed by what
@@ -60,13 +70,14 @@ async def animate_layers(request: Request) -> Response:
     of the body, the outer kept thickness + 1 mm outside the inner (drape.geometry.layers)."""
     answer = choose(request.headers.get("accept"), STREAM_FORMATS)
     kind = media_type(request)
-    if kind not in (JSON, ""):
-        raise UnsupportedMediaType(f"send {JSON}, not {kind!r}", "Content-Type")
+    if kind not in (JSON, "", FORM):
+        raise UnsupportedMediaType(f"send {JSON} or {FORM} (with a motion_file), not {kind!r}", "Content-Type")
     settings, engine = settings_of(request), engine_of(request)
     data = await read_body(request)
+    content_type = request.headers.get("content-type", "")
 
     def plan() -> handlers.LayersPlan:
-        return handlers.plan_layers(settings, engine, decode.layers_request(data, settings),
+        return handlers.plan_layers(settings, engine, decode.layers_request(data, settings, engine, kind, content_type),
                                     max_posed(answer, settings))
 
     def pairs(p: handlers.LayersPlan) -> Iterator[tuple[np.ndarray, np.ndarray]]:

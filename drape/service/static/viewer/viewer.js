@@ -167,8 +167,9 @@ function chosenMotion() {
   return {file, name: file.name};
 }
 
-// A garment route's body: JSON with the clip, or a multipart form with the file and the rest as `request`.
-function garmentBody(request, motion) {
+// A garment or layers route's body: JSON with the clip, or a multipart form with the file and the rest of the
+// request as JSON text in `request`.
+function motionBody(request, motion) {
   if (motion.clip) return {body: JSON.stringify({...request, motion: {clip: motion.clip}}),
     headers: {'content-type': 'application/json'}};
   const form = new FormData();
@@ -184,10 +185,10 @@ async function playKeyframed(g) {
   say(`Drawing design ${seed} of the ${g.name}…`);
   const t0 = performance.now();
   const sample = await api(`garments/${g.name}/sample`, {method: 'POST',
-    ...garmentBody({count: 1, seed, frame: 0}, motion)});
+    ...motionBody({count: 1, seed, frame: 0}, motion)});
   const latent = (await sample.json()).latents[0];
   say(`Animating the ${g.name} along ${clip}${$('refine').checked ? ' with refinement' : ''}…`);
-  const request = garmentBody({keyframes: [{frame: 0, latent}], refine: $('refine').checked}, motion);
+  const request = motionBody({keyframes: [{frame: 0, latent}], refine: $('refine').checked}, motion);
   const answer = await api(`garments/${g.name}/animate`, {method: 'POST', body: request.body,
     headers: {...request.headers, accept: 'model/gltf-binary'}});
   const glb = await answer.arrayBuffer();
@@ -199,14 +200,14 @@ async function playKeyframed(g) {
 }
 
 async function playLayers(c) {
-  const clip = $('clip').value;
-  if (clip === 'file') throw new Error('Two garments worn together take an embedded clip: choose one.');
+  const motion = chosenMotion();
+  const clip = motion.name;
   const thickness = Number($('thickness').value) / 1000;
   say(`Animating ${c.inner} under ${c.outer} along ${clip}${$('refine').checked ? ' with refinement' : ''}…`);
   const t0 = performance.now();
-  const answer = await api('layers/animate', {method: 'POST',
-    headers: {'content-type': 'application/json', accept: 'model/gltf-binary'},
-    body: JSON.stringify({inner: c.inner, outer: c.outer, thickness, motion: {clip}, refine: $('refine').checked})});
+  const request = motionBody({inner: c.inner, outer: c.outer, thickness, refine: $('refine').checked}, motion);
+  const answer = await api('layers/animate', {method: 'POST', body: request.body,
+    headers: {...request.headers, accept: 'model/gltf-binary'}});
   const glb = await answer.arrayBuffer();
   await show(glb, motions.get(clip), c);
   state.layers = {inner: c.inner, outer: c.outer, model: c.model, thickness};
