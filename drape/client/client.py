@@ -300,19 +300,44 @@ def _keyframe_arrays(keyframes: Sequence[KeyframeLike]) -> dict[str, np.ndarray]
     return out
 
 
+def _motion_form(motion: os.PathLike, fields: dict[str, Any], accept: str | None = None) -> dict:
+    """A garment route's httpx arguments for a motion file (a path: BVH or AMASS npz): a multipart form with the
+    file as `motion_file` (the server retargets it onto the template's body, 30 fps) and the rest of the request
+    as JSON text in `request`."""
+    path = Path(motion)
+    return {"files": {"motion_file": (path.name, path.read_bytes())}, "data": {"request": json.dumps(fields)},
+            "headers": {"Accept": accept} if accept else {}}
+
+
+def _keyframes_json(keyframes: Sequence[KeyframeLike]) -> list[dict[str, Any]]:
+    """Keyframes as the JSON request's list (vertex keyframes first, as the npz request numbers them)."""
+    a = _keyframe_arrays(keyframes)
+    return ([{"frame": int(f), "vertices": v.tolist()} for f, v in zip(a.get("vertex_frames", []),
+                                                                         a.get("vertices", []), strict=True)]
+            + [{"frame": int(f), "latent": z.tolist()} for f, z in zip(a.get("latent_frames", []),
+                                                                       a.get("latents", []), strict=True)])
+
+
 def _encode_npz(vertices: np.ndarray, motion: MotionLike, frame: int) -> dict:
+    if isinstance(motion, os.PathLike):
+        return _motion_form(motion, {"vertices": np.asarray(vertices, float).tolist(), "frame": int(frame)}, NPZ)
     return {"content": encode_npz({"vertices": np.asarray(vertices, np.float32), "frame": np.array(int(frame)),
                                    **_motion_arrays(motion)}),
             "headers": {"Content-Type": NPZ, "Accept": NPZ}}
 
 
 def _keyframes_npz(motion: MotionLike, keyframes: Sequence[KeyframeLike], refine: bool, match_keyframes: bool) -> dict:
+    if isinstance(motion, os.PathLike):
+        return _motion_form(motion, {"keyframes": _keyframes_json(keyframes), "refine": bool(refine),
+                                     "match_keyframes": bool(match_keyframes)})
     return {"content": encode_npz({**_motion_arrays(motion), **_keyframe_arrays(keyframes),
                                    "refine": np.array(bool(refine)), "match_keyframes": np.array(bool(match_keyframes))}),
             "headers": {"Content-Type": NPZ}}
 
 
 def _sample_npz(count: int, seed: int, motion: MotionLike, frame: int) -> dict:
+    if isinstance(motion, os.PathLike):
+        return _motion_form(motion, {"count": int(count), "seed": int(seed), "frame": int(frame)}, NPZ)
     return {"content": encode_npz({"count": np.array(int(count)), "seed": np.array(int(seed)),
                                    "frame": np.array(int(frame)), **_motion_arrays(motion)}),
             "headers": {"Content-Type": NPZ, "Accept": NPZ}}
@@ -525,7 +550,8 @@ class Client(_Base):
 
     def encode_keyframe(self, name: str, *, vertices: np.ndarray, motion: MotionLike, frame: int) -> np.ndarray:
         """A keyframe shape -> its latent (Z,) float32: vertices (N, 3) m, world space at `frame` (0-based) of
-        `motion` (a clip name, a poses array, or a mapping with poses, trans, fps)."""
+        `motion` (a clip name, a poses array, a mapping with poses, trans, fps, or the Path of a BVH / AMASS npz
+        file, imported by the service onto the template's body at 30 fps; so in every garment method)."""
         return _latent(self._http.post(_garment_path(name, "encode"), **_encode_npz(vertices, motion, frame)))
 
     @overload

@@ -225,6 +225,27 @@ def test_a_motion_file_upload(http, garment, shape):
                       data={"request": "[1]"}), 422, "request: expected a JSON object")
 
 
+def test_the_client_sends_a_motion_file_path(server_url, garment, shape, tmp_path):
+    """Client.encode_keyframe / animate_keyframes / sample_designs with motion=Path: the file uploaded (multipart),
+    the answers those of the imported poses sent as arrays."""
+    path = tmp_path / "clip.bvh"
+    path.write_bytes(cmu_bvh(60))
+    poses, trans, _ = motion_from_file(path.read_bytes(), "neutral", fps=30.0, up=None, max_frames=200,
+                                       max_decoded_bytes=2**26)
+    arrays = {"poses": poses, "trans": trans, "fps": 30.0}
+    keyframes = [{"frame": 2, "vertices": shape}, {"frame": 10, "latent": np.full(100, 0.1, np.float32)}]
+    with drape.Client(server_url) as client:
+        z = client.encode_keyframe(NAME, vertices=shape, motion=path, frame=3)
+        assert np.abs(z - client.encode_keyframe(NAME, vertices=shape, motion=arrays, frame=3)).max() <= 1e-6
+        frames = client.animate_keyframes(NAME, motion=path, keyframes=keyframes, refine=True)
+        same = client.animate_keyframes(NAME, motion=arrays, keyframes=keyframes, refine=True)
+        assert frames.shape == (len(poses), garment.num_vertices, 3) and np.abs(frames - same).max() <= 1e-5
+        designs = client.sample_designs(NAME, count=2, seed=4, motion=path, frame=5)
+        again = client.sample_designs(NAME, count=2, seed=4, motion=arrays, frame=5)
+        assert np.array_equal(designs.latents, again.latents)
+        assert np.abs(designs.vertices - again.vertices).max() <= 1e-5
+
+
 def test_the_routes_take_a_computing_slot(app, http, motion):
     """With no computing slot free, every POST route answers 503 + Retry-After; the GET routes still answer."""
     admission = app.state.admission
