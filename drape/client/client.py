@@ -103,8 +103,7 @@ def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float
     onto the combination's body, 30 fps) and the rest of the request as JSON text in `request`."""
     fields = {"inner": inner, "outer": outer, "thickness": float(thickness), "refine": bool(refine)}
     if isinstance(motion, os.PathLike):
-        path = Path(motion)
-        return {"files": {"motion_file": (path.name, path.read_bytes())}, "data": {"request": json.dumps(fields)}}
+        return _motion_form(motion, fields)
     if isinstance(motion, bytes):
         raise ValueError("animate_layers takes a clip name, poses or the Path of a motion file, not bytes")
     arrays = _motion_arrays(motion)
@@ -301,12 +300,12 @@ def _keyframe_arrays(keyframes: Sequence[KeyframeLike]) -> dict[str, np.ndarray]
 
 
 def _motion_form(motion: os.PathLike, fields: dict[str, Any], accept: str | None = None) -> dict:
-    """A garment route's httpx arguments for a motion file (a path: BVH or AMASS npz): a multipart form with the
-    file as `motion_file` (the server retargets it onto the template's body, 30 fps) and the rest of the request
-    as JSON text in `request`."""
+    """A garment or layers route's httpx arguments for a motion file (a path: BVH or AMASS npz): a multipart form
+    with the file as `motion_file` (the server retargets it onto the template's body, 30 fps) and the rest of the
+    request as JSON text in `request`; `headers` only when `accept` is given (callers may set their own)."""
     path = Path(motion)
-    return {"files": {"motion_file": (path.name, path.read_bytes())}, "data": {"request": json.dumps(fields)},
-            "headers": {"Accept": accept} if accept else {}}
+    form = {"files": {"motion_file": (path.name, path.read_bytes())}, "data": {"request": json.dumps(fields)}}
+    return {**form, "headers": {"Accept": accept}} if accept else form
 
 
 def _keyframes_json(keyframes: Sequence[KeyframeLike]) -> list[dict[str, Any]]:

@@ -32,6 +32,20 @@ const [base, shot, bvh, outPath] = process.argv.slice(2);
 const origin = new URL(base).origin;
 const out = {problems: [], external: [], frames: []};
 const browser = await launch();
+// Play, wait until `flag` of the viewer's state is set and frames render, then the slider at 4 moments, the
+// state, the status and a screenshot (suffix `name`).
+async function playWatched(page, flag, name) {
+  await page.click('#play');
+  await page.waitForFunction((f) => (window.drapeViewer[f] && window.drapeViewer.playing
+                                     && window.drapeViewer.framesRendered >= 3) || window.drapeViewer.error,
+                             flag, {timeout: 180000});
+  const frames = [];
+  for (let i = 0; i < 4; i++) { frames.push(Number(await page.inputValue('#frame'))); await page.waitForTimeout(400); }
+  const seen = {state: await page.evaluate(() => ({...window.drapeViewer})), frames,
+                status: await page.textContent('#status')};
+  await page.screenshot({path: shot.replace(/\.png$/, `_${name}.png`)});
+  return seen;
+}
 try {
   const page = await browser.newPage({viewport: {width: 1000, height: 700}});
   page.on('console', (m) => { if (m.type() === 'error') out.problems.push('console: ' + m.text()); });
@@ -72,31 +86,15 @@ try {
   await page.selectOption('#outfit', out.layerOptions[0]);
   out.thickness = {shown: await page.isVisible('#thickness'), min: await page.getAttribute('#thickness', 'min'),
                    max: await page.getAttribute('#thickness', 'max')};
-  await page.click('#play');
-  await page.waitForFunction(() => (window.drapeViewer.layers && window.drapeViewer.playing
-                                    && window.drapeViewer.framesRendered >= 3) || window.drapeViewer.error,
-                             null, {timeout: 180000});
-  const seen = [];
-  for (let i = 0; i < 4; i++) { seen.push(Number(await page.inputValue('#frame'))); await page.waitForTimeout(400); }
-  out.layers = {state: await page.evaluate(() => ({...window.drapeViewer})), frames: seen,
-                status: await page.textContent('#status')};
-  await page.screenshot({path: shot.replace(/\.png$/, '_layers.png')});
+  out.layers = await playWatched(page, 'layers', 'layers');
   // a garment template from one keyframe: a sampled design of the intrinsic space (GET /v1/garments)
   out.templateOptions = await page.$$eval('#outfit optgroup option', (os) => os.map((o) => o.value)
     .filter((v) => v.startsWith('intrinsic:')));
   await page.selectOption('#outfit', out.templateOptions[0]);
   out.design = {shown: await page.isVisible('#design'), bodyDisabled: await page.isDisabled('#body')};
   await page.fill('#design', '3');
-  await page.click('#play');
-  await page.waitForFunction(() => (window.drapeViewer.keyframed && window.drapeViewer.playing
-                                    && window.drapeViewer.framesRendered >= 3) || window.drapeViewer.error,
-                             null, {timeout: 180000});
-  const played = [];
-  for (let i = 0; i < 4; i++) { played.push(Number(await page.inputValue('#frame'))); await page.waitForTimeout(400); }
-  out.keyframed = {state: await page.evaluate(() => ({...window.drapeViewer})), frames: played,
-                   status: await page.textContent('#status')};
-  await page.screenshot({path: shot.replace(/\.png$/, '_intrinsic.png')});
-  // an uploaded mocap file (the routes' multipart motion_file): the keyframed garment, then a generated outfit
+  out.keyframed = await playWatched(page, 'keyframed', 'intrinsic');
+  // an uploaded mocap file (the routes' multipart motion_file): the keyframed garment, the layers, a generated outfit
   out.uploads = [];
   await page.selectOption('#clip', 'file');
   out.fileShown = await page.isVisible('#motionFile');
