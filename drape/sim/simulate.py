@@ -49,6 +49,8 @@ from drape.sim.collider import Hull, fit_hulls, garment_bones
 from drape.sim.params import CLOTH_RADIUS, SimParams
 from drape.sim.quality import sequence_stats
 
+PIN_MASS_SCALE = 1e4  # a pinned vertex's mass, times its share of the cloth's (see simulate_cloths)
+
 
 @dataclass
 class SimResult:
@@ -145,6 +147,26 @@ def scene_xml(cloths: list[tuple[Cloth, np.ndarray]], hulls: list[Hull], params:
 </mujoco>"""
 
 
+def compile_scene(cloths: list[Cloth], starts: list[np.ndarray], pinned: list[np.ndarray], hulls: list[Hull],
+                  params: SimParams, fps: float):
+    """The scene's mujoco.MjModel: `scene_xml` of the cloths (each at its start positions (N, 3) m) and hulls, each
+    cloth's pinned vertices (indices (P,)) PIN_MASS_SCALE times heavier.
+
+    Kinematic pins: positions and velocities are written every substep, but within a step the solver still moves
+    them under the garment's weight; a heavy vertex barely moves (a light one sags by ~ tension / mass * dt^2,
+    centimetres, stretching the first row of edges). The masses are set in the spec before it compiles, so the
+    compiler derives every constant from them. (Setting model.body_mass after compiling needs mj_setConst, which
+    recomputes the flexes' bending coefficients as well: ~35 s for a 3k-vertex cloth, as long as the compile
+    itself, for the same model to the bit; bench.sim_setup.)"""
+    import mujoco
+
+    spec = mujoco.MjSpec.from_string(scene_xml(list(zip(cloths, starts, strict=True)), hulls, params, fps))
+    for c, index in zip(cloths, pinned, strict=True):
+        for i in index:
+            spec.body(f"{c.name}_{i}").mass *= PIN_MASS_SCALE
+    return spec.compile()
+
+
 def _bone_frames(body: Body, poses: np.ndarray, trans: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Skinning transforms (T, 24, 4, 4) plus their translations (T, 24, 3) and quaternions (T, 24, 4)."""
     tr, _ = forward_kinematics(poses, body.joints, body.parents, trans)
@@ -217,8 +239,9 @@ def simulate_cloths(
     t_start = time.perf_counter()
     # the cloth starts in rest pose under the body's first horizontal position (the settle frames' translation)
     starts = [V0 + all_t[0] for V0 in rest]
-    model = mujoco.MjModel.from_xml_string(scene_xml(list(zip(cloths, starts, strict=True)), hulls, params,
-                                                     motion.fps))
+    pinned_of = [top_boundary(V0, c.faces) if pin_top else np.zeros(0, dtype=np.int64)
+                 for c, V0 in zip(cloths, rest, strict=True)]
+    model = compile_scene(cloths, starts, pinned_of, hulls, params, motion.fps)
     data = mujoco.MjData(model)
     bones = sorted({h.bone for h in hulls})
     bone_body = np.array([model.body(f"bone{k}").id for k in bones])
@@ -231,31 +254,23 @@ def simulate_cloths(
 
     dof3_all, drag_all = [], []
     pin_q_all, pin_d_all, pin_rest_all, pin_xyz_all = [], [], [], []
-    heavy = []
-    for c, V0, start in zip(cloths, rest, starts, strict=True):
+    for c, V0, start, pinned in zip(cloths, rest, starts, pinned_of, strict=True):
         vbody = np.array([model.body(f"{c.name}_{i}").id for i in range(len(V0))])
         dof = model.jnt_dofadr[model.body_jntadr[vbody]]  # 3 slide DOFs (x, y, z) per vertex, consecutive
         qadr = model.jnt_qposadr[model.body_jntadr[vbody]]
         dof3_all.append((dof[:, None] + np.arange(3)).ravel())
         drag_all.append(np.repeat(params.air_drag * vertex_areas(V0, c.faces), 3))
-        pinned = top_boundary(V0, c.faces) if pin_top else np.zeros(0, dtype=np.int64)
         if len(pinned):
             pin_w = nearest_vertex_weights(V0[pinned], body.vertices, body.weights)
             pin_xyz_all.append(linear_blend_skinning(V0[pinned], pin_w, tr).astype(np.float64))  # (S + T, P, 3)
             pin_q_all.append((qadr[pinned][:, None] + np.arange(3)).ravel())
             pin_d_all.append((dof[pinned][:, None] + np.arange(3)).ravel())
             pin_rest_all.append(start[pinned].ravel())
-            heavy.append(vbody[pinned])
     dof3, drag = np.concatenate(dof3_all), np.concatenate(drag_all)
     pinning = bool(pin_q_all)
     if pinning:
         pin_xyz = np.concatenate(pin_xyz_all, axis=1)
         pin_q, pin_d, pin_rest = np.concatenate(pin_q_all), np.concatenate(pin_d_all), np.concatenate(pin_rest_all)
-        # kinematic pins: positions and velocities are written every substep, but within a step the
-        # solver still moves them under the garment's weight; a heavy vertex barely moves (a light one
-        # sags by ~ tension / mass * dt^2, centimetres, stretching the first row of edges)
-        model.body_mass[np.concatenate(heavy)] *= 1e4
-        mujoco.mj_setConst(model, data)
 
     def place(f: int, a: float) -> None:
         """Move bones (and pinned vertices) to fraction a of the way from frame f - 1 to f."""

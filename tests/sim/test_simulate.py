@@ -11,9 +11,17 @@ from drape.assets.outfits import generate_outfit
 from drape.geometry.lbs import linear_blend_skinning
 from drape.geometry.queries import nearest_vertex_weights
 from drape.geometry.skeleton import forward_kinematics
+from drape.sim.collider import fit_hulls, garment_bones
 from drape.sim.params import SimParams
 from drape.sim.quality import QualityGate
-from drape.sim.simulate import simulate, top_boundary
+from drape.sim.simulate import (
+    PIN_MASS_SCALE,
+    Cloth,
+    compile_scene,
+    scene_xml,
+    simulate,
+    top_boundary,
+)
 
 FRAMES = 12
 
@@ -103,6 +111,30 @@ def test_simulation_is_deterministic():
     a = simulate(*args, frames=3, settle_blend=2, settle_hold=1)
     b = simulate(*args, frames=3, settle_blend=2, settle_hold=1)
     assert np.array_equal(a.vertices, b.vertices)
+
+
+def test_heavy_pins_compiled_equal_the_model_made_heavy_after_compiling():
+    """compile_scene sets the pinned vertices' masses in the spec; the model (every array) equals the one the
+    simulator made before: compiled light, body_mass scaled, mj_setConst."""
+    import mujoco
+
+    o, body = _skirt(), load_body("neutral")
+    v = o.vertices.astype(np.float64)
+    hulls = fit_hulls(body, garment_bones(body, o.vertices, reach=0.2))
+    pinned = top_boundary(v, o.faces)
+    assert len(pinned) > 10
+    new = compile_scene([Cloth("cloth", v, o.faces)], [v], [pinned], hulls, SimParams(), 30.0)
+    old = mujoco.MjModel.from_xml_string(scene_xml([(Cloth("cloth", v, o.faces), v)], hulls, SimParams(), 30.0))
+    old.body_mass[[old.body(f"cloth_{i}").id for i in pinned]] *= PIN_MASS_SCALE
+    mujoco.mj_setConst(old, mujoco.MjData(old))
+    arrays = [k for k in dir(old) if not k.startswith("_") and isinstance(getattr(old, k), np.ndarray)
+              and getattr(old, k).dtype != object]
+    assert {"body_mass", "body_invweight0", "dof_invweight0", "flex_bending"} <= set(arrays)
+    differ = [k for k in arrays if not np.array_equal(getattr(old, k), getattr(new, k), equal_nan=True)]
+    assert differ == []
+    mass = np.array([new.body_mass[new.body(f"cloth_{i}").id] for i in range(len(v))])
+    free = np.setdiff1d(np.arange(len(v)), pinned)
+    assert mass[pinned].min() > 1000 * np.median(mass[free])
 
 
 def test_too_many_frames_is_an_error():
