@@ -168,6 +168,12 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     window = config["model"]["window"]
     frames, faces, manifest = load_frames(training_datasets(config), window, ("train",))
     train_f, val_f = split_validation(frames, config["val_params"], config.get("val_motions", ()))
+    train_sets = len(np.unique(train_f.params))
+    per_batch = config["invariant"]["sets_per_batch"]
+    if not 2 <= per_batch <= train_sets:  # checked before the shape phase, not after it
+        raise ValueError(f"invariant.sets_per_batch is {per_batch} but must be in [2, {train_sets}]: the loss "
+                         f"divides by the variance between a batch's sets, and the training split holds "
+                         f"{train_sets} parameter set(s)")
     log(f"{len(train_f)} training frames ({len(np.unique(train_f.params))} parameter sets, "
         f"{len(np.unique(train_f.motions))} motions), {len(val_f)} validation frames "
         f"({len(np.unique(val_f.params))} sets, {len(np.unique(val_f.motions))} motions)")
@@ -194,6 +200,8 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
         v = verts[idx]
         pred = model.shape.decode(model.shape.encode(v))
         loss = ((pred - v) ** 2).sum(-1).mean() + sc["laplacian"] * uniform_laplacian_loss(pred, v, edges)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"shape step {step}: the loss is not finite; nothing exported")
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -236,6 +244,8 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             g = torch.Generator().manual_seed(config["seed"] * 1_000_003 + step)
             w = w + noise * torch.randn(w.shape, generator=g, dtype=w.dtype)
         loss, parts = invariant_loss(model, verts[pick], w, len(chosen), ic["lambda"], ic.get("set_lambda", 0.0))
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"invariant step {step}: the loss is not finite ({parts}); nothing exported")
         opt.zero_grad()
         loss.backward()
         opt.step()

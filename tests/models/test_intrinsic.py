@@ -144,6 +144,17 @@ def test_the_invariant_phase_regularisers_are_seeded_and_change_the_run(syntheti
     assert plain["phases"]["shape"] == a["phases"]["shape"]  # the shape phase is untouched
 
 
+def test_a_batch_of_one_set_or_more_sets_than_trained_on_fails_before_any_step(synthetic_dataset, tmp_path):
+    from drape.training.intrinsic import train
+
+    config = _tiny_config(synthetic_dataset, width=32, steps=(50, 50), batch=32, every=50)
+    for sets in (1, 99):  # one set has no between-set variance (the loss's denominator): NaN, not a model
+        config["invariant"]["sets_per_batch"] = sets
+        with pytest.raises(ValueError, match=f"sets_per_batch is {sets} but must be in \\[2, "):
+            train(config, tmp_path / "ckpt", log=lambda *_: None)
+    assert not (tmp_path / "ckpt").exists() or not any((tmp_path / "ckpt").iterdir())
+
+
 def test_validation_holds_out_the_last_parameter_sets_and_the_named_motions():
     from drape.training.intrinsic import split_validation
     from drape.training.intrinsic_data import Frames
