@@ -48,6 +48,9 @@ _BONE_CHILD = {
 }
 _AXES = {"X": 0, "Y": 1, "Z": 2}
 _CHANNEL = re.compile(r"^([XYZ])(rotation|position)$", re.IGNORECASE)
+# a count (Frames, CHANNELS): ASCII digits only (str.isdigit takes '²', which int() refuses) and at most 18 of
+# them (int() refuses more than 4300; every limit refuses far fewer)
+_WHOLE = re.compile(r"[0-9]{1,18}")
 
 
 class BvhError(ValueError):
@@ -173,7 +176,7 @@ def read_header(text: str) -> BvhHeader:
             if not stack or stack[-1] < 0:
                 raise BvhError("CHANNELS outside a joint")
             n_tok = need(2)[1]
-            if not n_tok.isdigit() or int(n_tok) > 6:
+            if not _WHOLE.fullmatch(n_tok) or int(n_tok) > 6:
                 raise BvhError(f"expected 0 to 6 CHANNELS, got {n_tok[:20]!r}")
             n = int(n_tok)
             chans = tuple(need(2 + n)[2:])
@@ -199,7 +202,7 @@ def read_header(text: str) -> BvhHeader:
     head = re.match(r"\s*MOTION\s+Frames:\s*(\S+)\s+Frame\s+Time:\s*(\S+)", text[m.start():], re.IGNORECASE)
     if head is None:
         raise BvhError("expected 'Frames: N' and 'Frame Time: t' after MOTION")
-    if not head.group(1).isdigit() or int(head.group(1)) < 1:
+    if not _WHOLE.fullmatch(head.group(1)) or int(head.group(1)) < 1:
         raise BvhError(f"expected a positive whole number of frames, got {head.group(1)[:20]!r}")
     frame_time = _number(head.group(2), "Frame Time")
     if not 1e-3 <= frame_time <= 10.0:

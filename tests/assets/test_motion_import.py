@@ -270,6 +270,11 @@ BAD_BVH = [
     (_bvh_text().replace("{", "", 3).encode(), "expected '{'"),
     (b"solid cube\nfacet normal 0 0 1\n", "expected a BVH file"),
     (b"", "expected a BVH file"),
+    # counts int() refuses: a latin-1 superscript digit ('\xb2' is '2' to str.isdigit) and 5000 digits
+    (cmu_bvh(6).replace(b"Frames: 6", b"Frames: \xb2"), "expected a positive whole number of frames"),
+    (cmu_bvh(6).replace(b"Frames: 6", b"Frames: " + b"9" * 5000), "expected a positive whole number of frames"),
+    (cmu_bvh(6).replace(b"CHANNELS 3", b"CHANNELS \xb2", 1), "expected 0 to 6 CHANNELS"),
+    (cmu_bvh(6).replace(b"CHANNELS 3", b"CHANNELS " + b"9" * 5000, 1), "expected 0 to 6 CHANNELS"),
 ]
 
 
