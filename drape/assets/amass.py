@@ -65,7 +65,7 @@ def to_pose24(p: np.ndarray, key: str = "poses") -> tuple[np.ndarray, str]:
     if p.ndim == 4 and shape[-2:] == (3, 3):
         raise PoseArrayError(f"'{key}' {shape} looks like rotation matrices; expected {EXPECTED}")
     if p.ndim == 2 and shape[1] % 3 == 0:
-        p = p.reshape(len(p), -1, 3)
+        p = p.reshape(len(p), shape[1] // 3, 3)  # not -1: numpy cannot infer it for zero frames
     if p.ndim != 3 or p.shape[2] != 3 or p.shape[1] not in LAYOUTS or len(p) < 1:
         raise PoseArrayError(f"'{key}' has shape {shape}; expected {EXPECTED}")
     name, keep = LAYOUTS[p.shape[1]]
