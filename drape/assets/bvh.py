@@ -27,7 +27,7 @@ import numpy as np
 
 from drape.assets.amass import Z_TO_Y
 from drape.assets.body import Body
-from drape.assets.motion import Motion
+from drape.assets.motion import MAX_TRANSLATION_M, Motion
 from drape.geometry.rotations import matrix_to_axis_angle, rotation_between
 from drape.geometry.skeleton import CMU_TO_SMPL, JOINT_INDEX, JOINT_NAMES, PARENTS
 
@@ -466,6 +466,8 @@ def retarget(clip: BvhClip, body: Body, name: str = "", source: str = "BVH", up:
     trans = root * scale - ours[0]  # pelvis world position = rest pelvis + trans
     if not (np.isfinite(poses).all() and np.isfinite(trans).all()):
         raise BvhError(f"{pre}retargeting gave NaN or inf")
+    if np.abs(trans).max() > MAX_TRANSLATION_M:
+        raise BvhError(f"{pre}the root (Hips) moves beyond {MAX_TRANSLATION_M:g} m (in metres, by the leg length)")
     return Motion(poses, trans, clip.fps, name)
 
 

@@ -23,6 +23,10 @@ from drape.geometry.rotations import (
 from drape.geometry.skeleton import NUM_JOINTS, as_pose_array
 
 MOTIONS_DIR = Path(__file__).parent / "motions"
+# bounds on a motion's values, for files and requests alike: far beyond any real motion, far below where posing
+# in float32 overflows (a value of 1e20 squares past float32's range; 1e300 past float64's) to NaN frames
+MAX_POSE_RAD = 1e4  # |axis-angle value|, radians
+MAX_TRANSLATION_M = 1e4  # |root translation|, metres (10 km)
 
 
 @dataclass(frozen=True)
@@ -342,6 +346,10 @@ def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floo
         clip = amass.read_pose_arrays(z)
     except amass.PoseArrayError as exc:
         raise MotionFileError(str(exc)) from exc
+    if np.abs(clip.poses).max() > MAX_POSE_RAD:
+        raise MotionFileError(f"the poses hold axis-angle values beyond {MAX_POSE_RAD:g} radians")
+    if np.abs(clip.trans).max() > MAX_TRANSLATION_M:
+        raise MotionFileError(f"'trans' moves the root beyond {MAX_TRANSLATION_M:g} m")
     T = len(clip.poses)
     src_fps = clip.fps if clip.fps is not None else (fps or 30.0)
     _check_frames(T, max_source_frames, "in the file")

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from drape.assets.body import is_registered, list_bodies, load_body
-from drape.assets.motion import list_clips, load_clip
+from drape.assets.motion import MAX_POSE_RAD, MAX_TRANSLATION_M, list_clips, load_clip
 from drape.geometry.body_scale import body_height
 from drape.geometry.fitting import UNITS, FitError, FitResult, fit_garment, infer_units
 from drape.geometry.placement import FAR_M, body_distance, placement
@@ -20,6 +20,8 @@ from drape.runtime.sparse_rig import INFLUENCES
 from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
 from drape.service.settings import Settings
+
+MAX_WORLD_M = MAX_TRANSLATION_M + 100.0  # |a garment stream's coordinate|: the motion's translation bound plus reach
 
 
 def _array(value: Any, field: str, dtype: type, ndim: int) -> np.ndarray:
@@ -124,8 +126,10 @@ def check_motion(motion: dict, settings: Settings) -> tuple[np.ndarray, np.ndarr
         raise LimitExceeded(f"{len(p)} frames exceed the limit of {settings.max_frames}", "motion.poses")
     if not (np.isfinite(p).all() and np.isfinite(tr).all()):
         raise InvalidInput("contains NaN or infinite values", "motion")
-    if np.abs(tr).max(initial=0.0) > 1e4:
+    if np.abs(tr).max(initial=0.0) > MAX_TRANSLATION_M:
         raise InvalidInput("translation beyond 10 km", "motion.translation")
+    if np.abs(p).max(initial=0.0) > MAX_POSE_RAD:
+        raise InvalidInput(f"axis-angle values beyond {MAX_POSE_RAD:g} radians", "motion.poses")
     if not (0 < fps <= 1000):
         raise InvalidInput(f"must be in (0, 1000], got {fps}", "motion.fps")
     return p, tr, fps
@@ -315,6 +319,8 @@ def check_inner(inner: dict, frames: int, settings: Settings) -> InnerStream:
                            "inner.vertices")
     if not np.isfinite(v).all():
         raise InvalidInput("contains NaN or infinite values", "inner.vertices")
+    if np.abs(v).max() > MAX_WORLD_M:
+        raise InvalidInput(f"coordinates beyond {MAX_WORLD_M:g} m: the stream must be in metres", "inner.vertices")
     _, f = check_mesh(v[0], inner.get("faces"), settings, field="inner")
     t = inner.get("thickness")
     if isinstance(t, bool) or not isinstance(t, int | float) or not 0 < t <= 0.05:
@@ -334,6 +340,8 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
     _, f = check_mesh(v[0], faces, settings)
     if not np.isfinite(v).all():
         raise InvalidInput("contains NaN or infinite values", "vertices")
+    if np.abs(v).max() > MAX_WORLD_M:  # frame 0 is within 100 m (check_mesh); later frames may travel
+        raise InvalidInput(f"coordinates beyond {MAX_WORLD_M:g} m: the stream must be in metres", "vertices")
     poses, trans, fps = check_motion(motion, settings)
     if len(poses) != len(v):
         raise InvalidInput(f"the motion has {len(poses)} frames, the stream {len(v)}", "motion")

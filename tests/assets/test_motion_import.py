@@ -245,6 +245,9 @@ BAD_NPZ = [
     ({"poses": np.zeros((5, 72)), "mocap_framerate": np.array(0.0)}, "frame rate"),
     ({"poses": np.zeros((0, 72))}, "'poses' has shape (0, 72)"),  # zero frames (numpy cannot reshape (0, -1, 3))
     ({"root_orient": np.zeros((0, 3)), "pose_body": np.zeros((0, 63))}, "'poses' has shape (0, 66)"),
+    # finite values that posing overflows to NaN (the floor step raised a bare ValueError)
+    ({"poses": np.full((5, 72), 1e200)}, "axis-angle values beyond 10000 radians"),
+    ({"poses": np.zeros((5, 72)), "trans": np.full((5, 3), 1e200)}, "'trans' moves the root beyond 10000 m"),
 ]
 
 
@@ -259,6 +262,12 @@ def test_bad_npz_named(arrays, message):
 
 def _bvh_text(**kw) -> str:
     return cmu_bvh(6, **kw).decode()
+
+
+def _root_x_at_last_frame(value: str) -> bytes:
+    """The made BVH with the last frame's first number (Hips Xposition) replaced by `value`."""
+    head, last = _bvh_text().rstrip("\n").rsplit("\n", 1)
+    return f"{head}\n{value} {last.split(' ', 1)[1]}\n".encode()
 
 
 BAD_BVH = [
@@ -277,6 +286,8 @@ BAD_BVH = [
     (cmu_bvh(6).replace(b"Frames: 6", b"Frames: " + b"9" * 5000), "expected a positive whole number of frames"),
     (cmu_bvh(6).replace(b"CHANNELS 3", b"CHANNELS \xb2", 1), "expected 0 to 6 CHANNELS"),
     (cmu_bvh(6).replace(b"CHANNELS 3", b"CHANNELS " + b"9" * 5000, 1), "expected 0 to 6 CHANNELS"),
+    # a root position float32 cannot hold (Motion's float32 cast raised a bare ValueError)
+    (_root_x_at_last_frame("1e300"), "the root (Hips) moves beyond 10000 m"),
 ]
 
 

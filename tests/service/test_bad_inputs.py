@@ -32,6 +32,20 @@ def test_nan_and_inf(http):
     problem(r, 422, "motion")
 
 
+def test_finite_values_that_overflow_when_posed(http):
+    """Poses, or a refined stream's later frames, finite but far out of range: a 422 before the work (they posed
+    to NaN: an animate answer of NaN frames with a 200, a refine answer cut after its 200 by the body's KD-tree)."""
+    poses = [[0.0] * 72, [0.0] * 5 + [1e200] + [0.0] * 66]
+    problem(animate(http, motion={"poses": poses}), 422, "motion.poses", "beyond 10000 radians")
+    far = [[x * 1e200 for x in v] for v in V]
+    body = {"vertices": [V, far], "faces": F, "motion": {"poses": [[0.0] * 72] * 2}}
+    for accept in ("application/json", "application/x-npz"):
+        problem(http.post("/v1/refine", json=body, headers={"accept": accept}), 422, "vertices", "beyond 10100 m")
+    inner = {"vertices": [V, far], "faces": F, "thickness": 0.004}
+    problem(http.post("/v1/refine", json={**body, "vertices": [V, V], "inner": inner}), 422, "inner.vertices",
+            "beyond 10100 m")
+
+
 def test_wrong_shapes(http):
     problem(http.post("/v1/outfits/rig", json={"vertices": [[0, 1], [1, 0], [0, 0]], "faces": F}), 422, "vertices")
     problem(animate(http, motion={"poses": [[0.0] * 70]}), 422, "motion.poses")

@@ -108,6 +108,7 @@ BAD = [
     (_npz(poses=np.zeros((10, 24, 4))), 422, "quaternions"),
     (_npz(poses=np.zeros((10, 50))), 422, "expected axis-angle poses"),
     (b"PK\x03\x04broken zip", 422, "not a readable npz"),
+    (_npz(poses=np.full((10, 72), 1e200)), 422, "beyond 10000 radians"),  # posed to NaN: was a 500
     (cmu_bvh(1601), 413, "1601 frames in the file exceed the limit of 1600"),  # 8 x max_frames
     (cmu_bvh(1000), 413, "250 frames at 30 fps exceed the limit of 200"),
     (_npz(poses=np.zeros((201, 72))), 413, "201 frames at 30 fps exceed the limit of 200"),
