@@ -202,7 +202,7 @@ def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings)
         if pose is not None and pose not in ("t", "a"):
             try:
                 pose = json.loads(pose)
-            except ValueError:
+            except (ValueError, RecursionError):  # RecursionError: nested deeper than json.loads can take
                 raise InvalidInput(f"expected 't', 'a' or a JSON (24, 3) array, got {quoted(pose, 40)}",
                                    "pose") from None
         return {"vertices": v, "faces": f, "body": _text(parts, "body"), "units": _text(parts, "units"),

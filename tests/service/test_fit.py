@@ -94,6 +94,15 @@ def test_bad_fit_fields_are_named(http, foreign, field, value, words):
     problem(r, 422, *words)
 
 
+def test_a_form_pose_that_is_not_a_json_array_is_named(http, foreign):
+    """The form's pose is 't', 'a' or JSON text; JSON nested deeper than json.loads takes was a 500."""
+    v, f = foreign
+    obj = "".join(f"v {a} {b} {c}\n" for a, b, c in v) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f)
+    for pose in ("[[0, 0", "[" * 100_000 + "]" * 100_000):
+        r = http.post("/v1/outfits/fit", files={"mesh": ("shirt.obj", obj.encode())}, data={"pose": pose})
+        problem(r, 422, "pose", "expected 't', 'a' or a JSON (24, 3) array")
+
+
 def test_a_mesh_taller_than_the_body_is_a_422(http):
     v = [[0, 0, 0], [0.1, 0, 0], [0, 2.5, 0], [0.1, 2.5, 0.05]]
     problem(http.post("/v1/outfits/fit", json={"vertices": v, "faces": [[0, 1, 2], [1, 3, 2]], "units": "m",
