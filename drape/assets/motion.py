@@ -342,6 +342,10 @@ def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floo
         raise MotionTooLong(str(exc)) from exc
     except ValueError as exc:
         raise MotionFileError(f"not a readable npz ({exc})") from exc
+    # the frames from the pose array's length first: read_pose_arrays widens it to float64 and copies it
+    rows = next((z[k].shape[0] for k in ("poses", "root_orient") if k in z and z[k].ndim), None)
+    if rows is not None:
+        _check_frames(rows, max_source_frames, "in the file")
     try:
         clip = amass.read_pose_arrays(z)
     except amass.PoseArrayError as exc:

@@ -42,6 +42,7 @@ def encode_npz(arrays: dict[str, np.ndarray]) -> bytes:
 MAX_NPZ_MEMBERS = 1024
 MAX_NPZ_DIRECTORY_BYTES = 2**20  # the zip central directory (zipfile builds an object per entry)
 DEFLATE_MAX_RATIO = 1032  # deflate cannot expand beyond this (258-byte matches in ~2 bits)
+MIN_COUNTED_ITEMSIZE = 4  # decode_npz's max_bytes counts every number as at least this many bytes
 _READ_CHUNK = 2**20
 
 
@@ -55,7 +56,10 @@ def decode_npz(data: bytes, names: Iterable[str] | None = None, *,
 
     names: read only these members (those present; the others are never opened, so never
     inflated); None reads all. max_bytes: refuse (NpzTooLarge, a ValueError) once the arrays read
-    declare more bytes in total; None: no limit. Before a member's data is read its .npy header
+    declare more bytes in total, each element counted as at least MIN_COUNTED_ITEMSIZE bytes (readers
+    widen numbers to float64 / int64: an int8 array would grow 8-fold past the limit, one of a
+    zero-size dtype from nothing; counted so, no array grows more than 2-fold, as float32 does);
+    None: no limit. Before a member's data is read its .npy header
     is: object and void dtypes are refused (no pickle is ever loaded), and the bytes it declares
     (shape x itemsize) must equal the zip entry's declared size less the header. zipfile never
     inflates past that declared size (and checks the CRC at its end), and the declared size must
@@ -85,10 +89,12 @@ def decode_npz(data: bytes, names: Iterable[str] | None = None, *,
                 with zf.open(info) as f:
                     shape, fortran, dtype, header_bytes = _npy_header(f, key)
                     nbytes = math.prod(shape) * dtype.itemsize
-                    total += nbytes
+                    counted = math.prod(shape) * max(dtype.itemsize, MIN_COUNTED_ITEMSIZE)
+                    total += counted
                     if max_bytes is not None and total > max_bytes:
+                        as_ = f", counted as {counted}" if counted != nbytes else ""
                         raise NpzTooLarge(f"member {key!r} declares {shape} {dtype} ({nbytes} "
-                                          f"bytes): the arrays exceed the limit of {max_bytes} "
+                                          f"bytes{as_}): the arrays exceed the limit of {max_bytes} "
                                           "bytes")
                     if info.file_size != header_bytes + nbytes:
                         raise ValueError(f"member {key!r}: its header declares {nbytes} bytes "

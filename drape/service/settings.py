@@ -26,7 +26,7 @@ class Settings(BaseSettings):
     max_posed_values: int = 20_000_000  # frames x vertices in one npz answer (the frame stream has no such cap)
     max_json_values: int = 5_000_000  # numbers in one JSON answer; larger ones go as npz under Accept: */*
     max_body_bytes: int = 64 * 2**20  # request body, multipart uploads included
-    max_decoded_bytes: int = 256 * 2**20  # the arrays read from one npz body (as declared in its members)
+    max_decoded_bytes: int = 256 * 2**20  # the arrays read from one npz body (as declared, >= 4 bytes a number)
     body_timeout_s: float = 30.0  # the whole request body must arrive within this
     header_timeout_s: float = 10.0  # a new connection must send its request line and headers within this
     # admission control: heavy requests (rig, animate, refine) computing at once, and waiting for a turn

@@ -306,6 +306,23 @@ def test_limits_before_the_work():
     assert import_motion(cmu_bvh(121), BODY, fps=30.0, max_frames=50).motion.num_frames == 31
 
 
+def test_npz_frames_are_bounded_before_the_poses_are_widened():
+    """An npz's frames are counted from its pose array's length before read_pose_arrays copies it to float64
+    (twice: the cast and the (T, 24, 3) layout), so a long file costs its decoded bytes, not three times them."""
+    import tracemalloc
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, poses=np.zeros((100_000, 72), np.float32))  # 28.8 MB decoded; 115 MB as float64 copies
+    tracemalloc.start()
+    try:
+        with pytest.raises(MotionTooLong, match="100000 frames in the file exceed the limit of 800"):
+            import_motion(buf.getvalue(), BODY, max_source_frames=800)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 40 * 2**20, f"peak {peak / 2**20:.0f} MiB"
+
+
 def test_cli_refuses_with_the_expectation_and_a_nonzero_exit(tmp_path, capsys):
     from drape.cli import main
 

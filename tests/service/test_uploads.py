@@ -523,6 +523,21 @@ def test_npz_header_declaring_1e10_floats_is_refused_before_reading():
         decode_npz(data)  # no limit: the header disagrees with the archive's declared size
 
 
+def test_npz_narrow_numbers_count_as_four_bytes_against_the_limit():
+    """The readers widen numbers to float64 / int64: an int8 member within max_bytes by its own bytes grew 8-fold
+    past it (an 88 kB upload of int8 vertices took 770 MiB before the vertex limit's 413). Every element counts as
+    at least 4 bytes, refused before it is inflated; float32 at the limit reads as before."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, vertices=np.zeros((MB, 3), np.int8))  # 3 MiB of int8, 12 MiB counted
+    with frugal(max_bytes=MB), pytest.raises(NpzTooLarge, match=r"'vertices'.*3145728 bytes, counted as 12582912"):
+        decode_npz(buf.getvalue(), max_bytes=4 * MB)
+    zero_size = zip_of({"body.npy": npy_bytes((10**9,), "<U0")})  # no bytes at all, 4 GB once allocated
+    with frugal(max_bytes=MB), pytest.raises(NpzTooLarge, match="'body'"):
+        decode_npz(zero_size, max_bytes=4 * MB)
+    floats = encode_npz({"vertices": np.zeros((MB // 3, 3), np.float32)})
+    assert decode_npz(floats, max_bytes=4 * MB)["vertices"].shape == (MB // 3, 3)
+
+
 def test_npz_lying_uncompressed_size():
     """The zip entry says 4128 bytes (header + 1000 floats); its data inflates to 8 MiB."""
     raw = npy_bytes((1000,)) + bytes(8 * MB)
