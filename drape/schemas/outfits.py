@@ -129,14 +129,14 @@ class MotionInput(BaseModel):
     clip: str | None = Field(None, description="name of an embedded clip (GET /v1/motions)")
     poses: list[list[float]] | list[list[Vec3]] | None = None
     translation: list[Vec3] | None = None
-    fps: float = Field(30.0, gt=0, le=1000)
+    fps: float = Field(30.0, gt=0, le=1000, allow_inf_nan=False)
 
 
 class RefineOptions(BaseModel):
     """Collision refinement: push vertices out of the body by eps (m), keeping the local shape."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
-    eps: float = Field(0.003, gt=0, le=0.05, description="distance kept from the body surface, metres")
+    eps: float = Field(0.003, gt=0, le=0.05, allow_inf_nan=False, description="distance kept from the body surface, metres")
     max_iterations: int = Field(3, ge=1, le=20, description="fast-path iterations before the progressive pass")
     relief_iterations: int = Field(10, ge=0, le=50, description="rounds of the stretch relief pass after the "
                                    "solve, which slides stretched cloth along the body (0: none, 15-20% less "
@@ -166,7 +166,7 @@ class InnerLayer(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
     vertices: list[list[Vec3]] = Field(min_length=1)
     faces: list[Tri] = Field(min_length=1)
-    thickness: float = Field(0.006, gt=0, le=0.05, description="the inner layer's thickness H_in, metres")
+    thickness: float = Field(0.006, gt=0, le=0.05, allow_inf_nan=False, description="the inner layer's thickness H_in, metres")
 
 
 class RefineRequest(BaseModel):

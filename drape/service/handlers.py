@@ -27,6 +27,9 @@ MAX_WORLD_M = MAX_TRANSLATION_M + 100.0  # |a garment stream's coordinate|: the 
 def _array(value: Any, field: str, dtype: type, ndim: int) -> np.ndarray:
     if isinstance(value, np.ndarray) and value.dtype.kind not in "iuf":
         raise InvalidInput(f"expected real numbers, got dtype {value.dtype}", field)
+    if isinstance(value, np.ndarray) and value.dtype.kind == "u" and np.issubdtype(dtype, np.integer) \
+            and value.size and value.max() > np.iinfo(dtype).max:  # the cast would wrap it to a negative number
+        raise InvalidInput(f"holds {value.max()}, beyond {np.iinfo(dtype).max}", field)
     try:
         arr: np.ndarray = np.asarray(value, dtype=dtype)
     except (ValueError, TypeError, OverflowError) as exc:

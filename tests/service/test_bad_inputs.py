@@ -30,6 +30,13 @@ def test_nan_and_inf(http):
     body = f'{{"outfit": {{"vertices": {V}, "faces": {F}}}, "motion": {{"poses": {poses}}}}}'
     r = http.post("/v1/outfits/animate", content=body.encode(), headers={"content-type": "application/json"})
     problem(r, 422, "motion")
+    # a bounded number given as NaN is named as not finite (pydantic said "less than or equal to 1000")
+    body = f'{{"outfit": {{"vertices": {V}, "faces": {F}}}, "motion": {{"clip": "kick", "fps": NaN}}}}'
+    r = http.post("/v1/outfits/animate", content=body.encode(), headers={"content-type": "application/json"})
+    problem(r, 422, "motion.fps", "finite")
+    body = f'{{"outfit": {{"vertices": {V}, "faces": {F}}}, "motion": {{"clip": "kick"}}, "refine": {{"eps": NaN}}}}'
+    r = http.post("/v1/outfits/animate", content=body.encode(), headers={"content-type": "application/json"})
+    problem(r, 422, "eps", "finite")
 
 
 def test_finite_values_that_overflow_when_posed(http):
@@ -55,6 +62,11 @@ def test_wrong_shapes(http):
 def test_faces_out_of_range(http):
     problem(rig(http, faces=[[0, 1, 7]]), 422, "faces", "[0, 3]")
     problem(rig(http, faces=[[0, 0, 1]]), 422, "faces", "repeats")
+    buf = io.BytesIO()  # uint64 indices past int64: named as they are, not as the negative number a cast wraps to
+    np.savez(buf, vertices=np.array(V, np.float32), faces=np.array([[2**64 - 1, 1, 2]], np.uint64))
+    p = problem(http.post("/v1/outfits/rig", content=buf.getvalue(), headers={"content-type": "application/x-npz"}),
+                422, "faces", str(2**64 - 1))
+    assert "-1" not in p["detail"]
 
 
 def test_empty_and_degenerate_mesh(http):
