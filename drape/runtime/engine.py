@@ -535,7 +535,9 @@ class Engine:
         self.refine_pool.close()
 
     def warm_up(self) -> None:
-        """One small rig and pose, so the first request does not pay ORT's start-up; the refinement workers started."""
+        """One small rig and pose, so the first request does not pay ORT's start-up; the layer catalog built (its
+        templates generated, its networks loaded: ~4 s the first GET /v1/garments or /v1/layers paid, over a
+        client's 10 s timeout on a busy 2-core machine); the refinement workers started."""
         v = np.array([[0, 1, 0.2], [0.1, 1, 0.2], [0, 1.1, 0.2], [0.1, 1.1, 0.25]], dtype=np.float32)
         f = np.array([[0, 1, 2], [1, 3, 2]], dtype=np.int32)
         rig = self.model.rig(v, f, load_body("neutral"))
@@ -544,5 +546,6 @@ class Engine:
             pass
         self.served_frames()
         self.garments.warm_up()
+        self.layers.templates()
         if self.refine_pool.workers >= 2:
             self.refine_pool.start()

@@ -168,3 +168,15 @@ def test_the_engine_s_outer_stream_is_the_network_s(models, outer_models):
         assert np.abs(other - keys).max() > 1e-4
     finally:
         engine.close()
+
+
+def test_the_engine_s_warm_up_builds_the_layer_catalog():
+    """The first GET /v1/garments or /v1/layers built it (~4 s: templates generated, networks loaded), past a
+    client's timeout on a busy machine; the warm-up (the app's start) builds it now."""
+    engine = Engine(refine_workers=1)
+    try:
+        assert engine.layers._made is None
+        engine.warm_up()
+        assert engine.layers._made is not None and engine.layers.templates()
+    finally:
+        engine.close()
