@@ -16,10 +16,16 @@ from drape.runtime.engine import Engine, RefineSettings
 from drape.runtime.intrinsic import IntrinsicGarment, KeyframeResidual, interpolate
 from drape.schemas.garments import MAX_SAMPLES, MAX_SEED, GarmentInfo, GarmentList
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
-from drape.service.handlers import _array, check_answer_size, check_motion, check_refine
+from drape.service.handlers import (
+    MAX_WORLD_M,
+    _array,
+    check_answer_size,
+    check_finite_within,
+    check_motion,
+    check_refine,
+)
 from drape.service.settings import Settings
 
-MAX_COORDINATE_M = 1e4 + 100.0  # a garment vertex, world space: the motion's translation bound plus a body's reach
 MAX_LATENT = 1e4  # |latent value|: far beyond any trained latent, and far from float32's range
 
 
@@ -58,7 +64,7 @@ def check_shape(value: Any, garment: IntrinsicGarment, field: str) -> np.ndarray
     if v.shape != (garment.num_vertices, 3):
         raise InvalidInput(f"expected ({garment.num_vertices}, 3), the vertices of garment {garment.name!r} in its "
                            f"template's order, got {v.shape}", field)
-    _check_finite_within(v, MAX_COORDINATE_M, f"coordinates beyond {MAX_COORDINATE_M:g} m: the vertices must be "
+    check_finite_within(v, MAX_WORLD_M, f"coordinates beyond {MAX_WORLD_M:g} m: the vertices must be "
                          "in metres", field)
     return v
 
@@ -69,16 +75,8 @@ def check_latent(value: Any, garment: IntrinsicGarment, field: str) -> np.ndarra
     if z.shape != (garment.latent_size,):
         raise InvalidInput(f"expected {garment.latent_size} values (the latent size of garment {garment.name!r}), "
                            f"got {len(z)}", field)
-    _check_finite_within(z, MAX_LATENT, f"values beyond +-{MAX_LATENT:g}", field)
+    check_finite_within(z, MAX_LATENT, f"values beyond +-{MAX_LATENT:g}", field)
     return z.astype(np.float32)
-
-
-def _check_finite_within(a: np.ndarray, bound: float, beyond: str, field: str) -> None:
-    """InvalidInput naming `field` if `a` holds NaN or inf, or a value beyond +-bound (`beyond` says so)."""
-    if not np.isfinite(a).all():
-        raise InvalidInput("contains NaN or infinite values", field)
-    if np.abs(a).max() > bound:
-        raise InvalidInput(beyond, field)
 
 
 def check_int(value: Any, low: int, high: int, field: str) -> int:

@@ -39,6 +39,14 @@ def _array(value: Any, field: str, dtype: type, ndim: int) -> np.ndarray:
     return arr
 
 
+def check_finite_within(a: np.ndarray, bound: float, beyond: str, field: str) -> None:
+    """InvalidInput naming `field` if `a` holds NaN or inf, or a value beyond +-bound (`beyond` says so)."""
+    if not np.isfinite(a).all():
+        raise InvalidInput("contains NaN or infinite values", field)
+    if np.abs(a).max() > bound:
+        raise InvalidInput(beyond, field)
+
+
 def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "",
                max_abs: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
     """-> (vertices (N, 3) float32, faces (F, 3) int32), or a domain error naming the field; coordinates
@@ -320,10 +328,8 @@ def check_inner(inner: dict, frames: int, settings: Settings) -> InnerStream:
     if v.shape[0] != frames or v.shape[1] < 3 or v.shape[2] != 3:
         raise InvalidInput(f"expected ({frames}, Ni, 3) with Ni >= 3 (the stream's frames), got {v.shape}",
                            "inner.vertices")
-    if not np.isfinite(v).all():
-        raise InvalidInput("contains NaN or infinite values", "inner.vertices")
-    if np.abs(v).max() > MAX_WORLD_M:
-        raise InvalidInput(f"coordinates beyond {MAX_WORLD_M:g} m: the stream must be in metres", "inner.vertices")
+    check_finite_within(v, MAX_WORLD_M, f"coordinates beyond {MAX_WORLD_M:g} m: the stream must be in metres",
+                        "inner.vertices")
     _, f = check_mesh(v[0], inner.get("faces"), settings, field="inner")
     t = inner.get("thickness")
     if isinstance(t, bool) or not isinstance(t, int | float) or not 0 < t <= 0.05:
@@ -341,10 +347,9 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
     if v.shape[0] > settings.max_frames:
         raise LimitExceeded(f"{v.shape[0]} frames exceed the limit of {settings.max_frames}", "vertices")
     _, f = check_mesh(v[0], faces, settings)
-    if not np.isfinite(v).all():
-        raise InvalidInput("contains NaN or infinite values", "vertices")
-    if np.abs(v).max() > MAX_WORLD_M:  # frame 0 is within 100 m (check_mesh); later frames may travel
-        raise InvalidInput(f"coordinates beyond {MAX_WORLD_M:g} m: the stream must be in metres", "vertices")
+    # frame 0 is within 100 m (check_mesh); later frames may travel
+    check_finite_within(v, MAX_WORLD_M, f"coordinates beyond {MAX_WORLD_M:g} m: the stream must be in metres",
+                        "vertices")
     poses, trans, fps = check_motion(motion, settings)
     if len(poses) != len(v):
         raise InvalidInput(f"the motion has {len(poses)} frames, the stream {len(v)}", "motion")

@@ -174,7 +174,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
         raise ValueError(f"invariant.sets_per_batch is {per_batch} but must be in [2, {train_sets}]: the loss "
                          f"divides by the variance between a batch's sets, and the training split holds "
                          f"{train_sets} parameter set(s)")
-    log(f"{len(train_f)} training frames ({len(np.unique(train_f.params))} parameter sets, "
+    log(f"{len(train_f)} training frames ({train_sets} parameter sets, "
         f"{len(np.unique(train_f.motions))} motions), {len(val_f)} validation frames "
         f"({len(np.unique(val_f.params))} sets, {len(np.unique(val_f.motions))} motions)")
     model = build_model(config, train_f)
