@@ -82,7 +82,7 @@ def read_pose_arrays(z: Mapping[str, np.ndarray]) -> PoseClip:
         root, body = _numbers(z, "root_orient"), _numbers(z, "pose_body")
         if root.ndim != 2 or root.shape[1] != 3 or body.ndim != 2 or body.shape[1] != 63 or len(root) != len(body):
             raise PoseArrayError(f"expected root_orient (T, 3) and pose_body (T, 63), got {root.shape} and {body.shape}")
-        poses, _ = to_pose24(np.concatenate([root, body], axis=1))
+        poses, _ = to_pose24(np.concatenate([root, body], axis=1), "root_orient + pose_body")
         layout = f"AMASS root_orient + pose_body (T={len(root)})"
     else:
         raise PoseArrayError(f"no 'poses' array (nor 'root_orient' + 'pose_body'); expected {EXPECTED}")

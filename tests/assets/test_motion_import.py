@@ -244,7 +244,7 @@ BAD_NPZ = [
     ({"trans": np.zeros((5, 3))}, "no 'poses' array"),
     ({"poses": np.zeros((5, 72)), "mocap_framerate": np.array(0.0)}, "frame rate"),
     ({"poses": np.zeros((0, 72))}, "'poses' has shape (0, 72)"),  # zero frames (numpy cannot reshape (0, -1, 3))
-    ({"root_orient": np.zeros((0, 3)), "pose_body": np.zeros((0, 63))}, "'poses' has shape (0, 66)"),
+    ({"root_orient": np.zeros((0, 3)), "pose_body": np.zeros((0, 63))}, "'root_orient + pose_body' has shape (0, 66)"),
     # finite values that posing overflows to NaN (the floor step raised a bare ValueError)
     ({"poses": np.full((5, 72), 1e200)}, "axis-angle values beyond 10000 radians"),
     ({"poses": np.zeros((5, 72)), "trans": np.full((5, 3), 1e200)}, "'trans' moves the root beyond 10000 m"),
