@@ -121,9 +121,10 @@ intrinsic-data-motions: $(VENV)/.dev-installed
 # 1-2 as in intrinsic-data, DeepMimic dance_b, CMU 05_01_walk, and 06_01_walk, the config's validation motion) +
 # walk, dance_a (held out) x 120 frames. At the default 4 substeps the walking legs went through it (2 of 4 pilot
 # sequences accepted; the rejected walk passes at 8, bench.sim_substeps): it runs 8 substeps a frame (docs/sim.md
-# "A long skirt"), ~1.4 s per simulated frame per core (median 207 s per sequence with its settle frames and
-# compile, timings.json), ~12 core-hours for the 208 sequences of the training and test splits (the only ones
-# training and `drape eval intrinsic` read); resumable (rerun to continue), train items first.
+# "A long skirt"), 1.4-2.4 s per simulated frame per worker (median 207 s per sequence with its settle frames and
+# compile in the 2026-11-27 run, 355 s in the 2026-11-29 one at two workers, timings.json): 6-11 h of wall time
+# for the 208 sequences of the training and test splits (the only ones training and `drape eval intrinsic` read) at
+# WORKERS=2; resumable (rerun to continue), train items first.
 INTRINSIC_LONG_SKIRT_DIR ?= data/intrinsic/long_skirt
 intrinsic-data-long-skirt: $(VENV)/.dev-installed
 	mkdir -p $(INTRINSIC_LONG_SKIRT_DIR)/motions
