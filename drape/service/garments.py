@@ -65,7 +65,7 @@ def check_shape(value: Any, garment: IntrinsicGarment, field: str) -> np.ndarray
         raise InvalidInput(f"expected ({garment.num_vertices}, 3), the vertices of garment {garment.name!r} in its "
                            f"template's order, got {v.shape}", field)
     check_finite_within(v, MAX_WORLD_M, f"coordinates beyond {MAX_WORLD_M:g} m: the vertices must be "
-                         "in metres", field)
+                        "in metres", field)
     return v
 
 
