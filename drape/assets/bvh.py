@@ -57,6 +57,10 @@ class BvhError(ValueError):
     """A BVH file drape cannot read or retarget (the message says what was expected)."""
 
 
+class BvhTooLong(BvhError):
+    """A BVH file that declares more frames than drape reads (more than 18 digits, or over `max_frames`)."""
+
+
 @dataclass(frozen=True)
 class BvhClip:
     """A parsed BVH: joints in file order (parents[j] < j, root -1), offsets (J, 3) in file units,
@@ -202,21 +206,25 @@ def read_header(text: str) -> BvhHeader:
     head = re.match(r"\s*MOTION\s+Frames:\s*(\S+)\s+Frame\s+Time:\s*(\S+)", text[m.start():], re.IGNORECASE)
     if head is None:
         raise BvhError("expected 'Frames: N' and 'Frame Time: t' after MOTION")
-    if not _WHOLE.fullmatch(head.group(1)) or int(head.group(1)) < 1:
-        raise BvhError(f"expected a positive whole number of frames, got {head.group(1)[:20]!r}")
+    count = head.group(1)
+    digits = count.lstrip("0") if count.isascii() and count.isdigit() else ""
+    if len(digits) > 18:
+        raise BvhTooLong(f"'Frames:' declares a {len(digits)}-digit number of frames, more than any limit allows")
+    if not digits:  # not ASCII digits, or zero
+        raise BvhError(f"expected a positive whole number of frames, got {count[:20]!r}")
     frame_time = _number(head.group(2), "Frame Time")
     if not 1e-3 <= frame_time <= 10.0:
         raise BvhError(f"Frame Time must be within [0.001, 10] s (1000 fps to 0.1 fps), got {frame_time:g}")
     return BvhHeader(tuple(names), np.array(parents, dtype=np.int64),
                      np.array([o for o in offsets if o is not None], dtype=np.float64), end_sites,
-                     tuple(channels), int(head.group(1)), frame_time, m.start() + head.end())
+                     tuple(channels), int(digits), frame_time, m.start() + head.end())
 
 
 def parse_bvh(text: str, max_frames: int | None = None) -> BvhClip:
     """Parse BVH text; more than `max_frames` frames (declared) is a BvhError before the numbers are read."""
     h = read_header(text)
     if max_frames is not None and h.num_frames > max_frames:
-        raise BvhError(f"{h.num_frames} frames exceed the limit of {max_frames}")
+        raise BvhTooLong(f"{h.num_frames} frames exceed the limit of {max_frames}")
     n_chan = sum(len(c) for c in h.channels)
     want = h.num_frames * n_chan
     body = text[h.data_start:]

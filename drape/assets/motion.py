@@ -323,6 +323,8 @@ def _import_bvh(data: bytes, body: Body, fps: float | None, up: str | None, floo
                       max_frames, f"at {fps or clip.fps:g} fps")
         chosen, why = (up, "as asked") if up is not None else bvh.detect_up(clip)
         motion = bvh.retarget(clip, body, name, "", up=chosen)
+    except bvh.BvhTooLong as exc:
+        raise MotionTooLong(str(exc)) from exc
     except bvh.BvhError as exc:
         raise MotionFileError(str(exc)) from exc
     out, fix = _finish(motion, body, fps, floor)

@@ -111,6 +111,7 @@ BAD = [
     (_npz(poses=np.full((10, 72), 1e200)), 422, "beyond 10000 radians"),  # posed to NaN: was a 500
     (cmu_bvh(1601), 413, "1601 frames in the file exceed the limit of 1600"),  # 8 x max_frames
     (cmu_bvh(1000), 413, "250 frames at 30 fps exceed the limit of 200"),
+    (cmu_bvh(6).replace(b"Frames: 6", b"Frames: " + b"9" * 19), 413, "a 19-digit number of frames"),
     (_npz(poses=np.zeros((201, 72))), 413, "201 frames at 30 fps exceed the limit of 200"),
 ]
 
