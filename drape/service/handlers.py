@@ -273,6 +273,18 @@ def check_answer_size(frames: int, vertices: int, max_posed: int | None, field: 
             "ask for application/x-npz or the frame stream (Accept: application/x-drape-frames)", field)
 
 
+def check_glb_fps(frames: int, fps: float, field: str) -> None:
+    """A GLB answer's frame rate: its animation keys frame t at t / fps seconds in float32, so every key time must
+    be finite there (a frame rate that rounds to 0 in float32, or puts the last frame beyond float32's range, is a
+    domain error naming `field`)."""
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        last = np.float32(max(frames - 1, 0)) / np.float32(fps)
+    if not np.isfinite(last):
+        raise InvalidInput(f"{fps:g} fps is too low for a glTF animation: the key times of {frames} frames (frame / "
+                           "fps seconds, float32) would not be finite; ask for a higher fps or another format "
+                           "(npz, the frame stream, PC2)", field)
+
+
 def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed: int | None) -> AnimationPlan:
     """Validate an animate request (a dict shaped like AnimateRequest) into a plan; `max_posed` bounds
     frames x vertices for the answer's format (None: no bound)."""

@@ -13,6 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "schemas"))
 from glb_player import GlbPlayer  # noqa: E402
 from gltf_validator import validate  # noqa: E402
+from svc_env import problem  # noqa: E402
 
 from drape.assets.motion import load_clip  # noqa: E402
 from drape.assets.outfits import generate_outfit  # noqa: E402
@@ -84,6 +85,19 @@ def test_refine_as_glb_and_pc2(http, outfit):
         assert np.abs(player.positions("garment", t) - want[t]).max() < 1e-6
     frames, start, rate = read_pc2(post(http, "/v1/refine", body, PC2))
     assert (start, rate) == (0.0, 1.0) and np.array_equal(frames, want)
+
+
+def test_glb_answers_refuse_a_frame_rate_their_key_times_cannot_hold(http, outfit):
+    """animate and refine: a frame rate so low that frame t / fps seconds overflows (or rounds to 0 in) glTF's
+    float32 key times is a 422 naming the fps for a GLB answer, not a 500 (the skinned GLB animates one frame too)."""
+    still = {"vertices": outfit[0], "faces": outfit[1], "fps": np.array(1e-300)}
+    for frames in (1, 2):
+        r = http.post("/v1/outfits/animate", content=encode_npz({**still, "poses": np.zeros((frames, 72))}),
+                      headers={"content-type": NPZ, "accept": GLB})
+        problem(r, 422, "motion.fps", "glTF")
+    stream = {**still, "vertices": np.stack([outfit[0]] * 2), "poses": np.zeros((2, 72))}
+    r = http.post("/v1/refine", content=encode_npz(stream), headers={"content-type": NPZ, "accept": GLB})
+    problem(r, 422, "motion.fps", "glTF")
 
 
 def test_layers_as_glb_and_pc2(http):

@@ -317,6 +317,18 @@ def test_bad_inputs_name_their_field(http, garment, shape):
             406, "Accept")
 
 
+def test_a_glb_answer_refuses_a_frame_rate_its_key_times_cannot_hold(http):
+    """A frame rate so low that frame t / fps seconds overflows (or rounds to 0 in) glTF's float32 key times is a
+    422 naming the fps for a GLB answer, not a 500; the other formats still answer."""
+    body = {"motion": {"poses": [[0.0] * 72] * 3, "fps": 1e-300}, "keyframes": [{"frame": 0, "latent": [0.0] * 100}]}
+    for fps, field in ((1e-300, "motion.fps"), (1e-40, "motion.fps")):
+        body["motion"]["fps"] = fps
+        problem(http.post(f"/v1/garments/{NAME}/animate", json=body, headers={"accept": GLB}), 422, field, "glTF")
+    assert http.post(f"/v1/garments/{NAME}/animate", json=body, headers={"accept": NPZ}).status_code == 200
+    body["motion"]["fps"] = 1e-3  # slow, but its key times are finite
+    assert http.post(f"/v1/garments/{NAME}/animate", json=body, headers={"accept": GLB}).status_code == 200
+
+
 def test_bad_npz_inputs_name_their_field(http, garment, shape):
     kick = {"clip": np.array("kick")}
 

@@ -109,6 +109,10 @@ def test_layers_bad_inputs(http):
     problem(post(refine={"eps": -1.0}), 422, "eps")
     problem(post(colour="red"), 422, "colour")
     problem(http.post("/v1/layers/animate", content=b"x", headers={"content-type": "application/x-npz"}), 415)
+    # a frame rate whose glTF key times (frame / fps s, float32) overflow: a 422 for a GLB answer, not a 500
+    slow = {**ok, "motion": {"poses": [[0.0] * 72] * 2, "fps": 1e-300}}
+    problem(http.post("/v1/layers/animate", json=slow, headers={"accept": "model/gltf-binary"}), 422, "motion.fps",
+            "glTF")
 
 
 def test_a_motion_file_animates_the_layers_as_its_imported_poses_would(server_url, tmp_path):

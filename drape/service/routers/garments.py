@@ -28,6 +28,7 @@ from drape.service import decode
 from drape.service import garments as handlers
 from drape.service.answers import JSON, FrameSource
 from drape.service.errors import UnsupportedMediaType
+from drape.service.handlers import check_glb_fps
 from drape.service.http import engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
@@ -38,6 +39,7 @@ from drape.service.routers.outfits import (
     FORM_UP,
     MOTION_FILE,
     STREAM_FORMATS,
+    fps_field,
     max_posed,
     stream_answer,
     whole_answer,
@@ -173,6 +175,7 @@ async def animate_keyframes(request: Request, name: str = NAME) -> Response:
     if answer == GLB:
         def glb() -> Response:
             src = plan()
+            check_glb_fps(src.num_frames, src.fps, fps_field(post.kind))
             frames = np.concatenate(list(src.chunks()))
             return Response(vertex_animation_glb(frames, src.faces, src.fps, name=garment.name), media_type=GLB)
 

@@ -22,6 +22,7 @@ from drape.service import decode
 from drape.service import layers as handlers
 from drape.service.answers import JSON, FrameSource
 from drape.service.errors import UnsupportedMediaType
+from drape.service.handlers import check_glb_fps
 from drape.service.http import engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
@@ -32,6 +33,7 @@ from drape.service.routers.outfits import (
     FORM_UP,
     MOTION_FILE,
     STREAM_FORMATS,
+    fps_field,
     max_posed,
     stream_answer,
     whole_answer,
@@ -117,6 +119,7 @@ async def animate_layers(request: Request) -> Response:
     if answer == GLB:
         def glb() -> Response:
             src = source()
+            check_glb_fps(src.num_frames, src.fps, fps_field(kind))
             frames = np.concatenate(list(src.chunks()))
             return Response(vertex_animation_glb(frames, src.faces, src.fps, name="layers"), media_type=GLB)
 

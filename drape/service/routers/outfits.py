@@ -165,6 +165,11 @@ def max_posed(answer: str, settings: Settings) -> int | None:
             GLB: settings.max_posed_values}.get(answer)
 
 
+def fps_field(kind: str) -> str:
+    """Where a request of this body type gives its frame rate: the form's fps field, else the motion's."""
+    return "fps" if kind == "multipart/form-data" else "motion.fps"
+
+
 FRAME_ANSWERS = {200: {"description": "frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB "
                                       "(animate: the rig and its animation; refine: a vertex animation)", "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY, PC2: BINARY,
@@ -215,6 +220,7 @@ async def animate_outfit(request: Request) -> Response:
         def glb() -> Response:
             req = decode.animate_request(kind, data, settings, engine, content_type)
             p = handlers.plan_animation(engine, settings, req, max_posed(answer, settings))
+            handlers.check_glb_fps(p.num_frames, p.fps, fps_field(kind))
             return Response(handlers.outfit_glb(engine, p.outfit, p), media_type=GLB)
 
         return await whole_answer(request, glb)
@@ -291,6 +297,7 @@ async def refine_stream(request: Request) -> Response:
     if answer == GLB:
         def glb() -> Response:
             src = plan()
+            handlers.check_glb_fps(src.num_frames, src.fps, fps_field(kind))
             frames = np.concatenate(list(src.chunks()))
             return Response(vertex_animation_glb(frames, src.faces, src.fps), media_type=GLB)
 
