@@ -119,7 +119,9 @@ def resample(motion: Motion, fps: float) -> Motion:
     with slerp (per joint, shortest arc), translation linearly; no frame is dropped or repeated."""
     T = motion.num_frames
     n = resampled_count(T, motion.fps, fps)
-    src = np.minimum(np.arange(n) * (motion.fps / fps), T - 1)
+    # one frame (an fps so low no second frame fits) is the first: the step, motion.fps / fps, may overflow to inf
+    step = motion.fps / fps if n > 1 else 0.0
+    src = np.minimum(np.arange(n) * step, T - 1)
     i0 = np.floor(src + 1e-9).astype(int).clip(0, T - 1)
     i1 = (i0 + 1).clip(0, T - 1)
     t = np.clip(src - i0, 0.0, 1.0)

@@ -217,6 +217,10 @@ def test_a_motion_file_upload(http, garment, shape):
     r = http.post(f"/v1/garments/{NAME}/animate", headers={"accept": NPZ}, files={"motion_file": ("c.bvh", bvh)},
                   data={"request": json.dumps({"keyframes": [{"frame": 0, "latent": [0.1] * 100}]})})
     assert r.status_code == 200 and decode_npz(r.content)["vertices"].shape == (len(poses), garment.num_vertices, 3)
+    r = http.post(f"/v1/garments/{NAME}/animate", headers={"accept": NPZ}, files={"motion_file": ("c.bvh", bvh)},
+                  data={"fps": "5e-324", "request": json.dumps({"keyframes": [{"frame": 0, "latent": [0.1] * 100}]})})
+    assert r.status_code == 200, r.text[:300]  # the smallest positive fps: the file's first frame, not NaN poses
+    assert decode_npz(r.content)["vertices"].shape == (1, garment.num_vertices, 3)
     problem(http.post(f"/v1/garments/{NAME}/sample", files={"motion_file": ("c.bvh", bvh)},
                       data={"request": json.dumps({"count": 0})}), 422, "count")
     problem(http.post(f"/v1/garments/{NAME}/sample", files={"motion_file": ("c.bvh", b"junk")},

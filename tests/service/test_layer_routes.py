@@ -149,6 +149,10 @@ def test_layers_motion_file_bad_inputs(http, tmp_path):
                          files=files if files is not None else {"motion_file": ("a.bvh", bvh)})
 
     assert post().status_code == 200
+    # the smallest positive fps resamples the file to its first frame (not NaN poses and a 500)
+    slow = post(fps="5e-324")
+    assert slow.status_code == 200, slow.text[:300]
+    assert len(slow.json()["inner_vertices"]) == 1
     problem(post(files={"other": ("a.bvh", bvh)}), 422, "other")  # an unknown field, named
     problem(post(files={"request": (None, json.dumps(ok))}, request=None), 422, "motion_file")
     problem(post(request=None), 422, "request")
