@@ -243,6 +243,7 @@ BAD_NPZ = [
     ({"poses": np.array(["a"] * 5)}, "real numbers"),
     ({"trans": np.zeros((5, 3))}, "no 'poses' array"),
     ({"poses": np.zeros((5, 72)), "mocap_framerate": np.array(0.0)}, "frame rate"),
+    ({"poses": np.zeros((5, 72)), "mocap_framerate": np.array(1e-320)}, "frame rate in [0.1, 1000]"),  # as a BVH's
     ({"poses": np.zeros((0, 72))}, "'poses' has shape (0, 72)"),  # zero frames (numpy cannot reshape (0, -1, 3))
     ({"root_orient": np.zeros((0, 3)), "pose_body": np.zeros((0, 63))}, "'root_orient + pose_body' has shape (0, 66)"),
     # finite values that posing overflows to NaN (the floor step raised a bare ValueError)

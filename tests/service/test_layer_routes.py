@@ -2,6 +2,7 @@
 client and the frame stream, bad inputs."""
 
 import asyncio
+import io
 import json
 
 import numpy as np
@@ -159,5 +160,9 @@ def test_layers_motion_file_bad_inputs(http, tmp_path):
     problem(post(request=json.dumps({**ok, "inner": "cardigan"})), 404, "cardigan")  # before the file is read
     problem(post(request=json.dumps({**ok, "motion": {"clip": "kick"}})), 422, "motion")  # the file is the motion
     problem(post(files={"motion_file": ("a.bvh", b"HIERARCHY nonsense")}), 422, "motion_file")
+    # an npz's frame rate below a BVH's 0.1 fps: 30 fps of it overflowed the frame count (a 500)
+    slow = io.BytesIO()
+    np.savez(slow, poses=np.zeros((5, 72)), mocap_framerate=np.array(1e-320))
+    problem(post(files={"motion_file": ("a.npz", slow.getvalue())}), 422, "motion_file", "mocap_framerate", "0.1")
     problem(post(request="{not json"), 400, "request: not valid JSON")
     problem(post(request="[1, 2]"), 422, "request: expected a JSON object")
