@@ -285,6 +285,16 @@ def check_glb_fps(frames: int, fps: float, field: str) -> None:
                            "(npz, the frame stream, PC2)", field)
 
 
+def check_glb_frame_targets(frames: int, max_values: int, field: str) -> None:
+    """A GLB answer that plays one morph target per frame (a vertex animation; animate with refinement's
+    corrections) animates their weights with frames x (frames - 1) values, quadratic in the frames: bounded
+    like the other answers' values (`max_values`, DRAPE_MAX_POSED_VALUES), a 413 naming `field`."""
+    if frames * (frames - 1) > max_values:
+        raise LimitExceeded(
+            f"{frames} frames need {frames} x {frames - 1} morph-target weights in a GLB (one target a frame), over "
+            f"the limit of {max_values}; ask for fewer frames or another format (npz, the frame stream, PC2)", field)
+
+
 def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed: int | None) -> AnimationPlan:
     """Validate an animate request (a dict shaped like AnimateRequest) into a plan; `max_posed` bounds
     frames x vertices for the answer's format (None: no bound)."""

@@ -100,6 +100,26 @@ def test_glb_answers_refuse_a_frame_rate_their_key_times_cannot_hold(http, outfi
     problem(r, 422, "motion.fps", "glTF")
 
 
+def test_glb_answers_bound_their_per_frame_target_weights(app, http, monkeypatch):
+    """A GLB that plays one morph target a frame animates frames x (frames - 1) weights: quadratic in the frames,
+    so it is bounded by DRAPE_MAX_POSED_VALUES as well (a 413 before the work, not hundreds of MB); the npz
+    answer of the same request, linear in the frames, still answers. Refine and an intrinsic garment."""
+    from tests.intrinsic_model import LATENT, NAME
+
+    monkeypatch.setattr(app.state, "settings", app.state.settings.model_copy(
+        update={"max_frames": 1000, "max_posed_values": 400_000}))
+    T = 700  # 700 x 699 = 489,300 weights > 400,000; 700 x 300 vertices = 210,000 values <= 400,000
+    tri = {"vertices": np.zeros((T, 3, 3)), "faces": np.array([[0, 1, 2]]), "poses": np.zeros((T, 72)),
+           "fps": np.array(30.0)}
+    tri["vertices"][:, 1, 0] = tri["vertices"][:, 2, 1] = 0.1
+    r = http.post("/v1/refine", content=encode_npz(tri), headers={"content-type": NPZ, "accept": GLB})
+    problem(r, 413, "vertices", "700 x 699 morph-target weights", "400000")
+    keyed = {"motion": {"poses": [[0.0] * 72] * T, "fps": 30.0}, "keyframes": [{"frame": 0, "latent": [0.0] * LATENT}]}
+    problem(http.post(f"/v1/garments/{NAME}/animate", json=keyed, headers={"accept": GLB}), 413, "motion",
+            "morph-target weights")
+    assert http.post(f"/v1/garments/{NAME}/animate", json=keyed, headers={"accept": NPZ}).status_code == 200
+
+
 def test_layers_as_glb_and_pc2(http):
     """/v1/layers/animate's GLB (the two layers as one mesh, inner first) passes the validator and plays the npz
     answer's frames; its PC2 equals them."""

@@ -28,7 +28,7 @@ from drape.service import decode
 from drape.service import garments as handlers
 from drape.service.answers import JSON, FrameSource
 from drape.service.errors import UnsupportedMediaType
-from drape.service.handlers import check_glb_fps
+from drape.service.handlers import check_glb_fps, check_glb_frame_targets
 from drape.service.http import engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
@@ -176,6 +176,7 @@ async def animate_keyframes(request: Request, name: str = NAME) -> Response:
         def glb() -> Response:
             src = plan()
             check_glb_fps(src.num_frames, src.fps, fps_field(post.kind))
+            check_glb_frame_targets(src.num_frames, settings.max_posed_values, "motion")
             frames = np.concatenate(list(src.chunks()))
             return Response(vertex_animation_glb(frames, src.faces, src.fps, name=garment.name), media_type=GLB)
 

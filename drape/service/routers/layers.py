@@ -22,7 +22,7 @@ from drape.service import decode
 from drape.service import layers as handlers
 from drape.service.answers import JSON, FrameSource
 from drape.service.errors import UnsupportedMediaType
-from drape.service.handlers import check_glb_fps
+from drape.service.handlers import check_glb_fps, check_glb_frame_targets
 from drape.service.http import engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
@@ -120,6 +120,7 @@ async def animate_layers(request: Request) -> Response:
         def glb() -> Response:
             src = source()
             check_glb_fps(src.num_frames, src.fps, fps_field(kind))
+            check_glb_frame_targets(src.num_frames, settings.max_posed_values, "motion")
             frames = np.concatenate(list(src.chunks()))
             return Response(vertex_animation_glb(frames, src.faces, src.fps, name="layers"), media_type=GLB)
 

@@ -221,6 +221,8 @@ async def animate_outfit(request: Request) -> Response:
             req = decode.animate_request(kind, data, settings, engine, content_type)
             p = handlers.plan_animation(engine, settings, req, max_posed(answer, settings))
             handlers.check_glb_fps(p.num_frames, p.fps, fps_field(kind))
+            if p.refine is not None:
+                handlers.check_glb_frame_targets(p.num_frames, settings.max_posed_values, "motion")
             return Response(handlers.outfit_glb(engine, p.outfit, p), media_type=GLB)
 
         return await whole_answer(request, glb)
@@ -298,6 +300,7 @@ async def refine_stream(request: Request) -> Response:
         def glb() -> Response:
             src = plan()
             handlers.check_glb_fps(src.num_frames, src.fps, fps_field(kind))
+            handlers.check_glb_frame_targets(src.num_frames, settings.max_posed_values, "vertices")
             frames = np.concatenate(list(src.chunks()))
             return Response(vertex_animation_glb(frames, src.faces, src.fps), media_type=GLB)
 
