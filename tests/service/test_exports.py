@@ -100,14 +100,22 @@ def test_glb_answers_refuse_a_frame_rate_their_key_times_cannot_hold(http, outfi
     problem(r, 422, "motion.fps", "glTF")
 
 
-def test_glb_answers_bound_their_per_frame_target_weights(app, http, monkeypatch):
+@pytest.fixture
+def long_frames(app):
+    """The app's settings with room for 1,000 frames and 400,000 values an answer, for one test (starlette's
+    State is no plain object: monkeypatch's undo deleted the attribute)."""
+    served = app.state.settings
+    app.state.settings = served.model_copy(update={"max_frames": 1000, "max_posed_values": 400_000})
+    yield
+    app.state.settings = served
+
+
+def test_glb_answers_bound_their_per_frame_target_weights(http, long_frames):
     """A GLB that plays one morph target a frame animates frames x (frames - 1) weights: quadratic in the frames,
     so it is bounded by DRAPE_MAX_POSED_VALUES as well (a 413 before the work, not hundreds of MB); the npz
     answer of the same request, linear in the frames, still answers. Refine and an intrinsic garment."""
     from tests.intrinsic_model import LATENT, NAME
 
-    monkeypatch.setattr(app.state, "settings", app.state.settings.model_copy(
-        update={"max_frames": 1000, "max_posed_values": 400_000}))
     T = 700  # 700 x 699 = 489,300 weights > 400,000; 700 x 300 vertices = 210,000 values <= 400,000
     tri = {"vertices": np.zeros((T, 3, 3)), "faces": np.array([[0, 1, 2]]), "poses": np.zeros((T, 72)),
            "fps": np.array(30.0)}
