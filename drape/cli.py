@@ -756,8 +756,15 @@ def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
+    except OSError as exc:  # a file that is not there, a folder given as a file, an --out that cannot be written
+        where = f"{exc.filename}: " if exc.filename is not None else ""
+        print(f"drape: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        raise SystemExit(1) from exc
     except (ValueError, KeyError) as exc:
-        print(f"drape: error: {exc}", file=sys.stderr)
+        # a KeyError's str() is the repr of its message; print the message itself
+        text = exc.args[0] if isinstance(exc, KeyError) and len(exc.args) == 1 and isinstance(exc.args[0], str) \
+            else exc
+        print(f"drape: error: {text}", file=sys.stderr)
         raise SystemExit(2) from exc
 
 

@@ -62,6 +62,29 @@ def test_errors_are_reported_not_raised(tmp_path):
     assert r.returncode == 2 and "unknown clip" in r.stderr
 
 
+def test_files_that_cannot_be_read_or_written_are_one_line_errors(tmp_path):
+    """A missing or unreadable input, or an --out in a folder that does not exist: the path and the OS's reason,
+    exit 1, no traceback; a KeyError's message is printed as it is, not as its repr."""
+    def fails(*args):
+        r = subprocess.run([sys.executable, "-m", "drape.cli", *args], capture_output=True, text=True)
+        assert r.returncode in (1, 2) and "Traceback" not in r.stderr, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+        return r.stderr.strip()
+
+    missing = tmp_path / "missing.npz"
+    assert fails("export", "pc2", str(missing), "--out", str(tmp_path / "x.pc2")) == \
+        f"drape: error: {missing}: No such file or directory"
+    assert fails("export", "glb", str(tmp_path), "--out", str(tmp_path / "x.glb")) == \
+        f"drape: error: {tmp_path}: Is a directory"
+    assert fails("render", "--motion", str(missing), "--out", str(tmp_path / "x.png")).endswith(
+        f"{missing}: No such file or directory")
+    out = tmp_path / "no" / "such" / "m.npz"
+    assert fails("motions", "generate", "--frames", "3", "--out", str(out)) == \
+        f"drape: error: {out}: No such file or directory"
+    assert fails("render", "--clip", "nope", "--out", str(tmp_path / "x.png")).startswith(
+        "drape: error: unknown clip 'nope'; embedded clips: ")
+
+
 def test_export_pc2_and_glb_from_an_npz_stream(tmp_path):
     from drape.schemas.binary import encode_npz
     from drape.schemas.pc2 import read_pc2
