@@ -335,24 +335,67 @@ def _export_deepsd(args: argparse.Namespace) -> None:
         print(path)
 
 
-def _read_stream(path: str) -> tuple[np.ndarray, np.ndarray, float]:
-    """An npz stream on disk (an animate/refine npz answer, a simulated sequence) -> (vertices (T, N, 3) m,
-    faces (F, 3), fps)."""
+GLB_MAX_FRAME_WEIGHTS = 20_000_000  # frames x (frames - 1) morph-target weights: the service's DRAPE_MAX_POSED_VALUES
+
+
+def _read_stream(path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """An npz stream on disk (an animate/refine npz answer, a simulated sequence) -> (vertices (T, N, 3) float32 m,
+    finite, T and N >= 1; the archive's members); SystemExit naming the file and the member otherwise."""
     from drape.schemas.binary import decode_npz
 
-    z = decode_npz(Path(path).read_bytes(), ("vertices", "faces", "fps"))
+    try:
+        z = decode_npz(Path(path).read_bytes(), ("vertices", "faces", "fps"))
+    except ValueError as exc:
+        raise SystemExit(f"{path}: {exc}") from None
     if "vertices" not in z or "faces" not in z:
         raise SystemExit(f"{path}: an npz stream needs 'vertices' (T, N, 3) and 'faces' (F, 3)")
-    v = np.asarray(z["vertices"], np.float32)
-    if v.ndim != 3 or v.shape[2] != 3:
-        raise SystemExit(f"{path}: 'vertices' must be (T, N, 3), got {v.shape}")
-    return v, np.asarray(z["faces"]), float(z["fps"]) if "fps" in z else 30.0
+    v = z["vertices"]
+    if v.dtype.kind not in "fiu" or v.ndim != 3 or v.shape[2] != 3:
+        raise SystemExit(f"{path}: 'vertices' must be (T, N, 3) numbers, got {v.shape} {v.dtype}")
+    if v.shape[0] == 0 or v.shape[1] == 0:
+        raise SystemExit(f"{path}: 'vertices' {v.shape} holds no frames or no vertices")
+    with np.errstate(over="ignore"):
+        v = v.astype(np.float32, copy=False)
+    if not np.isfinite(v).all():
+        raise SystemExit(f"{path}: 'vertices' holds NaN or infinite values (or values beyond float32)")
+    return v, z
+
+
+def _glb_faces_fps(path: str, z: dict[str, np.ndarray], frames: int, vertices: int) -> tuple[np.ndarray, float]:
+    """A stream's faces (F, 3), F >= 1, indexing its vertices, and its frame rate (default 30), one positive number
+    whose float32 key times (frame / fps s) are finite; and a bound on the GLB's frames x (frames - 1) weights."""
+    faces = z["faces"]
+    if faces.dtype.kind not in "iu" or faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise SystemExit(f"{path}: 'faces' must be (F, 3) integers, F >= 1, got {faces.shape} {faces.dtype}")
+    low, high = int(faces.min()), int(faces.max())
+    if low < 0 or high >= vertices:
+        raise SystemExit(f"{path}: 'faces' index vertices {low}..{high}; the stream has {vertices} "
+                         f"(0..{vertices - 1})")
+    fps = 30.0
+    if "fps" in z:
+        given = z["fps"]
+        fps = float(given.reshape(-1)[0]) if given.size == 1 and given.dtype.kind in "fiu" else float("nan")
+        if not (np.isfinite(fps) and fps > 0):
+            got = repr(given.reshape(-1)[0].item()) if given.size == 1 else f"{given.shape} {given.dtype}"
+            raise SystemExit(f"{path}: 'fps' must be one positive number, got {got}")
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        last = np.float32(frames - 1) / np.float32(fps)
+    if not (np.isfinite(last) and np.float32(fps) > 0):
+        raise SystemExit(f"{path}: {fps:g} fps is too low for a glTF animation: the key times of {frames} frames "
+                         "(frame / fps seconds, float32) would not be finite; use `drape export pc2`")
+    if frames * (frames - 1) > GLB_MAX_FRAME_WEIGHTS:
+        raise SystemExit(f"{path}: {frames} frames need {frames} x {frames - 1} morph-target weights in a GLB (one "
+                         f"target a frame), over the limit of {GLB_MAX_FRAME_WEIGHTS}; export fewer frames or use "
+                         "`drape export pc2`")
+    return faces, fps
 
 
 def _export_pc2(args: argparse.Namespace) -> None:
     from drape.schemas.pc2 import encode_pc2
 
-    v, _, _ = _read_stream(args.stream)
+    if not (np.isfinite(args.start_frame) and abs(args.start_frame) <= np.finfo(np.float32).max):
+        raise SystemExit(f"--start-frame must be a finite float32 frame number, got {args.start_frame}")
+    v, _ = _read_stream(args.stream)
     with open(args.out, "wb") as f:
         for piece in encode_pc2([v], v.shape[1], len(v), start_frame=args.start_frame):
             f.write(piece)
@@ -362,7 +405,8 @@ def _export_pc2(args: argparse.Namespace) -> None:
 def _export_glb(args: argparse.Namespace) -> None:
     from drape.schemas.gltf import vertex_animation_glb
 
-    v, faces, fps = _read_stream(args.stream)
+    v, z = _read_stream(args.stream)
+    faces, fps = _glb_faces_fps(args.stream, z, v.shape[0], v.shape[1])
     Path(args.out).write_bytes(vertex_animation_glb(v, faces, fps))
     print(f"{args.out}: {len(v)} frames x {v.shape[1]} vertices at {fps:g} fps")
 

@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from drape.geometry.mesh_io import load_mesh
 
@@ -104,6 +105,56 @@ def test_export_pc2_and_glb_from_an_npz_stream(tmp_path):
     assert len(doc.meshes[0].primitives[0].targets) == 6
     times = doc.accessors[doc.animations[0].samplers[0].input]
     assert abs(times.max[0] - 6 / 24) < 1e-6
+
+
+def test_export_refuses_a_malformed_stream_naming_the_member(tmp_path, monkeypatch, capsys):
+    """Every malformed npz stream is a one-line refusal naming the file and the member, before anything is
+    written: not a traceback, a pygltflib JSON error, or a PC2 / GLB of NaNs, dangling faces or a broken clock."""
+    from drape import cli
+    from drape.schemas.binary import encode_npz
+
+    rng = np.random.default_rng(1)
+    v = rng.normal(size=(4, 10, 3)).astype(np.float32)
+    f = np.array([[0, 1, 2], [2, 3, 9]], np.int32)
+
+    def refused(kind, arrays, *extra):
+        stream, out = tmp_path / "s.npz", tmp_path / f"out.{kind}"
+        stream.write_bytes(encode_npz(arrays))
+        with pytest.raises(SystemExit) as exc:
+            cli.main(["export", kind, str(stream), "--out", str(out), *extra])
+        assert not out.exists()
+        text = exc.value.code if isinstance(exc.value.code, str) else capsys.readouterr().err
+        assert exc.value.code != 0 and "\n" not in text.strip(), text
+        return text
+
+    for kind in ("pc2", "glb"):
+        assert "'vertices' must be (T, N, 3) numbers" in refused(kind, {"vertices": v.astype(complex), "faces": f})
+        assert "'vertices' must be (T, N, 3) numbers" in refused(kind, {"vertices": np.array([[["a"]]]), "faces": f})
+        bad = v.copy()
+        bad[2, 3, 1] = np.nan
+        assert "'vertices' holds NaN or infinite values" in refused(kind, {"vertices": bad, "faces": f})
+        assert "'vertices' holds NaN or infinite values" in refused(kind, {"vertices": v * 1e300, "faces": f})
+        assert "no frames or no vertices" in refused(kind, {"vertices": v[:0], "faces": f})
+        assert "no frames or no vertices" in refused(kind, {"vertices": v[:, :0], "faces": f[:0]})
+        text = refused(kind, {"vertices": np.array([object()], dtype=object), "faces": f})
+        assert str(tmp_path / "s.npz") in text and "pickled or object arrays are refused" in text
+    for faces, said in ((f + 1, "'faces' index vertices 1..10; the stream has 10 (0..9)"),
+                        (f - 1, "'faces' index vertices -1..8"), (f[:, :2], "'faces' must be (F, 3) integers"),
+                        (f + 0.5, "'faces' must be (F, 3) integers"), (f[:0], "'faces' must be (F, 3) integers")):
+        assert said in refused("glb", {"vertices": v, "faces": faces})
+    for fps in (0.0, -24.0, np.nan, np.inf, np.array([24.0, 30.0]), np.array("24")):
+        assert "'fps' must be one positive number" in refused("glb", {"vertices": v, "faces": f, "fps": fps})
+    assert "too low for a glTF animation" in refused("glb", {"vertices": v, "faces": f, "fps": np.float32(1e-44)})
+    monkeypatch.setattr(cli, "GLB_MAX_FRAME_WEIGHTS", 11)
+    assert "4 frames need 4 x 3 morph-target weights" in refused("glb", {"vertices": v, "faces": f})
+    for start in ("nan", "inf", "1e39"):
+        assert "--start-frame must be a finite float32" in refused("pc2", {"vertices": v, "faces": f}, "--start-frame",
+                                                                    start)
+    # PC2 stores neither faces nor a frame rate: a stream whose faces or fps would not make a GLB still exports
+    stream = tmp_path / "s.npz"
+    stream.write_bytes(encode_npz({"vertices": v, "faces": f[:, :2] + 100, "fps": np.array([1.0, 2.0])}))
+    cli.main(["export", "pc2", str(stream), "--out", str(tmp_path / "ok.pc2")])
+    assert (tmp_path / "ok.pc2").stat().st_size == 32 + v.nbytes
 
 
 def test_sim_dataset_substeps_run_every_parameter_set_finer(tmp_path):
