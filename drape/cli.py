@@ -64,12 +64,20 @@ def _import_deepmimic(args: argparse.Namespace) -> None:
     (out / "ATTRIBUTION.md").write_text(deepmimic.ATTRIBUTION + "\n")
 
 
+def _check_fps_option(fps: float | None) -> None:
+    """A clip's frame rate given as --fps: within a motion file's bounds (a BVH's Frame Time, AMASS's rate), so
+    the float32 it is stored as is a rate the loaders read (1e-300 stored as 0)."""
+    if fps is not None and not 0.1 <= fps <= 1000:
+        raise SystemExit(f"drape: error: --fps must be within [0.1, 1000] fps, got {fps:g}")
+
+
 def _motions_generate(args: argparse.Namespace) -> None:
     from drape.assets.procedural import generate_motion
 
+    _check_fps_option(args.fps)
     motion = generate_motion(args.frames, seed=args.seed, fps=args.fps, body=args.body, walk=args.walk)
-    motion.save(args.out)
-    print(f"{args.out}: {motion.num_frames} frames at {motion.fps:g} fps")
+    out = motion.save(args.out)
+    print(f"{out}: {motion.num_frames} frames at {motion.fps:g} fps")
 
 
 def _motions_import(args: argparse.Namespace) -> None:
@@ -81,6 +89,7 @@ def _motions_import(args: argparse.Namespace) -> None:
     src = Path(args.file)
     if src.suffix.lower() not in (".bvh", ".npz"):
         raise SystemExit(f"drape: error: {src}: expected a .bvh (CMU joint names) or an AMASS-style .npz file")
+    _check_fps_option(args.fps)
     start = time.perf_counter()
     try:
         data = src.read_bytes()
@@ -91,9 +100,9 @@ def _motions_import(args: argparse.Namespace) -> None:
     except MotionFileError as exc:
         raise SystemExit(f"drape: error: {src}: {exc}") from exc
     motion = imported.motion
-    motion.save(args.out)
+    out = motion.save(args.out)
     print(imported.summary())
-    print(f"{args.out}: {motion.num_frames} frames at {motion.fps:g} fps ({time.perf_counter() - start:.2f} s)")
+    print(f"{out}: {motion.num_frames} frames at {motion.fps:g} fps ({time.perf_counter() - start:.2f} s)")
 
 
 def _outfits_generate(args: argparse.Namespace) -> None:

@@ -55,8 +55,12 @@ class Motion:
     def num_frames(self) -> int:
         return len(self.poses)
 
-    def save(self, path: str | Path) -> None:
-        np.savez_compressed(path, poses=self.poses, trans=self.trans, fps=np.float32(self.fps))
+    def save(self, path: str | Path) -> Path:
+        """Write the clip npz; -> the file written (numpy adds .npz to a path without it)."""
+        out = Path(path)
+        out = out if str(out).endswith(".npz") else out.with_name(out.name + ".npz")
+        np.savez_compressed(out, poses=self.poses, trans=self.trans, fps=np.float32(self.fps))
+        return out
 
 
 def list_clips() -> list[str]:

@@ -166,6 +166,31 @@ def test_cli_imports_a_bvh_and_prints_the_foot_floor_error(tmp_path, capsys):
         assert z["poses"].shape == (30, 24, 3) and float(z["fps"]) == 30.0
 
 
+def test_cli_fps_names_the_option_and_out_names_the_file_written(tmp_path, capsys):
+    """--fps out of [0.1, 1000] is refused naming --fps (not the input file, whose rate is fine), before the file
+    is read: a clip stores its rate as float32, so --fps 1e-300 wrote one frame at 0 fps that no loader reads.
+    An --out without .npz is written with .npz added (numpy's savez), and the summary names that file."""
+    from drape.assets.motion import load_motion_npz
+    from drape.cli import main
+
+    src = tmp_path / "take.bvh"
+    src.write_bytes(cmu_bvh(12))
+    for fps in ("0", "-5", "nan", "1e-300", "1001"):
+        with pytest.raises(SystemExit) as exc:
+            main(["motions", "import", str(src), "--fps", fps, "--out", str(tmp_path / "x.npz")])
+        assert str(exc.value.code).startswith("drape: error: --fps must be within [0.1, 1000] fps, got "), exc.value
+        assert not (tmp_path / "x.npz").exists()
+    for args in (["motions", "import", str(src)], ["motions", "generate", "--frames", "3"]):
+        for fps in ("0", "nan", "1e-300"):
+            with pytest.raises(SystemExit) as exc:
+                main([*args, "--fps", fps, "--out", str(tmp_path / "x.npz")])
+            assert "--fps must be within [0.1, 1000] fps" in str(exc.value.code)
+        capsys.readouterr()
+        main([*args, "--out", str(tmp_path / "take")])
+        assert capsys.readouterr().out.splitlines()[-1].startswith(f"{tmp_path / 'take.npz'}: ")
+        assert load_motion_npz(tmp_path / "take.npz").num_frames > 0 and not (tmp_path / "take").exists()
+
+
 def _amass_npz(poses: np.ndarray, trans: np.ndarray, **extra) -> bytes:
     buf = io.BytesIO()
     np.savez(buf, poses=poses, trans=trans, **extra)
