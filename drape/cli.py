@@ -6,8 +6,12 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from drape.sim.params import SimParams
 
 ASSETS = Path(__file__).parent / "assets"
 
@@ -477,6 +481,30 @@ def _motion_arg(name: str):  # noqa: ANN202 - Motion
     return load_motion_npz(name) if name.endswith(".npz") else load_clip(name)
 
 
+def _params_file(path: str) -> dict:
+    """--params: a JSON object of intrinsic parameters; SystemExit naming the file otherwise."""
+    import json
+
+    try:
+        given = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as exc:
+        raise SystemExit(f"--params {path}: is not JSON: {exc}") from None
+    if not isinstance(given, dict):
+        raise SystemExit(f"--params {path}: must be a JSON object of parameters, got {type(given).__name__}")
+    return given
+
+
+def _params_option(source: str, kind: type[SimParams], given: dict) -> SimParams:
+    """The parameters, validated before any work; pydantic's errors as one line naming where they came from."""
+    from pydantic import ValidationError
+
+    try:
+        return kind(**given)
+    except ValidationError as exc:
+        errors = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'parameters'}: {e['msg']}" for e in exc.errors())
+        raise SystemExit(f"{source}: {errors}") from None
+
+
 def _sim_run(args: argparse.Namespace) -> None:
     import json
 
@@ -487,7 +515,14 @@ def _sim_run(args: argparse.Namespace) -> None:
     from drape.sim.quality import LayerGate, QualityGate
     from drape.sim.simulate import simulate
 
-    given = json.loads(Path(args.params).read_text()) if args.params else {}
+    given = _params_file(args.params) if args.params else {}
+    if args.thickness is not None and not args.outer:
+        raise SystemExit("--thickness is the inner garment's thickness: it needs --outer")
+    if args.outer and args.thickness is not None:
+        given = given | {"inner_thickness": args.thickness}
+    source = " and ".join([*([f"--params {args.params}"] if args.params else []),
+                           *(["--thickness"] if args.thickness is not None else [])])
+    params = _params_option(source, LayerParams if args.outer else SimParams, given)
     verts, faces = load_mesh(args.garment)
     motion = _motion_arg(args.clip)
     from tqdm import tqdm
@@ -500,7 +535,8 @@ def _sim_run(args: argparse.Namespace) -> None:
         if args.outer:
             from drape.sim.layers import simulate_layers
 
-            lp = LayerParams(**given | ({"inner_thickness": args.thickness} if args.thickness is not None else {}))
+            assert isinstance(params, LayerParams)
+            lp = params
             outer_v, outer_f = load_mesh(args.outer)
             lr = simulate_layers(verts, faces, outer_v, outer_f, load_body(args.body), motion, lp,
                                  frames=args.frames, progress=progress)
@@ -512,9 +548,6 @@ def _sim_run(args: argparse.Namespace) -> None:
                                 inner_garment=Path(args.garment).stem, outer_garment=Path(args.outer).stem,
                                 body=args.body, motion=motion.name)
         else:
-            if args.thickness is not None:
-                raise SystemExit("--thickness is the inner garment's thickness: it needs --outer")
-            params = SimParams(**given)
             r = simulate(verts, faces, load_body(args.body), motion, params, frames=args.frames, progress=progress)
             stats, frames_done, spf = r.stats, len(r.vertices), r.seconds_per_frame
             failures = QualityGate().failures(stats)
@@ -531,7 +564,7 @@ def _sim_run(args: argparse.Namespace) -> None:
 def _sim_dataset(args: argparse.Namespace) -> None:
     from drape.geometry.mesh_io import load_mesh
     from drape.sim.dataset import build_dataset
-    from drape.sim.params import SimParams, sample_layer_params, sample_params
+    from drape.sim.params import sample_layer_params, sample_params
 
     params: list[SimParams]
     garments: dict[str, tuple[np.ndarray, ...]]
@@ -540,7 +573,10 @@ def _sim_dataset(args: argparse.Namespace) -> None:
             raise SystemExit("--outer takes one outer mesh per --garment (the inner), in the same order")
         garments = {f"{Path(g).stem}+{Path(o).stem}": (*load_mesh(g), *load_mesh(o))
                     for g, o in zip(args.garment, args.outer, strict=True)}
-        low, high = (float(x) for x in args.thickness.split(","))
+        try:
+            low, high = (float(x) for x in args.thickness.split(","))
+        except ValueError:
+            raise SystemExit(f"--thickness takes LOW,HIGH in m, got {args.thickness!r}") from None
         params = list(sample_layer_params(args.params, seed=args.seed, thickness=(low, high),
                                           held_out=args.holdout_params, material=args.material))
     else:

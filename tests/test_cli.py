@@ -173,3 +173,36 @@ def test_sim_dataset_substeps_run_every_parameter_set_finer(tmp_path):
     r = subprocess.run([sys.executable, "-m", "drape.cli", "sim", "dataset", "--garment", str(garment), "--motions",
                         "walk,run", "--substeps", "0", "--out", str(tmp_path / "bad")], capture_output=True, text=True)
     assert r.returncode != 0 and "--substeps must be in [1, 64]" in r.stderr
+
+
+def test_sim_option_files_and_ranges_are_refused_in_one_line(tmp_path, capsys):
+    """sim run's --params must be a JSON object of known parameters and sim dataset's --thickness LOW,HIGH: a
+    one-line refusal naming the option, before any simulation (a JSON list raised TypeError from SimParams(**...),
+    an unknown key printed pydantic's multi-line report, one number 'not enough values to unpack')."""
+    from drape import cli
+    from drape.geometry.mesh_io import save_mesh
+
+    garment = tmp_path / "g.obj"
+    save_mesh(garment, np.array([[0, 1, 0], [0.1, 1, 0], [0, 1.1, 0]], np.float32), np.array([[0, 1, 2]]))
+
+    def refused(*args):
+        with pytest.raises(SystemExit) as exc:
+            cli.main(list(args))
+        text = exc.value.code if isinstance(exc.value.code, str) else capsys.readouterr().err
+        assert exc.value.code != 0 and "\n" not in text.strip(), text
+        return text
+
+    params = tmp_path / "p.json"
+    for given, said in (("[1]", "must be a JSON object of parameters, got list"),
+                        ('{"young": ', "is not JSON: Expecting value"),
+                        ('{"nope": 1}', "nope: Extra inputs are not permitted"),
+                        ('{"young": -1}', "young: Input should be greater than")):
+        params.write_text(given)
+        text = refused("sim", "run", "--garment", str(garment), "--clip", "walk", "--params", str(params), "--out",
+                       str(tmp_path / "s.npz"))
+        assert text.startswith(f"--params {params}: ") and said in text, text
+    for given in ("0.01", "a,b", "0.01,0.02,0.03"):
+        assert refused("sim", "dataset", "--garment", str(garment), "--outer", str(garment), "--thickness", given,
+                       "--motions", "walk", "--out", str(tmp_path / "d")).startswith(
+            f"--thickness takes LOW,HIGH in m, got {given!r}")
+    assert not (tmp_path / "s.npz").exists() and not (tmp_path / "d").exists()
