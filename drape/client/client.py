@@ -122,13 +122,22 @@ def _layer_frames(response: httpx.Response) -> LayerFrames:
 
 
 def _raise_for(response: httpx.Response) -> None:
+    """DrapeAPIError for an error answer: its problem details, or (an answer that is not a problem: a proxy's
+    HTML page, other JSON) the reason phrase as title and the start of the body as detail."""
     if response.status_code < 400:
         return
     try:
         p = response.json()
-        raise DrapeAPIError(response.status_code, p.get("type", ""), p.get("title", ""), p.get("detail", ""))
     except ValueError:
-        raise DrapeAPIError(response.status_code, "", response.reason_phrase, response.text[:500]) from None
+        p = None
+
+    def text(key: str) -> str | None:
+        value = p.get(key) if isinstance(p, dict) else None
+        return value if isinstance(value, str) else None
+
+    detail = text("detail")
+    raise DrapeAPIError(response.status_code, text("type") or "", text("title") or response.reason_phrase,
+                        response.text[:500] if detail is None else detail)
 
 
 def _mesh_arrays(outfit: OutfitLike) -> tuple[np.ndarray, np.ndarray] | None:
@@ -470,9 +479,10 @@ class Client(_Base):
                 body: str | None = None, refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
         """Posed outfit vertices (T, N, 3) float32 metres; or, with format="glb" / "pc2", the bytes of a
         GLB (the rigged outfit and the body, the motion as its animation) / a PC2 point cache."""
+        accept = _file_type(format) if format != "array" else None  # before a mesh file is uploaded to be rigged
         req = self._animate_body(outfit, outfit_id, motion, body, refine)
-        if format != "array":
-            return self._file("/v1/outfits/animate", _file_type(format), **req)
+        if accept is not None:
+            return self._file("/v1/outfits/animate", accept, **req)
         return self._frames("/v1/outfits/animate", **req)
 
     def _file(self, path: str, accept: str, **request: Any) -> bytes:
@@ -734,9 +744,10 @@ class AsyncClient(_Base):
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                       motion: MotionLike, body: str | None = None, refine: bool = False,
                       format: Format = "array") -> np.ndarray | bytes:
+        accept = _file_type(format) if format != "array" else None  # before a mesh file is uploaded to be rigged
         req = await self._animate_body(outfit, outfit_id, motion, body, refine)
-        if format != "array":
-            return await self._file("/v1/outfits/animate", _file_type(format), **req)
+        if accept is not None:
+            return await self._file("/v1/outfits/animate", accept, **req)
         return await self._frames("/v1/outfits/animate", **req)
 
     async def _file(self, path: str, accept: str, **request: Any) -> bytes:

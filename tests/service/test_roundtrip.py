@@ -79,6 +79,60 @@ def test_typed_errors_carry_the_problem(server_url):
     assert info.value.status == 404 and info.value.type.endswith("not-found") and "outfit_id" in info.value.detail
 
 
+def test_error_answers_that_are_not_problems_still_raise_the_typed_error():
+    """A proxy's or gateway's error page (HTML, a JSON list, a JSON object with no problem fields) is a
+    DrapeAPIError with the status, the reason phrase as its title and the body as its detail; not an
+    AttributeError from treating any JSON as a problem, nor an error with an empty title and detail."""
+    import httpx
+
+    bodies = {"/html": ("text/html", b"<html><h1>502 Bad Gateway</h1></html>"),
+              "/list": ("application/json", b'["upstream down"]'),
+              "/null": ("application/json", b"null"),
+              "/object": ("application/json", b'{"error": "upstream timed out"}'),
+              "/problem": ("application/problem+json", b'{"type": "t", "title": "Not Found", "detail": "no x"}')}
+
+    def answer(request):
+        kind, body = bodies[request.url.path]
+        return httpx.Response(404 if request.url.path == "/problem" else 502, content=body,
+                              headers={"Content-Type": kind})
+
+    with drape.Client("http://drape.test", transport=httpx.MockTransport(answer)) as client:
+        for path, (_, body) in bodies.items():
+            with pytest.raises(drape.DrapeAPIError) as info:
+                client._get(path)
+            e = info.value
+            if path == "/problem":
+                assert (e.status, e.type, e.title, e.detail) == (404, "t", "Not Found", "no x")
+            else:
+                assert (e.status, e.type, e.title, e.detail) == (502, "", "Bad Gateway", body.decode()), path
+
+
+def test_an_unknown_format_is_refused_before_any_request(tmp_path):
+    """animate(outfit=<a mesh file>, format=...) rigs the file first: an unknown format is a ValueError before
+    that upload, not after the rig's work on the server."""
+    import httpx
+
+    seen = []
+
+    def answer(request):
+        seen.append(request.url.path)
+        return httpx.Response(500)
+
+    mesh = tmp_path / "o.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with drape.Client("http://drape.test", transport=httpx.MockTransport(answer)) as client:
+        with pytest.raises(ValueError, match="format must be 'array', 'glb' or 'pc2', not 'fbx'"):
+            client.animate(outfit=mesh, motion="walk", format="fbx")  # type: ignore[call-overload]
+
+    async def go():
+        async with drape.AsyncClient("http://drape.test", transport=httpx.MockTransport(answer)) as client:
+            with pytest.raises(ValueError, match="format must be"):
+                await client.animate(outfit=mesh, motion="walk", format="GLB")  # type: ignore[call-overload]
+
+    asyncio.run(go())
+    assert seen == []
+
+
 def test_connection_errors_are_retried_then_raised():
     import httpx
 
