@@ -348,9 +348,6 @@ def _export_deepsd(args: argparse.Namespace) -> None:
         print(path)
 
 
-GLB_MAX_FRAME_WEIGHTS = 20_000_000  # frames x (frames - 1) morph-target weights: the service's DRAPE_MAX_POSED_VALUES
-
-
 def _read_stream(path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """An npz stream on disk (an animate/refine npz answer, a simulated sequence) -> (vertices (T, N, 3) float32 m,
     finite, T and N >= 1; the archive's members); SystemExit naming the file and the member otherwise."""
@@ -391,15 +388,16 @@ def _glb_faces_fps(path: str, z: dict[str, np.ndarray], frames: int, vertices: i
         if not (np.isfinite(fps) and fps > 0):
             got = repr(given.reshape(-1)[0].item()) if given.size == 1 else f"{given.shape} {given.dtype}"
             raise SystemExit(f"{path}: 'fps' must be one positive number, got {got}")
-    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-        last = np.float32(frames - 1) / np.float32(fps)
-    if not (np.isfinite(last) and np.float32(fps) > 0):
+    from drape.schemas.gltf import frame_target_weights, key_times_finite
+    from drape.service.settings import Settings
+
+    if not key_times_finite(frames, fps):
         raise SystemExit(f"{path}: {fps:g} fps is too low for a glTF animation: the key times of {frames} frames "
                          "(frame / fps seconds, float32) would not be finite; use `drape export pc2`")
-    if frames * (frames - 1) > GLB_MAX_FRAME_WEIGHTS:
+    limit = Settings().max_posed_values  # the service's bound on the same weights (DRAPE_MAX_POSED_VALUES)
+    if frame_target_weights(frames) > limit:
         raise SystemExit(f"{path}: {frames} frames need {frames} x {frames - 1} morph-target weights in a GLB (one "
-                         f"target a frame), over the limit of {GLB_MAX_FRAME_WEIGHTS}; export fewer frames or use "
-                         "`drape export pc2`")
+                         f"target a frame), over the limit of {limit}; export fewer frames or use `drape export pc2`")
     return faces, fps
 
 

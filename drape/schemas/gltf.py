@@ -252,6 +252,19 @@ def _add_animation(w: _Writer, a: Animation, rest: np.ndarray, joint_nodes: list
     w.doc.animations.append(anim)
 
 
+def key_times_finite(frames: int, fps: float) -> bool:
+    """Whether glTF's float32 key times of `frames` frames at `fps` (frame t at t / fps seconds) are all finite:
+    False for a rate that rounds to 0 in float32 or puts the last frame beyond float32's range."""
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        return bool(np.isfinite(np.float32(max(frames - 1, 0)) / np.float32(fps)))
+
+
+def frame_target_weights(frames: int) -> int:
+    """The morph-target weights a GLB animates when it plays one target a frame (`vertex_animation_glb`; a skinned
+    GLB's per-frame corrections): frames x (frames - 1), quadratic in the frames."""
+    return frames * (frames - 1)
+
+
 def vertex_animation_glb(vertices: np.ndarray, faces: np.ndarray, fps: float, name: str = "garment",
                          min_offset: float = 0.0) -> bytes:
     """A stream vertices (T, N, 3) m as one mesh: frame 0 is the base, frame t >= 1 a morph target

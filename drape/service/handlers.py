@@ -17,7 +17,14 @@ from drape.geometry.queries import MeshDistance
 from drape.runtime.body_store import PREFIX as USER_BODY_PREFIX
 from drape.runtime.engine import Engine, InnerStream, RefineSettings, RiggedOutfit
 from drape.runtime.sparse_rig import INFLUENCES
-from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb
+from drape.schemas.gltf import (
+    Animation,
+    Skeleton,
+    SkinnedMesh,
+    frame_target_weights,
+    key_times_finite,
+    skinned_glb,
+)
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
 from drape.service.settings import Settings
 
@@ -277,9 +284,7 @@ def check_glb_fps(frames: int, fps: float, field: str) -> None:
     """A GLB answer's frame rate: its animation keys frame t at t / fps seconds in float32, so every key time must
     be finite there (a frame rate that rounds to 0 in float32, or puts the last frame beyond float32's range, is a
     domain error naming `field`)."""
-    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-        last = np.float32(max(frames - 1, 0)) / np.float32(fps)
-    if not np.isfinite(last):
+    if not key_times_finite(frames, fps):
         raise InvalidInput(f"{fps:g} fps is too low for a glTF animation: the key times of {frames} frames (frame / "
                            "fps seconds, float32) would not be finite; ask for a higher fps or another format "
                            "(npz, the frame stream, PC2)", field)
@@ -289,7 +294,7 @@ def check_glb_frame_targets(frames: int, max_values: int, field: str) -> None:
     """A GLB answer that plays one morph target per frame (a vertex animation; animate with refinement's
     corrections) animates their weights with frames x (frames - 1) values, quadratic in the frames: bounded
     like the other answers' values (`max_values`, DRAPE_MAX_POSED_VALUES), a 413 naming `field`."""
-    if frames * (frames - 1) > max_values:
+    if frame_target_weights(frames) > max_values:
         raise LimitExceeded(
             f"{frames} frames need {frames} x {frames - 1} morph-target weights in a GLB (one target a frame), over "
             f"the limit of {max_values}; ask for fewer frames or another format (npz, the frame stream, PC2)", field)
