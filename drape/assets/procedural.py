@@ -85,6 +85,9 @@ def generate_motion(
     """
     if frames < 1:
         raise ValueError("frames must be >= 1")
+    for name, share in (("walk", walk), ("spread", spread)):
+        if not 0.0 <= share <= 1.0:  # NaN too
+            raise ValueError(f"{name} must be within [0, 1], got {share}")
     b = load_body(body) if isinstance(body, str) else body
     rng = np.random.default_rng(seed)
     n = frames

@@ -213,3 +213,12 @@ def test_bvh_import_reproduces_joint_positions(tmp_path):
     _, ours = forward_kinematics(m.poses.astype(float), body.joints, translation=m.trans.astype(float))
     for cmu, smpl in CMU_TO_SMPL.items():
         assert np.allclose(ours[:, JOINT_INDEX[smpl]], ref[:, names.index(cmu)] / 100.0, atol=2e-3), cmu
+
+
+@pytest.mark.parametrize("bad", [{"walk": 1.5}, {"walk": -0.1}, {"walk": float("nan")}, {"spread": 2.0}])
+def test_generate_motion_refuses_shares_outside_0_1(bad):
+    """walk and spread are shares (0..1): outside it (or NaN) a ValueError naming the argument, which the CLI
+    prints as one line (`drape motions generate --walk 1.5`), not a motion that silently saturates."""
+    name = next(iter(bad))
+    with pytest.raises(ValueError, match=f"{name} must be within"):
+        generate_motion(10, **bad)
