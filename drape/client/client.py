@@ -419,15 +419,19 @@ class Client(_Base):
         return r.json()
 
     def health(self) -> Health:
+        """The process is alive (GET /healthz): status "ok"."""
         return Health.model_validate(self._get("/healthz"))
 
     def bodies(self) -> BodyList:
+        """The body presets, then the registered user bodies: name, 24-joint skeleton (SMPL order), mesh sizes."""
         return BodyList.model_validate(self._get("/v1/bodies"))
 
     def motions(self) -> MotionList:
+        """The embedded motion clips: name, frames, fps."""
         return MotionList.model_validate(self._get("/v1/motions"))
 
     def models(self) -> ModelList:
+        """Every loaded model: version, files (sha256, inputs/outputs, -1 a dynamic axis), evaluation."""
         return ModelList.model_validate(self._get("/v1/models"))
 
     def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False) -> RigResult:
@@ -639,6 +643,22 @@ class AsyncClient(_Base):
         r = await self._http.get(path)
         _raise_for(r)
         return r.json()
+
+    async def health(self) -> Health:
+        """See Client.health."""
+        return Health.model_validate(await self._get("/healthz"))
+
+    async def bodies(self) -> BodyList:
+        """See Client.bodies."""
+        return BodyList.model_validate(await self._get("/v1/bodies"))
+
+    async def motions(self) -> MotionList:
+        """See Client.motions."""
+        return MotionList.model_validate(await self._get("/v1/motions"))
+
+    async def models(self) -> ModelList:
+        """See Client.models."""
+        return ModelList.model_validate(await self._get("/v1/models"))
 
     async def garments(self) -> GarmentList:
         """The served garment templates (see Client.garments)."""

@@ -259,3 +259,24 @@ def test_engine_formats_through_the_client(server_url, outfit):
             return await client.animate(outfit=(outfit.vertices, outfit.faces), motion="kick", format="pc2")
 
     assert asyncio.run(go()) == pc2
+
+def _public_calls(cls: type) -> dict:
+    return {n: getattr(cls, n) for n in dir(cls) if not n.startswith("_") and callable(getattr(cls, n))}
+
+
+def test_async_client_mirrors_the_client():
+    """AsyncClient has every call of Client (close is aclose) with the same parameters: names, kinds, defaults
+    and annotations, overload by overload; each a coroutine function, or an async generator for a stream."""
+    import inspect
+    import typing
+
+    sync, asyn = _public_calls(drape.Client), _public_calls(drape.AsyncClient)
+    assert set(sync) - {"close"} == set(asyn) - {"aclose"}, set(sync) ^ set(asyn)
+    for name, method in sync.items():
+        if name == "close":
+            continue
+        twin = asyn[name]
+        assert inspect.iscoroutinefunction(twin) or inspect.isasyncgenfunction(twin), name
+        assert inspect.signature(method).parameters == inspect.signature(twin).parameters, name
+        overloads = [inspect.signature(f).parameters for f in typing.get_overloads(method)]
+        assert overloads == [inspect.signature(f).parameters for f in typing.get_overloads(twin)], name
