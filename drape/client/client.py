@@ -16,7 +16,7 @@ import numpy as np
 from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, FrameReader, decode_npz, encode_npz
 from drape.schemas.catalog import BodyList, BodyRegistered, Health, MotionList
 from drape.schemas.garments import GarmentList
-from drape.schemas.models import ModelList
+from drape.schemas.models import ModelInfo, ModelList
 
 OutfitLike = Any  # path | (vertices, faces) | object with .vertices/.faces
 Format = Literal["array", "glb", "pc2"]  # frames as one (T, N, 3) array, or the file bytes of an engine format
@@ -434,6 +434,10 @@ class Client(_Base):
         """Every loaded model: version, files (sha256, inputs/outputs, -1 a dynamic axis), evaluation."""
         return ModelList.model_validate(self._get("/v1/models"))
 
+    def model(self, name: str) -> ModelInfo:
+        """One loaded model by name (a name of `models()`: the DeePSD model, intrinsic-<template>)."""
+        return ModelInfo.model_validate(self._get(f"/v1/models/{quote(name, safe='')}"))
+
     def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False) -> RigResult:
         """Rig an outfit: blend weights (at most `influences`, 4 or 8, non-zero per vertex), blend shapes,
         skeleton and its outfit_id (animate it by outfit_id; an outfit given to animate is rigged with 4).
@@ -659,6 +663,10 @@ class AsyncClient(_Base):
     async def models(self) -> ModelList:
         """See Client.models."""
         return ModelList.model_validate(await self._get("/v1/models"))
+
+    async def model(self, name: str) -> ModelInfo:
+        """See Client.model."""
+        return ModelInfo.model_validate(await self._get(f"/v1/models/{quote(name, safe='')}"))
 
     async def garments(self) -> GarmentList:
         """The served garment templates (see Client.garments)."""

@@ -280,3 +280,73 @@ def test_async_client_mirrors_the_client():
         assert inspect.signature(method).parameters == inspect.signature(twin).parameters, name
         overloads = [inspect.signature(f).parameters for f in typing.get_overloads(method)]
         assert overloads == [inspect.signature(f).parameters for f in typing.get_overloads(twin)], name
+
+
+OPS_ROUTES = {("GET", "/readyz"), ("GET", "/metrics")}  # probes and Prometheus: not the client's
+
+
+def _requests_made(cls: type, calls: list[tuple[str, tuple, dict]]) -> list[tuple[str, str, str]]:
+    """(method, path, Accept) of every request `cls` makes for `calls` (name, args, kwargs), against a server
+    that answers each with a 503 problem (every call must raise it as a DrapeAPIError)."""
+    import httpx
+
+    seen: list[tuple[str, str, str]] = []
+
+    def answer(request):
+        seen.append((request.method, request.url.path, request.headers.get("accept", "")))
+        return httpx.Response(503, json={"type": "busy", "title": "Busy", "status": 503, "detail": "later"},
+                              headers={"Content-Type": "application/problem+json"})
+
+    async def drain(result):
+        return [x async for x in result] if hasattr(result, "__aiter__") else await result
+
+    async def run_async():
+        async with drape.AsyncClient("http://drape.test", transport=httpx.MockTransport(answer)) as client:
+            for name, args, kwargs in calls:
+                with pytest.raises(drape.DrapeAPIError):
+                    await drain(getattr(client, name)(*args, **kwargs))
+
+    if cls is drape.AsyncClient:
+        asyncio.run(run_async())
+    else:
+        with drape.Client("http://drape.test", transport=httpx.MockTransport(answer)) as client:
+            for name, args, kwargs in calls:
+                with pytest.raises(drape.DrapeAPIError):
+                    result = getattr(client, name)(*args, **kwargs)
+                    list(result) if name == "animate_stream" else None
+    return seen
+
+
+V3, F1 = np.zeros((3, 3), np.float32), np.array([[0, 1, 2]])
+EVERY_CALL = [("health", (), {}), ("bodies", (), {}), ("motions", (), {}), ("models", (), {}), ("model", ("m",), {}),
+              ("register_body", ({"vertices": V3},), {}), ("body", ("b",), {}), ("delete_body", ("b",), {}),
+              ("fit", ((V3, F1),), {}), ("rig", ((V3, F1),), {}),
+              ("animate", (), {"outfit_id": "o", "motion": "walk"}),
+              ("animate_stream", (), {"outfit_id": "o", "motion": "walk"}),
+              ("refine", (V3[None], F1), {"motion": "walk"}),
+              ("garments", (), {}), ("garment", ("g",), {}),
+              ("encode_keyframe", ("g",), {"vertices": V3, "motion": "walk", "frame": 0}),
+              ("animate_keyframes", ("g",), {"motion": "walk", "keyframes": [(0, np.zeros(4))]}),
+              ("sample_designs", ("g",), {"count": 1, "motion": "walk"}),
+              ("layers", (), {}), ("animate_layers", (), {"inner": "i", "outer": "o", "motion": "walk"})]
+
+
+def _route(schema: dict, method: str, path: str) -> tuple[str, str]:
+    import re
+
+    for template in schema["paths"]:
+        if re.fullmatch(re.sub(r"\{[^}]+\}", "[^/]+", template), path):
+            return method, template
+    raise AssertionError(f"{method} {path} is no route of the service")
+
+
+@pytest.mark.parametrize("cls", [drape.Client, drape.AsyncClient], ids=["sync", "async"])
+def test_the_client_reaches_every_route(cls):
+    """Every route of the OpenAPI schema (but the probes and /metrics) is reached by a call of the client."""
+    from drape.service.app import create_app
+    from drape.service.settings import Settings
+
+    schema = create_app(Settings()).openapi()
+    routes = {(m.upper(), p) for p, ops in schema["paths"].items() for m in ops}
+    reached = {_route(schema, m, p) for m, p, _ in _requests_made(cls, EVERY_CALL)}
+    assert reached == routes - OPS_ROUTES, (routes - OPS_ROUTES) ^ reached
