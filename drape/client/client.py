@@ -21,6 +21,7 @@ from drape.schemas.models import ModelInfo, ModelList
 OutfitLike = Any  # path | (vertices, faces) | object with .vertices/.faces
 Format = Literal["array", "glb", "pc2"]  # frames as one (T, N, 3) array, or the file bytes of an engine format
 _FILE_TYPES = {"glb": "model/gltf-binary", "pc2": "application/x-pc2"}
+RigFormat = Literal["array", "glb"]  # the rig's arrays (a RigResult), or the bytes of a GLB
 MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps | Path of a BVH / AMASS npz
 # a keyframe: {"frame": f, "vertices": (N, 3)} or {"frame": f, "latent": (Z,)}, or a (frame, array) pair whose
 # array is vertices (N, 3) (2-D) or a latent (Z,) (1-D)
@@ -222,6 +223,20 @@ def _registered(response: httpx.Response) -> BodyRegistered:
 def _body_arrays(response: httpx.Response) -> dict[str, np.ndarray]:
     _raise_for(response)
     return decode_npz(response.content)
+
+
+def _rig_accept(format: str) -> str:
+    """The rig's Accept for `format`, checked before anything is sent."""
+    if format not in ("array", "glb"):
+        raise ValueError(f"format must be 'array' or 'glb', not {format!r}")
+    return NPZ if format == "array" else _FILE_TYPES["glb"]
+
+
+def _rig_answer(response: httpx.Response, format: str) -> RigResult | bytes:
+    if format == "array":
+        return _rig_result(response)
+    _raise_for(response)
+    return response.content
 
 
 def _rig_result(response: httpx.Response) -> RigResult:
@@ -438,12 +453,24 @@ class Client(_Base):
         """One loaded model by name (a name of `models()`: the DeePSD model, intrinsic-<template>)."""
         return ModelInfo.model_validate(self._get(f"/v1/models/{quote(name, safe='')}"))
 
-    def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False) -> RigResult:
+    @overload
+    def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False,
+            format: Literal["array"] = "array") -> RigResult: ...
+
+    @overload
+    def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False,
+            format: Literal["glb"]) -> bytes: ...
+
+    def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False,
+            format: RigFormat = "array") -> RigResult | bytes:
         """Rig an outfit: blend weights (at most `influences`, 4 or 8, non-zero per vertex), blend shapes,
         skeleton and its outfit_id (animate it by outfit_id; an outfit given to animate is rigged with 4).
-        fit: fit the mesh onto the body first (see `fit`, units and up inferred); RigResult.fit then holds it."""
-        return _rig_result(self._http.post("/v1/outfits/rig", headers={"Accept": NPZ},
-                                           **_rig_request(outfit, body, influences, fit)))
+        fit: fit the mesh onto the body first (see `fit`, units and up inferred); RigResult.fit then holds it.
+        format="glb": the bytes of a GLB (the outfit skinned to the 24-joint skeleton, its blend shapes as
+        morph targets, and the body)."""
+        r = self._http.post("/v1/outfits/rig", headers={"Accept": _rig_accept(format)},
+                            **_rig_request(outfit, body, influences, fit))
+        return _rig_answer(r, format)
 
     def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None, up: str | None = None,
             pose: str | np.ndarray = "t") -> FitResult:
@@ -728,11 +755,19 @@ class AsyncClient(_Base):
             return await self._file("/v1/layers/animate", _file_type(format), **req)
         return _layer_frames(await self._http.post("/v1/layers/animate", headers={"Accept": NPZ}, **req))
 
-    async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4,
-                  fit: bool = False) -> RigResult:
-        r = await self._http.post("/v1/outfits/rig", headers={"Accept": NPZ},
+    @overload
+    async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False,
+                  format: Literal["array"] = "array") -> RigResult: ...
+
+    @overload
+    async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False,
+                  format: Literal["glb"]) -> bytes: ...
+
+    async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False,
+                  format: RigFormat = "array") -> RigResult | bytes:
+        r = await self._http.post("/v1/outfits/rig", headers={"Accept": _rig_accept(format)},
                                   **_rig_request(outfit, body, influences, fit))
-        return _rig_result(r)
+        return _rig_answer(r, format)
 
     async def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None,
                   up: str | None = None, pose: str | np.ndarray = "t") -> FitResult:

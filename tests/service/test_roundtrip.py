@@ -123,6 +123,8 @@ def test_an_unknown_format_is_refused_before_any_request(tmp_path):
     with drape.Client("http://drape.test", transport=httpx.MockTransport(answer)) as client:
         with pytest.raises(ValueError, match="format must be 'array', 'glb' or 'pc2', not 'fbx'"):
             client.animate(outfit=mesh, motion="walk", format="fbx")  # type: ignore[call-overload]
+        with pytest.raises(ValueError, match="format must be 'array' or 'glb', not 'pc2'"):
+            client.rig(mesh, format="pc2")  # type: ignore[call-overload]
 
     async def go():
         async with drape.AsyncClient("http://drape.test", transport=httpx.MockTransport(answer)) as client:
@@ -350,3 +352,44 @@ def test_the_client_reaches_every_route(cls):
     routes = {(m.upper(), p) for p, ops in schema["paths"].items() for m in ops}
     reached = {_route(schema, m, p) for m, p, _ in _requests_made(cls, EVERY_CALL)}
     assert reached == routes - OPS_ROUTES, (routes - OPS_ROUTES) ^ reached
+
+
+def _file_formats(method) -> set[str]:
+    """The format= values of a call's overloads that answer file bytes (all but "array")."""
+    import typing
+
+    hints = [typing.get_type_hints(f).get("format") for f in typing.get_overloads(method)]
+    return {a for h in hints if h is not None for a in typing.get_args(h)} - {"array"}
+
+
+@pytest.mark.parametrize("cls", [drape.Client, drape.AsyncClient], ids=["sync", "async"])
+def test_the_client_asks_for_every_engine_format_a_route_offers(cls):
+    """Every route answering GLB or PC2 (OpenAPI 200 content) is asked for it by some call's format=."""
+    from drape.service.app import create_app
+    from drape.service.settings import Settings
+
+    schema = create_app(Settings()).openapi()
+    engine = {"model/gltf-binary": "glb", "application/x-pc2": "pc2"}
+    calls = [(name, args, {**kwargs, "format": f}) for name, args, kwargs in EVERY_CALL
+             for f in _file_formats(getattr(cls, name))]
+    asked = {(*_route(schema, m, p), accept) for m, p, accept in _requests_made(cls, calls)}
+    offered = {(m.upper(), p, kind) for p, ops in schema["paths"].items() for m, op in ops.items()
+               for kind in op.get("responses", {}).get("200", {}).get("content", {}) if kind in engine}
+    assert offered <= asked, offered - asked
+
+
+def test_rig_as_glb_through_the_client(server_url, outfit):
+    """rig(format="glb") answers the route's GLB (the skinned outfit, morph targets, the body), sync and async."""
+    import httpx
+
+    with drape.Client(server_url) as client:
+        glb = client.rig((outfit.vertices, outfit.faces), format="glb")
+    direct = httpx.post(f"{server_url}/v1/outfits/rig", headers={"Accept": "model/gltf-binary"}, timeout=60,
+                        json={"vertices": outfit.vertices.tolist(), "faces": outfit.faces.tolist()})
+    assert glb[:4] == b"glTF" and glb == direct.content
+
+    async def go():
+        async with drape.AsyncClient(server_url) as client:
+            return await client.rig((outfit.vertices, outfit.faces), format="glb")
+
+    assert asyncio.run(go()) == glb
