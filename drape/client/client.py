@@ -250,19 +250,22 @@ def _rig_result(response: httpx.Response) -> RigResult:
 
 
 def _animate_request(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
-                     refine: bool) -> dict:
+                     influences: int | None, fit: bool, refine: bool) -> dict:
     """The animate request's httpx arguments: an npz body; with a motion file (a path: BVH or AMASS npz), a
-    multipart form with the file as `motion_file` (the server retargets it onto the outfit's body, 30 fps)."""
+    multipart form with the file as `motion_file` (the server retargets it onto the outfit's body, 30 fps)
+    and an outfit_id (the form has no fit: a mesh is rigged, and fitted, first)."""
     if isinstance(motion, os.PathLike):
         path = Path(motion)
-        fields = {"outfit_id": outfit_id, "refine": str(bool(refine)).lower(), "body": body}
+        fields = {"outfit_id": outfit_id, "refine": str(bool(refine)).lower(), "body": body,
+                  "influences": None if influences is None else str(int(influences))}
         return {"files": {"motion_file": (path.name, path.read_bytes())},
                 "data": {k: v for k, v in fields.items() if v is not None}, "headers": {}}
-    return {"content": _animate_npz(outfit_id, arrays, motion, body, refine), "headers": {"Content-Type": NPZ}}
+    return {"content": _animate_npz(outfit_id, arrays, motion, body, influences, fit, refine),
+            "headers": {"Content-Type": NPZ}}
 
 
 def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
-                 refine: bool) -> bytes:
+                 influences: int | None, fit: bool, refine: bool) -> bytes:
     """The animate request as an npz: the motion's arrays in binary instead of JSON text."""
     req: dict[str, np.ndarray] = {**_motion_arrays(motion), "refine": np.array(bool(refine))}
     if outfit_id is not None:
@@ -271,6 +274,10 @@ def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike
         req["vertices"], req["faces"] = arrays
     if body is not None:
         req["body"] = np.array(body)
+    if influences is not None:
+        req["influences"] = np.array(int(influences))
+    if fit:
+        req["fit"] = np.array(True)
     return encode_npz(req)
 
 
@@ -400,10 +407,13 @@ class _Base:
         self.base_url = base_url.rstrip("/")
         self.headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
 
-    def _prepare(self, outfit: OutfitLike | None, outfit_id: str | None) -> tuple[tuple | None, bool]:
+    def _prepare(self, outfit: OutfitLike | None, outfit_id: str | None,
+                 fit: bool = False) -> tuple[tuple | None, bool]:
         """(arrays, needs_rig): file paths are uploaded through rig first to get an outfit_id."""
         if (outfit is None) == (outfit_id is None):
             raise ValueError("give exactly one of outfit= and outfit_id=")
+        if fit and outfit is None:
+            raise ValueError("fit=True applies to outfit=; an outfit_id is already rigged")
         if outfit is None:
             return None, False
         arrays = _mesh_arrays(outfit)
@@ -464,7 +474,8 @@ class Client(_Base):
     def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False,
             format: RigFormat = "array") -> RigResult | bytes:
         """Rig an outfit: blend weights (at most `influences`, 4 or 8, non-zero per vertex), blend shapes,
-        skeleton and its outfit_id (animate it by outfit_id; an outfit given to animate is rigged with 4).
+        skeleton and its outfit_id (animate it by outfit_id; an outfit given to animate is rigged with its
+        `influences`, default 4).
         fit: fit the mesh onto the body first (see `fit`, units and up inferred); RigResult.fit then holds it.
         format="glb": the bytes of a GLB (the outfit skinned to the 24-joint skeleton, its blend shapes as
         morph targets, and the body)."""
@@ -495,27 +506,36 @@ class Client(_Base):
         """Forget a registered body."""
         _raise_for(self._http.delete(f"/v1/bodies/{quote(name, safe='')}"))
 
-    def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
+    def _animate_body(self, outfit, outfit_id, motion, body, influences, fit, refine) -> dict:  # noqa: ANN001
         """The animate request's httpx arguments (an npz body)."""
-        arrays, needs_rig = self._prepare(outfit, outfit_id)
+        arrays, needs_rig = self._prepare(outfit, outfit_id, fit)
         if needs_rig or (arrays is not None and isinstance(motion, os.PathLike)):
-            outfit_id, body, arrays = self.rig(outfit, body=body or "neutral").outfit_id, None, None
-        return _animate_request(outfit_id, arrays, motion, body, refine)
+            rig = self.rig(outfit, body=body or "neutral", influences=4 if influences is None else influences,
+                           fit=fit)
+            outfit_id = rig.outfit_id
+            body, arrays, fit = None, None, False
+        return _animate_request(outfit_id, arrays, motion, body, influences, fit, refine)
 
     @overload
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
-                body: str | None = None, refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
+                body: str | None = None, influences: int | None = None, fit: bool = False,
+                refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
-                body: str | None = None, refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+                body: str | None = None, influences: int | None = None, fit: bool = False,
+                refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
 
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
-                body: str | None = None, refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+                body: str | None = None, influences: int | None = None, fit: bool = False,
+                refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
         """Posed outfit vertices (T, N, 3) float32 metres; or, with format="glb" / "pc2", the bytes of a
-        GLB (the rigged outfit and the body, the motion as its animation) / a PC2 point cache."""
+        GLB (the rigged outfit and the body, the motion as its animation) / a PC2 point cache.
+
+        influences: skin influences per vertex, 4 or 8 (None: 4 for an outfit, the rig's for an outfit_id);
+        fit: fit the outfit mesh onto the body first, as rig(..., fit=True) does (not with outfit_id)."""
         accept = _file_type(format) if format != "array" else None  # before a mesh file is uploaded to be rigged
-        req = self._animate_body(outfit, outfit_id, motion, body, refine)
+        req = self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         if accept is not None:
             return self._file("/v1/outfits/animate", accept, **req)
         return self._frames("/v1/outfits/animate", **req)
@@ -569,9 +589,10 @@ class Client(_Base):
         return self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
 
     def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
-                       motion: MotionLike, body: str | None = None, refine: bool = False) -> Iterator[np.ndarray]:
+                       motion: MotionLike, body: str | None = None, influences: int | None = None,
+                       fit: bool = False, refine: bool = False) -> Iterator[np.ndarray]:
         """Posed frames (N, 3) float32, yielded as they arrive."""
-        req = self._animate_body(outfit, outfit_id, motion, body, refine)
+        req = self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         req["headers"]["Accept"] = FRAMES
         with self._http.stream("POST", "/v1/outfits/animate", **req) as r:
             if r.status_code >= 400:
@@ -788,27 +809,29 @@ class AsyncClient(_Base):
         """See Client.delete_body."""
         _raise_for(await self._http.delete(f"/v1/bodies/{quote(name, safe='')}"))
 
-    async def _animate_body(self, outfit, outfit_id, motion, body, refine) -> dict:  # noqa: ANN001
-        arrays, needs_rig = self._prepare(outfit, outfit_id)
+    async def _animate_body(self, outfit, outfit_id, motion, body, influences, fit, refine) -> dict:  # noqa: ANN001
+        arrays, needs_rig = self._prepare(outfit, outfit_id, fit)
         if needs_rig or (arrays is not None and isinstance(motion, os.PathLike)):
-            outfit_id, body, arrays = (await self.rig(outfit, body=body or "neutral")).outfit_id, None, None
-        return _animate_request(outfit_id, arrays, motion, body, refine)
+            rig = await self.rig(outfit, body=body or "neutral",
+                                 influences=4 if influences is None else influences, fit=fit)
+            outfit_id, body, arrays, fit = rig.outfit_id, None, None, False
+        return _animate_request(outfit_id, arrays, motion, body, influences, fit, refine)
 
     @overload
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
-                      motion: MotionLike, body: str | None = None, refine: bool = False,
-                      format: Literal["array"] = "array") -> np.ndarray: ...
+                      motion: MotionLike, body: str | None = None, influences: int | None = None,
+                      fit: bool = False, refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
-                      motion: MotionLike, body: str | None = None, refine: bool = False,
-                      format: Literal["glb", "pc2"]) -> bytes: ...
+                      motion: MotionLike, body: str | None = None, influences: int | None = None,
+                      fit: bool = False, refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
 
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
-                      motion: MotionLike, body: str | None = None, refine: bool = False,
-                      format: Format = "array") -> np.ndarray | bytes:
+                      motion: MotionLike, body: str | None = None, influences: int | None = None,
+                      fit: bool = False, refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
         accept = _file_type(format) if format != "array" else None  # before a mesh file is uploaded to be rigged
-        req = await self._animate_body(outfit, outfit_id, motion, body, refine)
+        req = await self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         if accept is not None:
             return await self._file("/v1/outfits/animate", accept, **req)
         return await self._frames("/v1/outfits/animate", **req)
@@ -852,9 +875,9 @@ class AsyncClient(_Base):
         return await self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
 
     async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
-                             motion: MotionLike, body: str | None = None,
-                             refine: bool = False) -> AsyncIterator[np.ndarray]:
-        req = await self._animate_body(outfit, outfit_id, motion, body, refine)
+                             motion: MotionLike, body: str | None = None, influences: int | None = None,
+                             fit: bool = False, refine: bool = False) -> AsyncIterator[np.ndarray]:
+        req = await self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         req["headers"]["Accept"] = FRAMES
         async with self._http.stream("POST", "/v1/outfits/animate", **req) as r:
             if r.status_code >= 400:

@@ -287,15 +287,19 @@ def test_async_client_mirrors_the_client():
 OPS_ROUTES = {("GET", "/readyz"), ("GET", "/metrics")}  # probes and Prometheus: not the client's
 
 
-def _requests_made(cls: type, calls: list[tuple[str, tuple, dict]]) -> list[tuple[str, str, str]]:
+def _requests_made(cls: type, calls: list[tuple[str, tuple, dict]], sent: list | None = None,
+                   ) -> list[tuple[str, str, str]]:
     """(method, path, Accept) of every request `cls` makes for `calls` (name, args, kwargs), against a server
-    that answers each with a 503 problem (every call must raise it as a DrapeAPIError)."""
+    that answers each with a 503 problem (every call must raise it as a DrapeAPIError); the requests
+    themselves appended to `sent`."""
     import httpx
 
     seen: list[tuple[str, str, str]] = []
 
     def answer(request):
         seen.append((request.method, request.url.path, request.headers.get("accept", "")))
+        if sent is not None:
+            sent.append(request)
         return httpx.Response(503, json={"type": "busy", "title": "Busy", "status": 503, "detail": "later"},
                               headers={"Content-Type": "application/problem+json"})
 
@@ -393,3 +397,46 @@ def test_rig_as_glb_through_the_client(server_url, outfit):
             return await client.rig((outfit.vertices, outfit.faces), format="glb")
 
     assert asyncio.run(go()) == glb
+
+
+@pytest.mark.parametrize("cls", [drape.Client, drape.AsyncClient], ids=["sync", "async"])
+def test_animate_sends_influences_and_fit(cls, tmp_path):
+    """animate / animate_stream send the API's influences and fit; a mesh file is rigged with them first (and
+    animated by its outfit_id); fit with an outfit_id is a ValueError before any request."""
+    import httpx
+
+    from drape.schemas.binary import decode_npz
+
+    sent: list[httpx.Request] = []
+    mesh = tmp_path / "o.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    calls = [("animate", (), {"outfit": (V3, F1), "motion": "walk", "influences": 8, "fit": True}),
+             ("animate_stream", (), {"outfit": (V3, F1), "motion": "walk", "influences": 8, "fit": True}),
+             ("animate", (), {"outfit_id": "o", "motion": "walk", "influences": 8}),
+             ("animate", (), {"outfit": mesh, "motion": "walk", "influences": 8, "fit": True})]
+    _requests_made(cls, calls, sent)
+    for r in sent[:2]:
+        z = decode_npz(r.content)
+        assert r.url.path == "/v1/outfits/animate" and int(z["influences"]) == 8 and bool(z["fit"])
+    z = decode_npz(sent[2].content)
+    assert int(z["influences"]) == 8 and "fit" not in z
+    form = sent[3].content.decode("latin-1")
+    assert sent[3].url.path == "/v1/outfits/rig" and 'name="influences"\r\n\r\n8' in form
+    assert 'name="fit"\r\n\r\ntrue' in form
+    with pytest.raises(ValueError, match="fit=True applies to outfit="):
+        _requests_made(cls, [("animate", (), {"outfit_id": "o", "motion": "walk", "fit": True})])
+
+
+def test_animate_with_influences_and_fit_through_the_client(server_url, outfit):
+    """animate(outfit=..., influences=8, fit=True) poses what rig(..., influences=8, fit=True) rigs; influences
+    reach the server (an outfit_id's rig is checked against them)."""
+    mesh = (outfit.vertices, outfit.faces)
+    with drape.Client(server_url) as client:
+        direct = client.animate(outfit=mesh, motion="kick", influences=8, fit=True)
+        rig = client.rig(mesh, influences=8, fit=True)
+        by_id = client.animate(outfit_id=rig.outfit_id, motion="kick", influences=8)
+        with pytest.raises(drape.DrapeAPIError) as info:
+            client.animate(outfit_id=rig.outfit_id, motion="kick", influences=4)
+    assert rig.fit is not None and np.count_nonzero(rig.skinning_weights, axis=1).max() > 4
+    assert direct.shape == by_id.shape and np.abs(direct - by_id).max() <= 1e-6
+    assert info.value.status == 422 and "influences" in info.value.detail
