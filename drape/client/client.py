@@ -282,8 +282,8 @@ def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike
 
 
 def _refine_npz(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float | None,
-                relief_iterations: int | None, inner: tuple[np.ndarray, np.ndarray] | None = None,
-                thickness: float | None = None) -> bytes:
+                max_iterations: int | None, relief_iterations: int | None,
+                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None) -> bytes:
     """The refine request as an npz: binary float32 vertices instead of JSON text (about a tenth of the bytes).
     Options left None are not sent: the service applies its defaults."""
     options = {}
@@ -294,6 +294,8 @@ def _refine_npz(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, bod
         options["thickness"] = np.array(float(thickness))
     if eps is not None:
         options["eps"] = np.array(float(eps))
+    if max_iterations is not None:
+        options["max_iterations"] = np.array(int(max_iterations))
     if relief_iterations is not None:
         options["relief_iterations"] = np.array(int(relief_iterations))
     return encode_npz({"vertices": np.asarray(vertices, np.float32), "faces": np.asarray(faces, np.int64),
@@ -561,29 +563,30 @@ class Client(_Base):
 
     @overload
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-               eps: float | None = None, relief_iterations: int | None = None,
+               eps: float | None = None, max_iterations: int | None = None, relief_iterations: int | None = None,
                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-               eps: float | None = None, relief_iterations: int | None = None,
+               eps: float | None = None, max_iterations: int | None = None, relief_iterations: int | None = None,
                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                format: Literal["glb", "pc2"]) -> bytes: ...
 
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-               eps: float | None = None, relief_iterations: int | None = None,
+               eps: float | None = None, max_iterations: int | None = None, relief_iterations: int | None = None,
                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                format: Format = "array") -> np.ndarray | bytes:
         """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion`
         (format="glb" / "pc2": the refined stream as a GLB vertex animation / a PC2 point cache, as bytes).
 
-        eps: metres kept from the body; relief_iterations: rounds of the stretch relief pass (0: none).
+        eps: metres kept from the body; max_iterations: fast-path iterations before the progressive pass;
+        relief_iterations: rounds of the stretch relief pass (0: none).
         inner: a garment worn under this one, (vertices (T, Ni, 3) m over the same frames, faces (Fi, 3)): the
         stream is also kept `thickness` (m, default 6 mm) + 1 mm outside it (outer-through-inner removed).
         None: the service's default (its RefineOptions schema).
         """
-        req = _refine_npz(vertices, faces, motion, body, eps, relief_iterations, inner, thickness)
+        req = _refine_npz(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner, thickness)
         if format != "array":
             return self._file("/v1/refine", _file_type(format), content=req, headers={"Content-Type": NPZ})
         return self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
@@ -855,21 +858,25 @@ class AsyncClient(_Base):
 
     @overload
     async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-                     eps: float | None = None, relief_iterations: int | None = None,
+                     eps: float | None = None, max_iterations: int | None = None,
+                     relief_iterations: int | None = None,
                      inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                      format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-                     eps: float | None = None, relief_iterations: int | None = None,
+                     eps: float | None = None, max_iterations: int | None = None,
+                     relief_iterations: int | None = None,
                      inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                      format: Literal["glb", "pc2"]) -> bytes: ...
 
     async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
-                     eps: float | None = None, relief_iterations: int | None = None,
+                     eps: float | None = None, max_iterations: int | None = None,
+                     relief_iterations: int | None = None,
                      inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                      format: Format = "array") -> np.ndarray | bytes:
-        req = _refine_npz(vertices, faces, motion, body, eps, relief_iterations, inner, thickness)
+        req = _refine_npz(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner,
+                          thickness)
         if format != "array":
             return await self._file("/v1/refine", _file_type(format), content=req, headers={"Content-Type": NPZ})
         return await self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})

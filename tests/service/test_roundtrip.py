@@ -440,3 +440,18 @@ def test_animate_with_influences_and_fit_through_the_client(server_url, outfit):
     assert rig.fit is not None and np.count_nonzero(rig.skinning_weights, axis=1).max() > 4
     assert direct.shape == by_id.shape and np.abs(direct - by_id).max() <= 1e-6
     assert info.value.status == 422 and "influences" in info.value.detail
+
+
+@pytest.mark.parametrize("cls", [drape.Client, drape.AsyncClient], ids=["sync", "async"])
+def test_refine_sends_every_refine_option(cls):
+    """refine's eps, max_iterations and relief_iterations (RefineOptions' fields) reach the request; options
+    left None are not sent (the service's defaults)."""
+    from drape.schemas.binary import decode_npz
+
+    sent: list = []
+    _requests_made(cls, [("refine", (V3[None], F1), {"motion": "walk", "eps": 0.004, "max_iterations": 5,
+                                                     "relief_iterations": 0}),
+                         ("refine", (V3[None], F1), {"motion": "walk"})], sent)
+    given, default = (decode_npz(r.content) for r in sent)
+    assert (float(given["eps"]), int(given["max_iterations"]), int(given["relief_iterations"])) == (0.004, 5, 0)
+    assert not {"eps", "max_iterations", "relief_iterations"} & set(default)
