@@ -789,6 +789,7 @@ class AsyncClient(_Base):
 
     async def rig(self, outfit: OutfitLike, *, body: str = "neutral", influences: int = 4, fit: bool = False,
                   format: RigFormat = "array") -> RigResult | bytes:
+        """Rig an outfit: RigResult, or the bytes of a GLB with format="glb" (see Client.rig)."""
         r = await self._http.post("/v1/outfits/rig", headers={"Accept": _rig_accept(format)},
                                   **_rig_request(outfit, body, influences, fit))
         return _rig_answer(r, format)
@@ -833,6 +834,7 @@ class AsyncClient(_Base):
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                       motion: MotionLike, body: str | None = None, influences: int | None = None,
                       fit: bool = False, refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+        """Posed outfit vertices (T, N, 3) float32 metres, or GLB / PC2 bytes (see Client.animate)."""
         accept = _file_type(format) if format != "array" else None  # before a mesh file is uploaded to be rigged
         req = await self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         if accept is not None:
@@ -875,6 +877,7 @@ class AsyncClient(_Base):
                      relief_iterations: int | None = None,
                      inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                      format: Format = "array") -> np.ndarray | bytes:
+        """A garment stream (T, N, 3) m with body penetration removed, or GLB / PC2 bytes (see Client.refine)."""
         req = _refine_npz(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner,
                           thickness)
         if format != "array":
@@ -884,6 +887,7 @@ class AsyncClient(_Base):
     async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                              motion: MotionLike, body: str | None = None, influences: int | None = None,
                              fit: bool = False, refine: bool = False) -> AsyncIterator[np.ndarray]:
+        """Posed frames (N, 3) float32, yielded as they arrive (see Client.animate_stream)."""
         req = await self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         req["headers"]["Accept"] = FRAMES
         async with self._http.stream("POST", "/v1/outfits/animate", **req) as r:

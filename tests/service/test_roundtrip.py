@@ -455,3 +455,12 @@ def test_refine_sends_every_refine_option(cls):
     given, default = (decode_npz(r.content) for r in sent)
     assert (float(given["eps"]), int(given["max_iterations"]), int(given["relief_iterations"])) == (0.004, 5, 0)
     assert not {"eps", "max_iterations", "relief_iterations"} & set(default)
+
+
+def test_every_client_call_has_a_docstring():
+    """Both clients document every call (the async ones may point to their sync twin)."""
+    import inspect
+
+    for cls in (drape.Client, drape.AsyncClient):
+        missing = [n for n, m in _public_calls(cls).items() if n not in ("close", "aclose") and not inspect.getdoc(m)]
+        assert not missing, (cls.__name__, missing)
