@@ -22,13 +22,12 @@ from drape.runtime.engine import Engine
 from drape.runtime.intrinsic import IntrinsicGarment
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
 from drape.schemas.garments import GarmentList
-from drape.schemas.gltf import GLB, vertex_animation_glb
+from drape.schemas.gltf import GLB
 from drape.schemas.pc2 import PC2
 from drape.service import decode
 from drape.service import garments as handlers
 from drape.service.answers import JSON, FrameSource
 from drape.service.errors import UnsupportedMediaType
-from drape.service.handlers import check_glb_fps, check_glb_frame_targets
 from drape.service.http import engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
@@ -39,9 +38,9 @@ from drape.service.routers.outfits import (
     FORM_UP,
     MOTION_FILE,
     STREAM_FORMATS,
-    fps_field,
     max_posed,
     stream_answer,
+    vertex_animation_answer,
     whole_answer,
 )
 from drape.service.settings import Settings
@@ -174,11 +173,7 @@ async def animate_keyframes(request: Request, name: str = NAME) -> Response:
 
     if answer == GLB:
         def glb() -> Response:
-            src = plan()
-            check_glb_fps(src.num_frames, src.fps, fps_field(post.kind))
-            check_glb_frame_targets(src.num_frames, settings.max_posed_values, "motion")
-            frames = np.concatenate(list(src.chunks()))
-            return Response(vertex_animation_glb(frames, src.faces, src.fps, name=garment.name), media_type=GLB)
+            return vertex_animation_answer(plan(), settings, post.kind, "motion", name=garment.name)
 
         return await whole_answer(request, glb)
     return await stream_answer(request, answer, plan)

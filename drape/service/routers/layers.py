@@ -15,14 +15,13 @@ from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
 
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
-from drape.schemas.gltf import GLB, vertex_animation_glb
+from drape.schemas.gltf import GLB
 from drape.schemas.layers import LayerList
 from drape.schemas.pc2 import PC2
 from drape.service import decode
 from drape.service import layers as handlers
 from drape.service.answers import JSON, FrameSource
 from drape.service.errors import UnsupportedMediaType
-from drape.service.handlers import check_glb_fps, check_glb_frame_targets
 from drape.service.http import engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
@@ -33,9 +32,9 @@ from drape.service.routers.outfits import (
     FORM_UP,
     MOTION_FILE,
     STREAM_FORMATS,
-    fps_field,
     max_posed,
     stream_answer,
+    vertex_animation_answer,
     whole_answer,
 )
 
@@ -118,11 +117,7 @@ async def animate_layers(request: Request) -> Response:
 
     if answer == GLB:
         def glb() -> Response:
-            src = source()
-            check_glb_fps(src.num_frames, src.fps, fps_field(kind))
-            check_glb_frame_targets(src.num_frames, settings.max_posed_values, "motion")
-            frames = np.concatenate(list(src.chunks()))
-            return Response(vertex_animation_glb(frames, src.faces, src.fps, name="layers"), media_type=GLB)
+            return vertex_animation_answer(source(), settings, kind, "motion", name="layers")
 
         return await whole_answer(request, glb)
     return await stream_answer(request, answer, source)

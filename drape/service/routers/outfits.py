@@ -170,6 +170,16 @@ def fps_field(kind: str) -> str:
     return "fps" if kind == "multipart/form-data" else "motion.fps"
 
 
+def vertex_animation_answer(src: FrameSource, settings: Settings, kind: str, field: str,
+                            name: str = "garment") -> Response:
+    """A stream's GLB (one morph target a frame), its frame rate and per-frame weights checked before the
+    frames are computed (`kind`: the request's body type, for the fps field's name; `field`: the frames' limit)."""
+    handlers.check_glb_fps(src.num_frames, src.fps, fps_field(kind))
+    handlers.check_glb_frame_targets(src.num_frames, settings.max_posed_values, field)
+    frames = np.concatenate(list(src.chunks()))
+    return Response(vertex_animation_glb(frames, src.faces, src.fps, name=name), media_type=GLB)
+
+
 FRAME_ANSWERS = {200: {"description": "frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB "
                                       "(animate: the rig and its animation; refine: a vertex animation)", "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY, PC2: BINARY,
@@ -298,11 +308,7 @@ async def refine_stream(request: Request) -> Response:
 
     if answer == GLB:
         def glb() -> Response:
-            src = plan()
-            handlers.check_glb_fps(src.num_frames, src.fps, fps_field(kind))
-            handlers.check_glb_frame_targets(src.num_frames, settings.max_posed_values, "vertices")
-            frames = np.concatenate(list(src.chunks()))
-            return Response(vertex_animation_glb(frames, src.faces, src.fps), media_type=GLB)
+            return vertex_animation_answer(plan(), settings, kind, "vertices")
 
         return await whole_answer(request, glb)
     return await stream_answer(request, answer, plan)
