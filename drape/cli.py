@@ -71,8 +71,10 @@ def _import_deepmimic(args: argparse.Namespace) -> None:
 def _check_fps_option(fps: float | None) -> None:
     """A clip's frame rate given as --fps: within a motion file's bounds (a BVH's Frame Time, AMASS's rate), so
     the float32 it is stored as is a rate the loaders read (1e-300 stored as 0)."""
-    if fps is not None and not 0.1 <= fps <= 1000:
-        raise SystemExit(f"drape: error: --fps must be within [0.1, 1000] fps, got {fps:g}")
+    from drape.assets.motion import MAX_FILE_FPS, MIN_FILE_FPS
+
+    if fps is not None and not MIN_FILE_FPS <= fps <= MAX_FILE_FPS:
+        raise SystemExit(f"drape: error: --fps must be within [{MIN_FILE_FPS:g}, {MAX_FILE_FPS:g}] fps, got {fps:g}")
 
 
 def _motions_generate(args: argparse.Namespace) -> None:

@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drape.assets.motion import MAX_FILE_FPS, MIN_FILE_FPS
 from drape.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 AMASS_KEYS = ("mocap_framerate", "mocap_frame_rate", "gender", "betas", "dmpls")
 FPS_KEYS = ("fps", "mocap_framerate", "mocap_frame_rate")
-MIN_FPS, MAX_FPS = 0.1, 1000.0  # the frame rates a file may give (a BVH's Frame Time: 10 s to 1 ms)
 NPZ_MEMBERS = ("poses", "trans", "root_orient", "pose_body", *FPS_KEYS, "gender", "betas", "dmpls")
 # joints per layout -> (name, joints kept from the start of the array)
 LAYOUTS = {24: ("SMPL", 24), 52: ("SMPL-H", 22), 55: ("SMPL-X", 22), 22: ("SMPL body", 22)}
@@ -99,8 +99,8 @@ def read_pose_arrays(z: Mapping[str, np.ndarray]) -> PoseClip:
         if key in z:
             v = _numbers(z, key).reshape(-1)
             # a BVH's bounds (Frame Time within [0.001, 10] s): lower rates overflow a resampled frame count
-            if v.size != 1 or not MIN_FPS <= v[0] <= MAX_FPS:
-                raise PoseArrayError(f"'{key}' must be one frame rate in [{MIN_FPS:g}, {MAX_FPS:g}], got {v[:3]}")
+            if v.size != 1 or not MIN_FILE_FPS <= v[0] <= MAX_FILE_FPS:
+                raise PoseArrayError(f"'{key}' must be one frame rate in [{MIN_FILE_FPS:g}, {MAX_FILE_FPS:g}], got {v[:3]}")
             fps = float(v[0])
             break
     if not (np.isfinite(poses).all() and np.isfinite(trans).all()):

@@ -27,7 +27,7 @@ import numpy as np
 
 from drape.assets.amass import Z_TO_Y
 from drape.assets.body import Body
-from drape.assets.motion import MAX_TRANSLATION_M, Motion
+from drape.assets.motion import MAX_FILE_FPS, MAX_TRANSLATION_M, MIN_FILE_FPS, Motion
 from drape.geometry.rotations import matrix_to_axis_angle, rotation_between
 from drape.geometry.skeleton import CMU_TO_SMPL, JOINT_INDEX, JOINT_NAMES, PARENTS
 
@@ -213,8 +213,9 @@ def read_header(text: str) -> BvhHeader:
     if not digits:  # not ASCII digits, or zero
         raise BvhError(f"expected a positive whole number of frames, got {count[:20]!r}")
     frame_time = _number(head.group(2), "Frame Time")
-    if not 1e-3 <= frame_time <= 10.0:
-        raise BvhError(f"Frame Time must be within [0.001, 10] s (1000 fps to 0.1 fps), got {frame_time:g}")
+    if not 1.0 / MAX_FILE_FPS <= frame_time <= 1.0 / MIN_FILE_FPS:
+        raise BvhError(f"Frame Time must be within [{1.0 / MAX_FILE_FPS:g}, {1.0 / MIN_FILE_FPS:g}] s "
+                       f"({MAX_FILE_FPS:g} fps to {MIN_FILE_FPS:g} fps), got {frame_time:g}")
     return BvhHeader(tuple(names), np.array(parents, dtype=np.int64),
                      np.array([o for o in offsets if o is not None], dtype=np.float64), end_sites,
                      tuple(channels), int(digits), frame_time, m.start() + head.end())

@@ -27,6 +27,7 @@ MOTIONS_DIR = Path(__file__).parent / "motions"
 # in float32 overflows (a value of 1e20 squares past float32's range; 1e300 past float64's) to NaN frames
 MAX_POSE_RAD = 1e4  # |axis-angle value|, radians
 MAX_TRANSLATION_M = 1e4  # |root translation|, metres (10 km)
+MIN_FILE_FPS, MAX_FILE_FPS = 0.1, 1000.0  # a motion file's frame rate (a BVH's Frame Time: 10 s to 1 ms), or --fps
 
 
 @dataclass(frozen=True)
