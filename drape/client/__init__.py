@@ -17,8 +17,10 @@ Garments (the intrinsic space of trained templates; a keyframe is a shape or a l
 
 Outfits: a mesh file path (OBJ, PLY, GLB), a (vertices, faces) pair of arrays, or any
 object with `.vertices` and `.faces` (a trimesh.Trimesh). Motions: an embedded clip
-name, a poses array (T, 24, 3) or (T, 72), or an object/mapping with poses, trans or
-translation, fps. Answers travel as npz or the binary frame stream by default.
+name, a poses array (T, 24, 3) or (T, 72), an object/mapping with poses, trans or
+translation, fps, or a motion capture file the service imports (`MotionFile("walk.bvh", fps=30,
+up="y")`, or a bare Path). Refinement: `refine=True` or `refine=RefineOptions(eps=0.005)`.
+Answers travel as npz or the binary frame stream by default.
 """
 
 from drape.client.client import (
@@ -29,8 +31,10 @@ from drape.client.client import (
     FitResult,
     GarmentTemplate,
     LayerFrames,
+    MotionFile,
+    RefineOptions,
     RigResult,
 )
 
 __all__ = ["AsyncClient", "Client", "DesignSamples", "DrapeAPIError", "FitResult", "GarmentTemplate", "LayerFrames",
-           "RigResult"]
+           "MotionFile", "RefineOptions", "RigResult"]

@@ -17,12 +17,16 @@ from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, FrameReader, decode_
 from drape.schemas.catalog import BodyList, BodyRegistered, Health, MotionList
 from drape.schemas.garments import GarmentList
 from drape.schemas.models import ModelInfo, ModelList
+from drape.schemas.outfits import RefineOptions
 
 OutfitLike = Any  # path | (vertices, faces) | object with .vertices/.faces
 Format = Literal["array", "glb", "pc2"]  # frames as one (T, N, 3) array, or the file bytes of an engine format
 _FILE_TYPES = {"glb": "model/gltf-binary", "pc2": "application/x-pc2"}
 RigFormat = Literal["array", "glb"]  # the rig's arrays (a RigResult), or the bytes of a GLB
-MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps | Path of a BVH / AMASS npz
+MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps | MotionFile | Path of a file
+# the collision refinement post step: on/off, or its options (RefineOptions or a mapping of its fields: eps,
+# max_iterations, relief_iterations), which turn it on; fields left out take the service's defaults
+RefineLike = bool | RefineOptions | Mapping[str, Any]
 # a keyframe: {"frame": f, "vertices": (N, 3)} or {"frame": f, "latent": (Z,)}, or a (frame, array) pair whose
 # array is vertices (N, 3) (2-D) or a latent (Z,) (1-D)
 KeyframeLike = Mapping[str, Any] | tuple[int, Any]
@@ -98,15 +102,66 @@ class LayerFrames:
     outer_faces: np.ndarray
 
 
-def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float, refine: bool) -> dict[str, Any]:
+@dataclass(frozen=True)
+class MotionFile:
+    """A motion capture file for the service to import onto the garment's body: a CMU-named BVH or an AMASS-style
+    npz (docs/motion_import.md). fps: the frame rate it is resampled to (None: the service's 30); up: the
+    file's up axis, "y" or "z" (None: detected). A bare Path as `motion` is MotionFile(path)."""
+
+    path: str | os.PathLike
+    fps: float | None = None
+    up: Literal["y", "z"] | None = None
+
+
+def _motion_file(motion: MotionLike) -> MotionFile | None:
+    """The motion as a MotionFile when it is a file (a MotionFile or a Path), else None."""
+    if isinstance(motion, MotionFile):
+        return motion
+    return MotionFile(motion) if isinstance(motion, os.PathLike) else None
+
+
+def _file_form(motion: MotionFile, fields: Mapping[str, Any]) -> dict[str, Any]:
+    """httpx arguments of a multipart form: the file as `motion_file`, its fps and up, and `fields` (text;
+    None: left out)."""
+    path = Path(motion.path)
+    data = {"fps": motion.fps, "up": motion.up, **fields}
+    return {"files": {"motion_file": (path.name, path.read_bytes())},
+            "data": {k: str(v) for k, v in data.items() if v is not None}}
+
+
+def _refine_choice(refine: RefineLike) -> tuple[bool, dict[str, Any]]:
+    """(on, the options given): True / False, or RefineOptions or a mapping of its fields (validated here; they
+    turn refinement on; fields left out are not sent, so the service's defaults apply)."""
+    if isinstance(refine, Mapping):
+        refine = RefineOptions.model_validate(dict(refine))
+    if isinstance(refine, RefineOptions):
+        return True, refine.model_dump(exclude_unset=True)
+    return bool(refine), {}
+
+
+def _refine_json(refine: RefineLike) -> bool | dict[str, Any]:
+    """refine as a JSON request carries it: a boolean, or the options given (an object)."""
+    on, options = _refine_choice(refine)
+    return options if options else on
+
+
+def _refine_members(refine: RefineLike) -> dict[str, np.ndarray]:
+    """refine as an npz request carries it: a boolean scalar `refine` and the options given as scalars."""
+    on, options = _refine_choice(refine)
+    return {"refine": np.array(on), **{k: np.array(v) for k, v in options.items()}}
+
+
+def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float,
+                    refine: RefineLike) -> dict[str, Any]:
     """The layers animate request's httpx arguments: JSON with the motion as a clip name or poses; with a motion
-    file (a path: BVH or AMASS npz), a multipart form with the file as `motion_file` (the server retargets it
-    onto the combination's body, 30 fps) and the rest of the request as JSON text in `request`."""
-    fields = {"inner": inner, "outer": outer, "thickness": float(thickness), "refine": bool(refine)}
-    if isinstance(motion, os.PathLike):
-        return _motion_form(motion, fields)
+    file (a MotionFile or Path: BVH or AMASS npz), a multipart form with the file as `motion_file` (the server
+    retargets it onto the combination's body) and the rest of the request as JSON text in `request`."""
+    fields = {"inner": inner, "outer": outer, "thickness": float(thickness), "refine": _refine_json(refine)}
+    file = _motion_file(motion)
+    if file is not None:
+        return _motion_form(file, fields)
     if isinstance(motion, bytes):
-        raise ValueError("animate_layers takes a clip name, poses or the Path of a motion file, not bytes")
+        raise ValueError("animate_layers takes a clip name, poses or a motion file (MotionFile or Path), not bytes")
     arrays = _motion_arrays(motion)
     m: dict[str, Any] = ({"clip": str(arrays["clip"])} if "clip" in arrays else
                          {"poses": np.asarray(arrays["poses"]).reshape(len(arrays["poses"]), -1).tolist(),
@@ -250,24 +305,24 @@ def _rig_result(response: httpx.Response) -> RigResult:
 
 
 def _animate_request(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
-                     influences: int | None, fit: bool, refine: bool) -> dict:
-    """The animate request's httpx arguments: an npz body; with a motion file (a path: BVH or AMASS npz), a
-    multipart form with the file as `motion_file` (the server retargets it onto the outfit's body, 30 fps)
-    and an outfit_id (the form has no fit: a mesh is rigged, and fitted, first)."""
-    if isinstance(motion, os.PathLike):
-        path = Path(motion)
-        fields = {"outfit_id": outfit_id, "refine": str(bool(refine)).lower(), "body": body,
-                  "influences": None if influences is None else str(int(influences))}
-        return {"files": {"motion_file": (path.name, path.read_bytes())},
-                "data": {k: v for k, v in fields.items() if v is not None}, "headers": {}}
+                     influences: int | None, fit: bool, refine: RefineLike) -> dict:
+    """The animate request's httpx arguments: an npz body; with a motion file (a MotionFile or Path: BVH or
+    AMASS npz), a multipart form with the file as `motion_file` (the server retargets it onto the outfit's
+    body) and an outfit_id (the form has no fit: a mesh is rigged, and fitted, first)."""
+    file = _motion_file(motion)
+    if file is not None:
+        on, options = _refine_choice(refine)
+        fields = {"outfit_id": outfit_id, "refine": str(on).lower(), "body": body,
+                  "influences": None if influences is None else int(influences), **options}
+        return {**_file_form(file, fields), "headers": {}}
     return {"content": _animate_npz(outfit_id, arrays, motion, body, influences, fit, refine),
             "headers": {"Content-Type": NPZ}}
 
 
 def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike, body: str | None,
-                 influences: int | None, fit: bool, refine: bool) -> bytes:
+                 influences: int | None, fit: bool, refine: RefineLike) -> bytes:
     """The animate request as an npz: the motion's arrays in binary instead of JSON text."""
-    req: dict[str, np.ndarray] = {**_motion_arrays(motion), "refine": np.array(bool(refine))}
+    req: dict[str, np.ndarray] = {**_motion_arrays(motion), **_refine_members(refine)}
     if outfit_id is not None:
         req["outfit_id"] = np.array(outfit_id)
     elif arrays is not None:
@@ -281,25 +336,32 @@ def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike
     return encode_npz(req)
 
 
-def _refine_npz(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float | None,
-                max_iterations: int | None, relief_iterations: int | None,
-                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None) -> bytes:
-    """The refine request as an npz: binary float32 vertices instead of JSON text (about a tenth of the bytes).
-    Options left None are not sent: the service applies its defaults."""
-    options = {}
+def _refine_request(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float | None,
+                    max_iterations: int | None, relief_iterations: int | None,
+                    inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None) -> dict:
+    """The refine request's httpx arguments: an npz (binary float32 vertices instead of JSON text, about a tenth
+    of the bytes); with a motion file (a MotionFile or Path), a multipart form with the garment (and inner layer)
+    as the npz `garment` beside `motion_file` (the server imports it; it must give T frames). Options left None
+    are not sent: the service applies its defaults."""
+    garment: dict[str, np.ndarray] = {"vertices": np.asarray(vertices, np.float32),
+                                      "faces": np.asarray(faces, np.int64)}
     if inner is not None:
-        options["inner_vertices"] = np.asarray(inner[0], np.float32)
-        options["inner_faces"] = np.asarray(inner[1], np.int64)
+        garment["inner_vertices"] = np.asarray(inner[0], np.float32)
+        garment["inner_faces"] = np.asarray(inner[1], np.int64)
     if thickness is not None:
-        options["thickness"] = np.array(float(thickness))
-    if eps is not None:
-        options["eps"] = np.array(float(eps))
-    if max_iterations is not None:
-        options["max_iterations"] = np.array(int(max_iterations))
-    if relief_iterations is not None:
-        options["relief_iterations"] = np.array(int(relief_iterations))
-    return encode_npz({"vertices": np.asarray(vertices, np.float32), "faces": np.asarray(faces, np.int64),
-                       **_motion_arrays(motion), "body": np.array(body), **options})
+        garment["thickness"] = np.array(float(thickness))
+    options = {k: v for k, v in (("eps", None if eps is None else float(eps)),
+                                 ("max_iterations", None if max_iterations is None else int(max_iterations)),
+                                 ("relief_iterations", None if relief_iterations is None else int(relief_iterations)))
+               if v is not None}
+    file = _motion_file(motion)
+    if file is not None:
+        form = _file_form(file, {"body": body, **options})
+        form["files"]["garment"] = ("garment.npz", encode_npz(garment))
+        return form
+    return {"content": encode_npz({**garment, **_motion_arrays(motion), "body": np.array(body),
+                                   **{k: np.array(v) for k, v in options.items()}}),
+            "headers": {"Content-Type": NPZ}}
 
 
 def _garment_path(name: str, route: str = "") -> str:
@@ -332,12 +394,11 @@ def _keyframe_arrays(keyframes: Sequence[KeyframeLike]) -> dict[str, np.ndarray]
     return out
 
 
-def _motion_form(motion: os.PathLike, fields: dict[str, Any], accept: str | None = None) -> dict:
-    """A garment or layers route's httpx arguments for a motion file (a path: BVH or AMASS npz): a multipart form
-    with the file as `motion_file` (the server retargets it onto the template's body, 30 fps) and the rest of the
-    request as JSON text in `request`; `headers` only when `accept` is given (callers may set their own)."""
-    path = Path(motion)
-    form = {"files": {"motion_file": (path.name, path.read_bytes())}, "data": {"request": json.dumps(fields)}}
+def _motion_form(motion: MotionFile, fields: dict[str, Any], accept: str | None = None) -> dict:
+    """A garment or layers route's httpx arguments for a motion file (BVH or AMASS npz): a multipart form with the
+    file as `motion_file` (the server retargets it onto the template's body), its fps and up, and the rest of
+    the request as JSON text in `request`; `headers` only when `accept` is given (callers may set their own)."""
+    form = _file_form(motion, {"request": json.dumps(fields)})
     return {**form, "headers": {"Accept": accept}} if accept else form
 
 
@@ -351,25 +412,29 @@ def _keyframes_json(keyframes: Sequence[KeyframeLike]) -> list[dict[str, Any]]:
 
 
 def _encode_npz(vertices: np.ndarray, motion: MotionLike, frame: int) -> dict:
-    if isinstance(motion, os.PathLike):
-        return _motion_form(motion, {"vertices": np.asarray(vertices, float).tolist(), "frame": int(frame)}, NPZ)
+    file = _motion_file(motion)
+    if file is not None:
+        return _motion_form(file, {"vertices": np.asarray(vertices, float).tolist(), "frame": int(frame)}, NPZ)
     return {"content": encode_npz({"vertices": np.asarray(vertices, np.float32), "frame": np.array(int(frame)),
                                    **_motion_arrays(motion)}),
             "headers": {"Content-Type": NPZ, "Accept": NPZ}}
 
 
-def _keyframes_npz(motion: MotionLike, keyframes: Sequence[KeyframeLike], refine: bool, match_keyframes: bool) -> dict:
-    if isinstance(motion, os.PathLike):
-        return _motion_form(motion, {"keyframes": _keyframes_json(keyframes), "refine": bool(refine),
-                                     "match_keyframes": bool(match_keyframes)})
-    return {"content": encode_npz({**_motion_arrays(motion), **_keyframe_arrays(keyframes),
-                                   "refine": np.array(bool(refine)), "match_keyframes": np.array(bool(match_keyframes))}),
+def _keyframes_npz(motion: MotionLike, keyframes: Sequence[KeyframeLike], refine: RefineLike,
+                   match_keyframes: bool) -> dict:
+    file = _motion_file(motion)
+    if file is not None:
+        return _motion_form(file, {"keyframes": _keyframes_json(keyframes), "refine": _refine_json(refine),
+                                   "match_keyframes": bool(match_keyframes)})
+    return {"content": encode_npz({**_motion_arrays(motion), **_keyframe_arrays(keyframes), **_refine_members(refine),
+                                   "match_keyframes": np.array(bool(match_keyframes))}),
             "headers": {"Content-Type": NPZ}}
 
 
 def _sample_npz(count: int, seed: int, motion: MotionLike, frame: int) -> dict:
-    if isinstance(motion, os.PathLike):
-        return _motion_form(motion, {"count": int(count), "seed": int(seed), "frame": int(frame)}, NPZ)
+    file = _motion_file(motion)
+    if file is not None:
+        return _motion_form(file, {"count": int(count), "seed": int(seed), "frame": int(frame)}, NPZ)
     return {"content": encode_npz({"count": np.array(int(count)), "seed": np.array(int(seed)),
                                    "frame": np.array(int(frame)), **_motion_arrays(motion)}),
             "headers": {"Content-Type": NPZ, "Accept": NPZ}}
@@ -511,7 +576,7 @@ class Client(_Base):
     def _animate_body(self, outfit, outfit_id, motion, body, influences, fit, refine) -> dict:  # noqa: ANN001
         """The animate request's httpx arguments (an npz body)."""
         arrays, needs_rig = self._prepare(outfit, outfit_id, fit)
-        if needs_rig or (arrays is not None and isinstance(motion, os.PathLike)):
+        if needs_rig or (arrays is not None and _motion_file(motion) is not None):
             rig = self.rig(outfit, body=body or "neutral", influences=4 if influences is None else influences,
                            fit=fit)
             outfit_id = rig.outfit_id
@@ -521,21 +586,26 @@ class Client(_Base):
     @overload
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
                 body: str | None = None, influences: int | None = None, fit: bool = False,
-                refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
+                refine: RefineLike = False, format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
                 body: str | None = None, influences: int | None = None, fit: bool = False,
-                refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+                refine: RefineLike = False, format: Literal["glb", "pc2"]) -> bytes: ...
 
     def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None, motion: MotionLike,
                 body: str | None = None, influences: int | None = None, fit: bool = False,
-                refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+                refine: RefineLike = False, format: Format = "array") -> np.ndarray | bytes:
         """Posed outfit vertices (T, N, 3) float32 metres; or, with format="glb" / "pc2", the bytes of a
         GLB (the rigged outfit and the body, the motion as its animation) / a PC2 point cache.
 
+        motion: a clip name, poses (T, 24, 3) / (T, 72) axis-angle, a mapping or object with poses, trans, fps,
+        or a motion capture file the service imports onto the outfit's body (MotionFile(path, fps=, up=) or a
+        Path: a CMU-named BVH or an AMASS-style npz);
         influences: skin influences per vertex, 4 or 8 (None: 4 for an outfit, the rig's for an outfit_id);
-        fit: fit the outfit mesh onto the body first, as rig(..., fit=True) does (not with outfit_id)."""
+        fit: fit the outfit mesh onto the body first, as rig(..., fit=True) does (not with outfit_id);
+        refine: the collision refinement post step, True or RefineOptions(eps=, max_iterations=,
+        relief_iterations=) (or a mapping of them; fields left out take the service's defaults)."""
         accept = _file_type(format) if format != "array" else None  # before a mesh file is uploaded to be rigged
         req = self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         if accept is not None:
@@ -577,8 +647,9 @@ class Client(_Base):
                eps: float | None = None, max_iterations: int | None = None, relief_iterations: int | None = None,
                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                format: Format = "array") -> np.ndarray | bytes:
-        """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion`
-        (format="glb" / "pc2": the refined stream as a GLB vertex animation / a PC2 point cache, as bytes).
+        """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion` (as in
+        animate; a motion file must give T frames at its fps) (format="glb" / "pc2": the refined stream as a GLB
+        vertex animation / a PC2 point cache, as bytes).
 
         eps: metres kept from the body; max_iterations: fast-path iterations before the progressive pass;
         relief_iterations: rounds of the stretch relief pass (0: none).
@@ -586,14 +657,14 @@ class Client(_Base):
         stream is also kept `thickness` (m, default 6 mm) + 1 mm outside it (outer-through-inner removed).
         None: the service's default (its RefineOptions schema).
         """
-        req = _refine_npz(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner, thickness)
+        req = _refine_request(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner, thickness)
         if format != "array":
-            return self._file("/v1/refine", _file_type(format), content=req, headers={"Content-Type": NPZ})
-        return self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
+            return self._file("/v1/refine", _file_type(format), **req)
+        return self._frames("/v1/refine", **req)
 
     def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                        motion: MotionLike, body: str | None = None, influences: int | None = None,
-                       fit: bool = False, refine: bool = False) -> Iterator[np.ndarray]:
+                       fit: bool = False, refine: RefineLike = False) -> Iterator[np.ndarray]:
         """Posed frames (N, 3) float32, yielded as they arrive."""
         req = self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         req["headers"]["Accept"] = FRAMES
@@ -618,25 +689,25 @@ class Client(_Base):
 
     def encode_keyframe(self, name: str, *, vertices: np.ndarray, motion: MotionLike, frame: int) -> np.ndarray:
         """A keyframe shape -> its latent (Z,) float32: vertices (N, 3) m, world space at `frame` (0-based) of
-        `motion` (a clip name, a poses array, a mapping with poses, trans, fps, or the Path of a BVH / AMASS npz
-        file, imported by the service onto the template's body at 30 fps; so in every garment method)."""
+        `motion` (a clip name, a poses array, a mapping with poses, trans, fps, or a MotionFile / Path of a BVH /
+        AMASS npz file, imported by the service onto the template's body; so in every garment method)."""
         return _latent(self._http.post(_garment_path(name, "encode"), **_encode_npz(vertices, motion, frame)))
 
     @overload
     def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                          refine: bool = False, match_keyframes: bool = True, format: Literal["array"] = "array") -> np.ndarray: ...
+                          refine: RefineLike = False, match_keyframes: bool = True, format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                          refine: bool = False, match_keyframes: bool = True, format: Literal["glb", "pc2"]) -> bytes: ...
+                          refine: RefineLike = False, match_keyframes: bool = True, format: Literal["glb", "pc2"]) -> bytes: ...
 
     def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                          refine: bool = False, match_keyframes: bool = True, format: Format = "array") -> np.ndarray | bytes:
+                          refine: RefineLike = False, match_keyframes: bool = True, format: Format = "array") -> np.ndarray | bytes:
         """The garment's stream (T, N, 3) float32 m from keyframes: each {"frame": f, "vertices": (N, 3)} (world
         space at frame f) or {"frame": f, "latent": (Z,)}, or a (frame, array) pair; latents are interpolated
         between keyframes and decoded with every frame's motion window; with `match_keyframes` the stream meets
         the shape keyframes exactly (what decoding misses of them is added back, fading away from them);
-        `refine` pushes the garment out of its body. format="glb" / "pc2": the bytes of a GLB vertex animation
+        `refine` (True or RefineOptions) pushes the garment out of its body. format="glb" / "pc2": the bytes of a GLB vertex animation
         / a PC2 point cache."""
         req = _keyframes_npz(motion, keyframes, refine, match_keyframes)
         if format != "array":
@@ -657,18 +728,19 @@ class Client(_Base):
 
     @overload
     def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
-                       refine: bool = False, format: Literal["array"] = "array") -> LayerFrames: ...
+                       refine: RefineLike = False, format: Literal["array"] = "array") -> LayerFrames: ...
 
     @overload
     def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
-                       refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+                       refine: RefineLike = False, format: Literal["glb", "pc2"]) -> bytes: ...
 
     def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
-                       refine: bool = False, format: Format = "array") -> LayerFrames | bytes:
+                       refine: RefineLike = False, format: Format = "array") -> LayerFrames | bytes:
         """Two templates worn together (a combination of `layers()`) along `motion` (a clip name, poses, or the
-        Path of a BVH / AMASS npz file, imported by the service onto the combination's body at 30 fps):
+        MotionFile / Path of a BVH / AMASS npz file, imported by the service onto the combination's body):
         both layers' frames (format="glb" / "pc2": the two as one mesh, inner first, as bytes). thickness: the
-        inner garment's, m; refine: both out of the body and the outer kept thickness + 1 mm outside the inner."""
+        inner garment's, m; refine (True or RefineOptions): both out of the body and the outer kept thickness +
+        1 mm outside the inner."""
         req = _layers_request(inner, outer, motion, thickness, refine)
         if format != "array":
             return self._file("/v1/layers/animate", _file_type(format), **req)
@@ -734,16 +806,16 @@ class AsyncClient(_Base):
 
     @overload
     async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                                refine: bool = False, match_keyframes: bool = True,
+                                refine: RefineLike = False, match_keyframes: bool = True,
                                 format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                                refine: bool = False, match_keyframes: bool = True,
+                                refine: RefineLike = False, match_keyframes: bool = True,
                                 format: Literal["glb", "pc2"]) -> bytes: ...
 
     async def animate_keyframes(self, name: str, *, motion: MotionLike, keyframes: Sequence[KeyframeLike],
-                                refine: bool = False, match_keyframes: bool = True,
+                                refine: RefineLike = False, match_keyframes: bool = True,
                                 format: Format = "array") -> np.ndarray | bytes:
         """The garment's stream (T, N, 3) float32 m from keyframes (see Client.animate_keyframes)."""
         req = _keyframes_npz(motion, keyframes, refine, match_keyframes)
@@ -765,14 +837,14 @@ class AsyncClient(_Base):
 
     @overload
     async def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
-                             refine: bool = False, format: Literal["array"] = "array") -> LayerFrames: ...
+                             refine: RefineLike = False, format: Literal["array"] = "array") -> LayerFrames: ...
 
     @overload
     async def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
-                             refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+                             refine: RefineLike = False, format: Literal["glb", "pc2"]) -> bytes: ...
 
     async def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
-                             refine: bool = False, format: Format = "array") -> LayerFrames | bytes:
+                             refine: RefineLike = False, format: Format = "array") -> LayerFrames | bytes:
         """See Client.animate_layers."""
         req = _layers_request(inner, outer, motion, thickness, refine)
         if format != "array":
@@ -815,7 +887,7 @@ class AsyncClient(_Base):
 
     async def _animate_body(self, outfit, outfit_id, motion, body, influences, fit, refine) -> dict:  # noqa: ANN001
         arrays, needs_rig = self._prepare(outfit, outfit_id, fit)
-        if needs_rig or (arrays is not None and isinstance(motion, os.PathLike)):
+        if needs_rig or (arrays is not None and _motion_file(motion) is not None):
             rig = await self.rig(outfit, body=body or "neutral",
                                  influences=4 if influences is None else influences, fit=fit)
             outfit_id, body, arrays, fit = rig.outfit_id, None, None, False
@@ -824,16 +896,16 @@ class AsyncClient(_Base):
     @overload
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                       motion: MotionLike, body: str | None = None, influences: int | None = None,
-                      fit: bool = False, refine: bool = False, format: Literal["array"] = "array") -> np.ndarray: ...
+                      fit: bool = False, refine: RefineLike = False, format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                       motion: MotionLike, body: str | None = None, influences: int | None = None,
-                      fit: bool = False, refine: bool = False, format: Literal["glb", "pc2"]) -> bytes: ...
+                      fit: bool = False, refine: RefineLike = False, format: Literal["glb", "pc2"]) -> bytes: ...
 
     async def animate(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                       motion: MotionLike, body: str | None = None, influences: int | None = None,
-                      fit: bool = False, refine: bool = False, format: Format = "array") -> np.ndarray | bytes:
+                      fit: bool = False, refine: RefineLike = False, format: Format = "array") -> np.ndarray | bytes:
         """Posed outfit vertices (T, N, 3) float32 metres, or GLB / PC2 bytes (see Client.animate)."""
         accept = _file_type(format) if format != "array" else None  # before a mesh file is uploaded to be rigged
         req = await self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
@@ -878,15 +950,15 @@ class AsyncClient(_Base):
                      inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
                      format: Format = "array") -> np.ndarray | bytes:
         """A garment stream (T, N, 3) m with body penetration removed, or GLB / PC2 bytes (see Client.refine)."""
-        req = _refine_npz(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner,
-                          thickness)
+        req = _refine_request(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner,
+                              thickness)
         if format != "array":
-            return await self._file("/v1/refine", _file_type(format), content=req, headers={"Content-Type": NPZ})
-        return await self._frames("/v1/refine", content=req, headers={"Content-Type": NPZ})
+            return await self._file("/v1/refine", _file_type(format), **req)
+        return await self._frames("/v1/refine", **req)
 
     async def animate_stream(self, *, outfit: OutfitLike | None = None, outfit_id: str | None = None,
                              motion: MotionLike, body: str | None = None, influences: int | None = None,
-                             fit: bool = False, refine: bool = False) -> AsyncIterator[np.ndarray]:
+                             fit: bool = False, refine: RefineLike = False) -> AsyncIterator[np.ndarray]:
         """Posed frames (N, 3) float32, yielded as they arrive (see Client.animate_stream)."""
         req = await self._animate_body(outfit, outfit_id, motion, body, influences, fit, refine)
         req["headers"]["Accept"] = FRAMES

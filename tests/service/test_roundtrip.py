@@ -464,3 +464,101 @@ def test_every_client_call_has_a_docstring():
     for cls in (drape.Client, drape.AsyncClient):
         missing = [n for n, m in _public_calls(cls).items() if n not in ("close", "aclose") and not inspect.getdoc(m)]
         assert not missing, (cls.__name__, missing)
+
+
+def _form_fields(request) -> dict[str, str]:
+    """A multipart request's text fields (name -> value); files are left out."""
+    from email.parser import BytesParser
+    from email.policy import HTTP
+
+    head = f"Content-Type: {request.headers['content-type']}\r\n\r\n".encode()
+    msg = BytesParser(policy=HTTP).parsebytes(head + request.content)
+    return {p.get_param("name", header="content-disposition"): p.get_content() for p in msg.iter_parts()
+            if p.get_filename() is None}
+
+
+@pytest.mark.parametrize("cls", [drape.Client, drape.AsyncClient], ids=["sync", "async"])
+def test_a_motion_file_carries_its_fps_and_up_axis(cls, tmp_path):
+    """MotionFile(path, fps=, up=) sends the file as `motion_file` with the form's fps and up on every call that
+    takes a motion (refine too: its garment travels as the npz `garment`); a bare Path sends neither (the
+    service's defaults: 30 fps, up detected)."""
+    import json
+
+    bvh = tmp_path / "take.bvh"
+    bvh.write_bytes(b"HIERARCHY")
+    take = drape.client.MotionFile(bvh, fps=24, up="z")
+    motion_calls = [(n, a, {**k, "motion": take}) for n, a, k in EVERY_CALL if "motion" in k]
+    sent: list = []
+    _requests_made(cls, motion_calls, sent)
+    assert len(sent) == len(motion_calls) == 7
+    for r in sent:
+        fields = _form_fields(r)
+        assert b'name="motion_file"; filename="take.bvh"' in r.content
+        assert (fields["fps"], fields["up"]) == ("24", "z"), (r.url.path, fields)
+        if "request" in fields:  # the garment and layers routes: the rest of the request as JSON
+            json.loads(fields["request"])
+    refine = next(r for r in sent if r.url.path == "/v1/refine")
+    assert b'name="garment"; filename="garment.npz"' in refine.content
+    plain: list = []
+    _requests_made(cls, [("animate", (), {"outfit_id": "o", "motion": bvh})], plain)
+    assert not {"fps", "up"} & set(_form_fields(plain[0]))
+
+
+@pytest.mark.parametrize("cls", [drape.Client, drape.AsyncClient], ids=["sync", "async"])
+def test_refine_options_reach_every_route_that_refines(cls, tmp_path):
+    """refine=RefineOptions(...) (or a mapping of its fields) turns refinement on and sends the fields given, in
+    each wire format: npz scalars (animate, animate_stream, animate_keyframes), form fields (animate with a
+    motion file), JSON (animate_layers; the garment and layers forms' `request`); a bad option is a ValueError
+    before any request."""
+    import json
+
+    from drape.schemas.binary import decode_npz
+
+    bvh = tmp_path / "take.bvh"
+    bvh.write_bytes(b"HIERARCHY")
+    options = drape.client.RefineOptions(eps=0.005, relief_iterations=0)
+    keys = [(0, np.zeros(4))]
+    calls = [("animate", (), {"outfit_id": "o", "motion": "walk", "refine": options}),
+             ("animate_stream", (), {"outfit_id": "o", "motion": "walk", "refine": {"eps": 0.005,
+                                                                                    "relief_iterations": 0}}),
+             ("animate_keyframes", ("g",), {"motion": "walk", "keyframes": keys, "refine": options}),
+             ("animate", (), {"outfit_id": "o", "motion": bvh, "refine": options}),
+             ("animate_layers", (), {"inner": "i", "outer": "o", "motion": "walk", "refine": options}),
+             ("animate_keyframes", ("g",), {"motion": bvh, "keyframes": keys, "refine": options}),
+             ("animate_layers", (), {"inner": "i", "outer": "o", "motion": bvh, "refine": options})]
+    sent: list = []
+    _requests_made(cls, calls, sent)
+    want = {"eps": 0.005, "relief_iterations": 0}
+    for r in sent[:3]:
+        z = decode_npz(r.content)
+        assert bool(z["refine"]) and {k: z[k].item() for k in want} == want and "max_iterations" not in z
+    form = _form_fields(sent[3])
+    assert (form["refine"], form["eps"], form["relief_iterations"]) == ("true", "0.005", "0")
+    assert json.loads(sent[4].content)["refine"] == want
+    for r in sent[5:]:
+        assert json.loads(_form_fields(r)["request"])["refine"] == want
+    off: list = []
+    _requests_made(cls, [("animate", (), {"outfit_id": "o", "motion": "walk"})], off)
+    assert not bool(decode_npz(off[0].content)["refine"])
+    with pytest.raises(ValueError, match="eps"):
+        _requests_made(cls, [("animate", (), {"outfit_id": "o", "motion": "walk", "refine": {"eps": -1.0}})])
+
+
+def test_motion_files_and_refine_options_through_the_client(server_url, outfit, tmp_path):
+    """Against the real service: a MotionFile's fps sets the frame count (a 4 s, 120 fps BVH at 24 fps: 97 frames),
+    refine takes the same file, and RefineOptions change what refinement does."""
+    from tests.cmu_bvh import cmu_bvh
+
+    bvh = tmp_path / "take.bvh"
+    bvh.write_bytes(cmu_bvh(481))
+    take = drape.client.MotionFile(bvh, fps=24)
+    with drape.Client(server_url) as client:
+        rig = client.rig((outfit.vertices, outfit.faces))
+        raw = client.animate(outfit_id=rig.outfit_id, motion=take)
+        default = client.animate(outfit_id=rig.outfit_id, motion=bvh)
+        refined = client.refine(raw, outfit.faces, motion=take, relief_iterations=0)
+        wide = client.animate(outfit_id=rig.outfit_id, motion=take,
+                              refine=drape.client.RefineOptions(eps=0.02, relief_iterations=0))
+    assert raw.shape == (97, len(outfit.vertices), 3) and default.shape[0] == 121
+    assert refined.shape == raw.shape and wide.shape == raw.shape
+    assert np.abs(refined - raw).max() > 1e-3 and np.abs(wide - refined).max() > 1e-3  # eps 2 cm vs 3 mm
