@@ -68,6 +68,26 @@ def _import_deepmimic(args: argparse.Namespace) -> None:
     (out / "ATTRIBUTION.md").write_text(deepmimic.ATTRIBUTION + "\n")
 
 
+def _int_in(low: int, high: int | None = None):  # noqa: ANN202 - an argparse type
+    """An argparse type: an integer in [low, high] (high None: no upper bound), else argparse's one-line error
+    naming the option (exit 2) before any work."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            bound = f">= {low}" if high is None else f"in [{low}, {high:,}]"
+            raise argparse.ArgumentTypeError(f"must be {bound}, got {value}")
+        return value
+
+    return parse
+
+
+MAX_GENERATED_FRAMES = 108_000  # `motions generate --frames`: an hour at 30 fps
+
+
 def _check_fps_option(fps: float | None) -> None:
     """A clip's frame rate given as --fps: within a motion file's bounds (a BVH's Frame Time, AMASS's rate), so
     the float32 it is stored as is a rate the loaders read (1e-300 stored as 0)."""
@@ -649,7 +669,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     motions = sub.add_parser("motions", help="make or convert motions").add_subparsers(dest="what", required=True)
     g = motions.add_parser("generate", help="a seeded procedural motion (gait, reaching, turning)")
-    g.add_argument("--frames", type=int, required=True)
+    g.add_argument("--frames", type=_int_in(1, MAX_GENERATED_FRAMES), required=True)
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--fps", type=float, default=30.0)
     g.add_argument("--walk", type=float, default=0.6, help="share of time walking (0..1)")
@@ -751,7 +771,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     evl = ev.add_parser("layers", help="the served layer combinations against two-layer simulations on held-out "
                         "motions: RMSE, Hausdorff, STED, H-Coll, L-Coll, speed (simulates what data/layers_eval lacks)")
-    evl.add_argument("--frames", type=int, default=60, help="motion frames simulated per sequence")
+    evl.add_argument("--frames", type=_int_in(1), default=60, help="motion frames simulated per sequence")
     evl.add_argument("--write", action="store_true", help="into the inner networks' manifests and --docs")
     evl.add_argument("--docs", default="docs/layers_eval.md")
     evl.set_defaults(func=_eval_layers)
@@ -797,7 +817,7 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--substeps", type=int, default=None,
                     help="simulation steps per motion frame for every parameter set (default: the sets' own, 4); "
                          "a long skirt needs 8 (docs/sim.md)")
-    sd.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    sd.add_argument("--workers", type=_int_in(1), default=None, help="local processes (default: all cores)")
     sd.add_argument("--ray", metavar="ADDRESS", default=None, help="run the items as tasks on this Ray cluster")
     sd.add_argument("--out", required=True)
     sd.set_defaults(func=_sim_dataset)
@@ -813,7 +833,7 @@ def build_parser() -> argparse.ArgumentParser:
     so.set_defaults(func=_sim_outfit)
     sw = sim.add_parser("sweep", help="vary one parameter at a time from the base (Wang 2019 Sec. 3.6)")
     sw.add_argument("--out", default="docs/sim_sweep.json")
-    sw.add_argument("--workers", type=int, default=None)
+    sw.add_argument("--workers", type=_int_in(1), default=None, help="local processes (default: all cores)")
     sw.add_argument("--frames", type=int, default=45)
     sw.add_argument("--vertices", type=int, default=1200)
     sw.set_defaults(func=_sim_sweep)
@@ -835,7 +855,7 @@ def build_parser() -> argparse.ArgumentParser:
                                            "sequence's garment)")
     r.add_argument("--frames", default=None, help="comma list (default 0,10,20,30; six spread frames with --sim)")
     r.add_argument("--azimuth", type=float, default=25.0, help="view angle about +Y from the front, degrees")
-    r.add_argument("--smooth", type=int, default=40, help="weight diffusion steps for the outfit's skinning")
+    r.add_argument("--smooth", type=_int_in(0), default=40, help="weight diffusion steps for the outfit's skinning")
     r.add_argument("--out", required=True)
     r.set_defaults(func=_render)
     return p

@@ -206,3 +206,27 @@ def test_sim_option_files_and_ranges_are_refused_in_one_line(tmp_path, capsys):
                        "--motions", "walk", "--out", str(tmp_path / "d")).startswith(
             f"--thickness takes LOW,HIGH in m, got {given!r}")
     assert not (tmp_path / "s.npz").exists() and not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (["motions", "generate", "--frames", "1000000", "--out", "m.npz"], "--frames: must be in [1, 108,000], got 1000000"),
+    (["motions", "generate", "--frames", "0", "--out", "m.npz"], "--frames: must be in [1, 108,000], got 0"),
+    (["motions", "generate", "--frames", "1e8", "--out", "m.npz"], "--frames: expected an integer, got '1e8'"),
+    (["eval", "layers", "--frames", "0"], "--frames: must be >= 1, got 0"),
+    (["sim", "dataset", "--garment", "g.obj", "--motions", "walk", "--out", "d", "--workers", "0"],
+     "--workers: must be >= 1, got 0"),
+    (["sim", "sweep", "--workers", "-1", "--out", "d"], "--workers: must be >= 1, got -1"),
+    (["render", "--smooth", "-1", "--out", "r.png"], "--smooth: must be >= 0, got -1"),
+])
+def test_counts_out_of_range_are_refused_before_any_work(args, said, tmp_path, monkeypatch, capsys):
+    """Counts are checked as the command line is read (argparse's one-line error, exit 2): `motions generate
+    --frames 100000000` ran for minutes, `eval layers --frames 0` failed only after loading every model,
+    `sim dataset --workers 0` simulated on all cores and `--workers -1` on one, `render --smooth -1` drew."""
+    from drape import cli
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and err[-1].endswith(f"error: argument {said}"), err
+    assert not any(tmp_path.iterdir())
