@@ -129,6 +129,16 @@ def test_an_a_pose_body_needs_its_rest_pose_and_is_un_posed_with_it(http, proxy)
     http.delete(f"/v1/bodies/{r.json()['body_id']}")
 
 
+@pytest.mark.parametrize("value", [[["0", "0", "0"]] * 24, [[False] * 3] * 24, [[0.0, True, "0"]] * 24,
+                                   [[None] * 3] * 24])
+def test_a_rest_pose_of_strings_booleans_or_nulls_is_refused(http, proxy, value):
+    """The form's rest_pose is JSON numbers, strictly (as the JSON models): strings and booleans were read as
+    numbers by numpy (a T-pose of "0"s or falses registered), nulls as NaN ("contains NaN")."""
+    arrays = npz(vertices=proxy.vertices, faces=proxy.faces, weights=proxy.weights, joints=proxy.joints)
+    problem(http.post("/v1/bodies", files={"body_file": ("b.npz", arrays)}, data={"rest_pose": json.dumps(value)}),
+            422, "rest_pose", "strings, booleans or nulls")
+
+
 def test_joint_names_in_another_order_are_reordered(http, proxy):
     order = np.random.default_rng(0).permutation(24)
     r = http.post("/v1/bodies", content=npz(vertices=proxy.vertices, faces=proxy.faces,
