@@ -396,7 +396,8 @@ def _smpl_indices(names: list[str | None], joint_map: dict[str, str] | None) -> 
     if joint_map:
         if not all(isinstance(k, str) and isinstance(v, str) for k, v in joint_map.items()):
             _invalid("joint_map must map joint names (strings) to SMPL joint names (strings)")
-        unknown_keys = sorted(k for k in joint_map if k not in names)
+        known = set(names)  # a set: a map of K keys against J joints is K lookups, not K x J comparisons
+        unknown_keys = sorted(k for k in joint_map if k not in known)
         if unknown_keys:
             _invalid(f"joint_map names joints the skin does not have: {quoted(unknown_keys)}; "
                      f"the skin's joints: {quoted([n for n in names if n is not None])}")
@@ -435,12 +436,18 @@ def _weight_targets(smpl: list[int], joint_nodes: list[int], parents: list[int])
     """Each skin joint -> the SMPL joint its weight goes to: its own, else its nearest mapped
     ancestor node's, else -1."""
     mapped = {joint_nodes[k]: j for k, j in enumerate(smpl) if j >= 0}
+    above: dict[int, int] = {}  # unmapped node -> its nearest mapped ancestor's SMPL joint (-1: none), once each
     target = np.array(smpl, dtype=np.int64)
     for k, j in enumerate(smpl):
         if j >= 0:
             continue
-        n, steps = parents[joint_nodes[k]], 0
-        while n >= 0 and n not in mapped and steps <= len(parents):
-            n, steps = parents[n], steps + 1
-        target[k] = mapped.get(n, -1)
+        # each node is walked once (a chain of J unmapped joints is J steps, not J^2 / 2)
+        path: list[int] = []
+        n = parents[joint_nodes[k]]
+        while n >= 0 and n not in mapped and n not in above and len(path) <= len(parents):
+            path.append(n)
+            n = parents[n]
+        found = mapped[n] if n in mapped else above.get(n, -1)
+        above.update(dict.fromkeys(path, found))
+        target[k] = found
     return target

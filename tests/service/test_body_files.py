@@ -17,7 +17,7 @@ from drape.geometry.lbs import pose_mesh
 from drape.geometry.rotations import axis_angle_to_quaternion
 from drape.geometry.skeleton import forward_kinematics
 from drape.schemas.gltf import Skeleton, SkinnedMesh, skin_sets, skinned_glb
-from drape.service.body_files import body_from_glb
+from drape.service.body_files import _smpl_indices, _weight_targets, body_from_glb
 from drape.service.errors import DrapeError, InvalidInput, LimitExceeded, MalformedInput
 
 BODY = load_body("neutral")
@@ -199,6 +199,49 @@ def test_an_unmapped_root_is_fine_until_it_carries_weight():
     weights[:50, 0] = 1  # 50 vertices weighted to the root alone
     _refused(InvalidInput, _write(names, parents, joints, weights), "50 vertices",
              "no mapped ancestor", "'root'")
+
+
+class _Reads(list):
+    """A parents list that counts its reads."""
+
+    reads = 0
+
+    def __getitem__(self, i):  # type: ignore[override]
+        _Reads.reads += 1
+        return super().__getitem__(i)
+
+
+class _Name(str):
+    """A joint name that counts its comparisons."""
+
+    compared = 0
+    __hash__ = str.__hash__
+
+    def __eq__(self, other: object) -> bool:
+        _Name.compared += 1
+        return str.__eq__(self, other)
+
+
+def test_a_long_chain_of_unmapped_joints_and_a_long_joint_map_take_linear_steps():
+    """Under the hand, a chain of J joints that map to no SMPL joint each give their weight to the hand, in J
+    parent reads (each walked to its nearest mapped ancestor once): it took J^2 / 2 (a skin of ~25,000 joints,
+    within the glTF token limit, held a computing slot for minutes); and a joint_map of K keys is checked against
+    the skin's J names by lookups, not K x J comparisons (a joint_map form field is bounded only by the body)."""
+    J = 3000
+    parents = _Reads([*BODY.parents.tolist(), *range(23, 23 + J)])
+    smpl = [*range(24), *[-1] * J]
+    _Reads.reads = 0
+    target = _weight_targets(smpl, list(range(24 + J)), parents)
+    assert target[24:].tolist() == [23] * J and target[:24].tolist() == list(range(24))
+    assert _Reads.reads < 4 * (24 + J), _Reads.reads
+
+    names = [_Name(n) for n in (*BODY.joint_names, *(f"bone_{k}" for k in range(J)))]
+    joint_map = {**{n: n for n in BODY.joint_names}, **{f"x{k}": "head" for k in range(2000)}}
+    _Name.compared = 0
+    with pytest.raises(InvalidInput, match="joint_map names joints the skin does not have: \\['x0'"):
+        _smpl_indices(names, joint_map)
+    assert _Name.compared < 1000, _Name.compared
+    assert _smpl_indices(names, {n: n for n in BODY.joint_names}) == [*range(24), *[-1] * J]
 
 
 def _pose_nodes(poses: np.ndarray) -> Callable[[gl.GLTF2, bytearray], None]:
