@@ -79,6 +79,17 @@ def check_latent(value: Any, garment: IntrinsicGarment, field: str) -> np.ndarra
     return z.astype(np.float32)
 
 
+def check_encoded(z: np.ndarray, field: str) -> np.ndarray:
+    """A latent the encoder gave for the shape in `field`: within the bound a latent keyframe has (+-MAX_LATENT), so
+    every latent drape answers can be sent back as a keyframe; beyond it the shape is nothing like what the model
+    was trained on (a garment kilometres away, or not world space at its frame) -> 422 naming the shape."""
+    if not np.isfinite(z).all() or np.abs(z).max() > MAX_LATENT:
+        raise InvalidInput(f"the shape encodes to a latent beyond +-{MAX_LATENT:g} (largest |value| "
+                           f"{float(np.abs(z).max()):.3g}): it is far from every shape the model was trained on; give "
+                           "the garment in metres, world space at its frame, on the motion's body", field)
+    return z
+
+
 def check_int(value: Any, low: int, high: int, field: str) -> int:
     """An integer in [low, high] (an npz or form scalar; the JSON models check theirs)."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
@@ -93,7 +104,7 @@ def encode(settings: Settings, garment: IntrinsicGarment, request: dict) -> np.n
     poses, trans, _ = check_motion(request["motion"], settings)
     frame = check_frame(request.get("frame"), len(poses), "frame")
     vertices = check_shape(request.get("vertices"), garment, "vertices")
-    return garment.encode(vertices, poses, trans, frame)
+    return check_encoded(garment.encode(vertices, poses, trans, frame), "vertices")
 
 
 @dataclass(frozen=True)
@@ -131,6 +142,7 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
     seen: dict[int, int] = {}
     latent_keys: list[tuple[int, np.ndarray]] = []
     shapes: list[tuple[int, np.ndarray]] = []
+    shape_fields: list[str] = []
     for i, key in enumerate(keyframes):
         field = f"keyframes[{i}]"
         if not isinstance(key, dict):
@@ -147,6 +159,7 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
             latent_keys.append((frame, check_latent(key["latent"], garment, f"{field}.latent")))
         else:
             shapes.append((frame, check_shape(key["vertices"], garment, f"{field}.vertices")))
+            shape_fields.append(f"{field}.vertices")
     match = request.get("match_keyframes", True)
     if not isinstance(match, bool):
         raise InvalidInput(f"expected true or false, got {type(match).__name__}", "match_keyframes")
@@ -157,7 +170,8 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
     frames = [f for f, _ in shapes]
     given = [f for f, _ in latent_keys]
     stacked = np.stack([v for _, v in shapes])
-    latent_keys += list(zip(frames, garment.encode_at(stacked, frames, motion), strict=True))
+    encoded = garment.encode_at(stacked, frames, motion)
+    latent_keys += [(f, check_encoded(z, name)) for f, z, name in zip(frames, encoded, shape_fields, strict=True)]
     latents = interpolate(latent_keys, T)
     residual = garment.keyframe_residual(stacked, frames, given, latents, motion, fps) if match else None
     return KeyframePlan(garment, poses, trans, fps, latents, refine, residual)

@@ -299,6 +299,12 @@ def test_bad_inputs_name_their_field(http, garment, shape):
     problem(http.post(f"/v1/garments/{NAME}/encode", content=inf_vertices.encode(),
                       headers={"content-type": "application/json"}), 422, "vertices", "NaN or infinite")
     problem(post("animate", motion=kick, keyframes=[{"frame": 0, "latent": [1e9] * 100}]), 422, "keyframes[0].latent")
+    # a shape 10 km away (within the coordinate bound) encodes to a latent beyond the bound every latent keyframe
+    # has: refused naming the shape, so that every latent drape answers can be sent back as a keyframe
+    far = (shape + 1e4).tolist()
+    problem(post("encode", vertices=far, motion=kick, frame=0), 422, "vertices", "latent beyond +-10000")
+    problem(post("animate", motion=kick, keyframes=[{"frame": 0, "latent": z}, {"frame": 9, "vertices": far}]), 422,
+            "keyframes[1].vertices", "latent beyond +-10000")
     # keyframes: none, twice on one frame, neither or both of vertices and latent
     problem(post("animate", motion=kick, keyframes=[]), 422, "keyframes")
     problem(post("animate", motion=kick), 422, "keyframes")
