@@ -6,7 +6,8 @@ from drape.service.errors import NotAcceptable
 
 
 def choose(accept: str | None, offered: list[str]) -> str:
-    """The offered media type the Accept header prefers (q-values honoured); offered[0] for */* or none."""
+    """The offered media type the Accept header prefers (q-values honoured; an invalid one counts as 0); offered[0]
+    for */* or none; for a range type/* (model/*, application/*) the first offered type of that type."""
     if not accept or not accept.strip():
         return offered[0]
     ranked: list[tuple[float, int, str]] = []
@@ -19,12 +20,16 @@ def choose(accept: str | None, offered: list[str]) -> str:
                     q = float(param[2:])
                 except ValueError:
                     q = 0.0
-        ranked.append((q, -i, media))
+        ranked.append((q if 0.0 <= q <= 1.0 else 0.0, -i, media))
     for q, _, media in sorted(ranked, reverse=True):
         if q <= 0:
             continue
-        if media in ("*/*", "application/*"):
+        if media == "*/*":
             return offered[0]
-        if media in offered:
+        if media.endswith("/*"):
+            of_type = [o for o in offered if o.startswith(media[:-1])]
+            if of_type:
+                return of_type[0]
+        elif media in offered:
             return media
     raise NotAcceptable(f"none of {offered} matches Accept: {accept!r}", "Accept")
