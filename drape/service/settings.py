@@ -24,7 +24,7 @@ class Settings(BaseSettings):
     max_faces: int = 200_000
     max_frames: int = 10_000
     max_posed_values: int = 20_000_000  # frames x vertices in one npz answer (the frame stream has no such cap)
-    max_json_values: int = 5_000_000  # numbers in one JSON answer; larger ones go as npz under Accept: */*
+    max_json_values: int = 5_000_000  # numbers in one JSON answer; past it a 413 (Accept: */* too) says to ask for npz
     max_body_bytes: int = 64 * 2**20  # request body, multipart uploads included
     max_decoded_bytes: int = 256 * 2**20  # the arrays read from one npz body (as declared, >= 4 bytes a number)
     body_timeout_s: float = 30.0  # the whole request body must arrive within this
