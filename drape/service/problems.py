@@ -11,6 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
+from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from drape.schemas.outfits import Problem
@@ -100,6 +101,19 @@ class CatchAll:
             await send({"type": "http.response.body", "body": body})
 
 
+METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")
+
+
+def allowed_methods(app: ASGIApp, scope: Scope) -> list[str]:
+    """The methods some route answers at the request's path: a path served by several routes (GET and POST
+    /v1/bodies, GET and DELETE /v1/bodies/{name}) gets them all in its 405's Allow, where Starlette names only
+    the first route's (RFC 9110: Allow lists what the resource supports). Each method is tried against the
+    app's routes (included routers too) as the router would match it."""
+    routes = getattr(app, "routes", ())
+    return [m for m in METHODS
+            if any(route.matches({**scope, "method": m})[0] == Match.FULL for route in routes)]
+
+
 def install(app: FastAPI) -> None:
     """Every error becomes problem+json: domain errors, validation errors, routing errors, the unexpected."""
 
@@ -117,8 +131,12 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        # keeps the exception's headers: Allow on a 405
-        return problem(exc.status_code, f"http-{exc.status_code}", str(exc.detail), str(exc.detail),
-                       dict(exc.headers) if exc.headers else None)
+        # keeps the exception's headers: Allow on a 405, naming every route of the path
+        headers = dict(exc.headers) if exc.headers else None
+        if exc.status_code == 405:
+            allowed = allowed_methods(request.app, request.scope)
+            if allowed:
+                headers = {**(headers or {}), "Allow": ", ".join(allowed)}
+        return problem(exc.status_code, f"http-{exc.status_code}", str(exc.detail), str(exc.detail), headers)
 
     app.add_middleware(CatchAll)

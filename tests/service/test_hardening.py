@@ -87,6 +87,15 @@ def test_405_names_the_allowed_methods(http):
     assert r.headers["allow"] == "POST"
 
 
+def test_405_names_every_method_of_a_path_served_by_several_routes(http):
+    """/v1/bodies (GET: the catalogue, POST: register) and /v1/bodies/{name} (GET, DELETE) are each two routes;
+    Starlette's 405 named only the first route's method (RFC 9110: Allow lists all the resource supports)."""
+    for path, allowed in (("/v1/bodies", {"GET", "POST"}), ("/v1/bodies/neutral", {"GET", "DELETE"})):
+        r = http.put(path)
+        problem(r, 405)
+        assert set(r.headers["allow"].split(", ")) == allowed, (path, r.headers["allow"])
+
+
 def test_large_strings_are_not_echoed(http):
     name = "x" * (3 * 2**20)
     p = problem(http.post("/v1/outfits/animate", json={"outfit": {"vertices": V, "faces": F}, "motion": {"clip": name}}),
