@@ -265,7 +265,8 @@ class ImportedMotion:
             lines.append(f"resampled to {m.fps:g} fps (slerp): {m.num_frames} frames")
         if self.floor is not None:
             f = self.floor
-            lines.append(f"floor: lowest body point moved down {f.shift * 1e3:.1f} mm; foot-floor error (median "
+            moved = f"down {f.shift * 1e3:.1f} mm" if f.shift >= 0 else f"up {-f.shift * 1e3:.1f} mm"
+            lines.append(f"floor: lowest body point moved {moved}; foot-floor error (median "
                          f"|lowest foot point|) {f.before * 1e3:.1f} mm before, {f.after * 1e3:.1f} mm after")
         return "\n".join(lines)
 

@@ -401,3 +401,18 @@ def test_the_printed_foot_floor_measure_is_bench_foot_floors():
 
     walk = load_clip("walk")
     assert np.allclose(foot_heights(walk, BODY, chunk=7), bench_measure(walk, BODY), atol=1e-6)
+
+
+def test_the_floor_line_says_which_way_the_clip_moved():
+    """put_on_floor subtracts `shift` from the height: a positive shift moves the clip down, a negative one up (the
+    summary said 'moved down -17.6 mm' for a clip that sank below the floor)."""
+    from drape.assets.motion import FloorFix, ImportedMotion
+
+    clip = Motion(np.zeros((2, 24, 3), np.float32), np.zeros((2, 3), np.float32), 30.0, "c")
+    lines = {}
+    for shift in (0.0176, -0.0176):
+        imported = ImportedMotion(clip, "bvh", "CMU-named BVH", 2, 30.0, "y", "given", False,
+                                  FloorFix(clip, shift, 0.02, 0.002))
+        lines[shift] = imported.summary().splitlines()[-1]
+    assert lines[0.0176].startswith("floor: lowest body point moved down 17.6 mm;")
+    assert lines[-0.0176].startswith("floor: lowest body point moved up 17.6 mm;")
