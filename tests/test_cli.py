@@ -230,3 +230,22 @@ def test_counts_out_of_range_are_refused_before_any_work(args, said, tmp_path, m
     err = capsys.readouterr().err.strip().splitlines()
     assert exc.value.code == 2 and err[-1].endswith(f"error: argument {said}"), err
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("command", [["train", "deepsd"], ["train", "intrinsic", "--template", "skirt"],
+                                     ["eval", "deepsd"]])
+@pytest.mark.parametrize(("text", "said"), [("not json", "is not JSON: Expecting value"),
+                                            ("[1, 2]", "a config is a JSON object of settings, got list"),
+                                            (b"\xff\xfe", "is not JSON text (UTF-8)")])
+def test_a_config_that_is_not_a_json_object_is_named_in_one_line(command, text, said, tmp_path, capsys):
+    """Every trainer and evaluator reads its --config through drape.training.config_file.read_config: a file that is
+    not a JSON object is refused naming the file (it printed json's 'Expecting value: line 1 column 1' alone)."""
+    from drape import cli
+
+    config = tmp_path / "c.json"
+    config.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*command, "--config", str(config), *(["--checkpoints", str(tmp_path / "ck")]
+                                                        if command[0] == "train" else [])])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and err.startswith(f"drape: error: {config}: {said}") and "\n" not in err, err

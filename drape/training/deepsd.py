@@ -39,13 +39,14 @@ import torch
 from drape.models.deepsd import DeePSDConfig, OutfitNet, PoseNet
 from drape.training import DEFAULT_DEEPSD_CONFIG as DEFAULT_CONFIG
 from drape.training import physics
+from drape.training.config_file import read_config
 from drape.training.deepsd_data import TrainOutfit, pose_pool, prepare_outfits, train_specs
 
 PHASES = ("prior", "physics", "chi")
 
 
 def load_config(path: str | Path = DEFAULT_CONFIG) -> dict:
-    return json.loads(Path(path).read_text())
+    return read_config(path)
 
 
 def _trainable(phase: str, net: OutfitNet, pose: PoseNet) -> list[torch.nn.Parameter]:

@@ -36,6 +36,7 @@ from drape.geometry.queries import (
 from drape.runtime.collision_fit import served_fit_frames, served_rig
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, Rig, pose_outfit
 from drape.training import DEFAULT_GROUND_TRUTH
+from drape.training.config_file import read_config
 from drape.training.deepsd_data import OutfitSpec, eval_specs, load_outfit
 
 METHODS = ("baseline", "no_chi", "model", "served", "served8")
@@ -85,7 +86,7 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
     ...}; each row: outfit, body, method, set ("deepmimic": held-out outfits x the held-out embedded clips;
     "cmu": the same outfits x real CMU mocap from `real_mocap`, skipped when the folder is absent;
     "unseen_body": UNSEEN_BODY_OUTFITS made for the UNSEEN_BODY x the held-out embedded clips), metrics."""
-    cfg = json.loads(Path(config_path).read_text())
+    cfg = read_config(config_path)
     model = DeePSDModel(model_dir)
     real_dir = Path(real_mocap) if real_mocap else None
     real = [real_dir / f"{c}.bvh" for c in REAL_CLIPS] if real_dir and real_dir.is_dir() else []

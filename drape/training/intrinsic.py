@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from drape.models.intrinsic import IntrinsicConfig, IntrinsicSpace, uniform_laplacian_loss
+from drape.training.config_file import read_config
 from drape.training.intrinsic_data import Frames, load_frames
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
@@ -40,7 +41,7 @@ CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 
 def load_config(template: str | None = None, path: str | Path | None = None) -> dict:
     p = Path(path) if path else CONFIG_DIR / f"intrinsic_{template}.json"
-    return json.loads(p.read_text())
+    return read_config(p)
 
 
 def training_datasets(config: dict) -> list[str]:

@@ -19,7 +19,6 @@ the lowest score's weights are kept (`best.pt`) and exported. Checkpoints go to 
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -32,6 +31,7 @@ from drape.assets.outfits import split_outfit
 from drape.geometry.mesh import neighbour_table, unique_edges
 from drape.models.layers import InnerConfig, InnerPSD
 from drape.training import physics
+from drape.training.config_file import read_config
 from drape.training.deepsd_data import pose_pool
 from drape.training.deepsd_validation import Poser, measure_poser
 from drape.training.validated_steps import restore_best, resume, save_step
@@ -40,7 +40,7 @@ CONFIGS = Path(__file__).parent / "configs"
 
 
 def load_config(inner: str, path: str | Path | None = None) -> dict:
-    return json.loads(Path(path or CONFIGS / f"mgn_inner_{inner}.json").read_text())
+    return read_config(path or CONFIGS / f"mgn_inner_{inner}.json")
 
 
 def template(cfg: dict) -> tuple[np.ndarray, np.ndarray]:
