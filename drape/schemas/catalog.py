@@ -6,17 +6,20 @@ from pydantic import BaseModel, Field
 
 
 class Health(BaseModel):
-    status: str = Field(description="'ok' when the process is alive, 'ready' when serving")
+    """A probe's answer (GET /healthz, GET /readyz)."""
+
+    status: str = Field(description="'ok' (GET /healthz: the process is alive), 'ready' (GET /readyz: models "
+                                    "loaded, serving) or 'starting' (GET /readyz's 503 until then)")
 
 
 class BodyInfo(BaseModel):
     """A body (a preset, or a user body registered by POST /v1/bodies): its skeleton and mesh sizes. Lengths
     in metres, T-pose rest, +Y up, facing +Z."""
 
-    name: str
+    name: str = Field(description="the preset's name, or a user body's body_id: what `body` takes in requests")
     preset: bool = Field(True, description="false for a user body (its name is its body_id)")
-    num_vertices: int
-    num_faces: int
+    num_vertices: int = Field(description="V, vertices of the body mesh")
+    num_faces: int = Field(description="F, triangles of the body mesh")
     proxy_vertices: int = Field(description="vertices of the low-resolution collision proxy")
     height: float = Field(description="rest-pose height, metres")
     joint_names: list[str] = Field(description="24 joints in SMPL order")
@@ -25,23 +28,25 @@ class BodyInfo(BaseModel):
 
 
 class BodyList(BaseModel):
-    bodies: list[BodyInfo]
+    """The bodies a request can name (GET /v1/bodies)."""
+
+    bodies: list[BodyInfo] = Field(description="the presets, then the registered user bodies")
 
 
 class BodyRegistered(BaseModel):
     """A user body held by the service (POST /v1/bodies): use body_id wherever a body is named."""
 
     body_id: str = Field(description="'body-' + a hash of the body's arrays: the same upload gives the same id")
-    num_vertices: int
-    num_faces: int
+    num_vertices: int = Field(description="V, vertices of the body mesh")
+    num_faces: int = Field(description="F, triangles of the body mesh")
     height: float = Field(description="rest-pose height, metres")
 
 
 class BodyMesh(BaseModel):
     """A body's mesh and skeleton (GET /v1/bodies/{name}; npz by Accept: the same arrays)."""
 
-    name: str
-    preset: bool
+    name: str = Field(description="the preset's name or the user body's body_id")
+    preset: bool = Field(description="false for a user body (POST /v1/bodies)")
     vertices: list[list[float]] = Field(description="(V, 3) rest-pose vertices, metres")
     faces: list[list[int]] = Field(description="(F, 3) vertex indices")
     weights: list[list[float]] = Field(description="(V, 24) skinning weights, rows summing to 1")
@@ -53,11 +58,14 @@ class BodyMesh(BaseModel):
 class MotionInfo(BaseModel):
     """An embedded clip: poses (frames, 24, 3) axis-angle + root translation."""
 
-    name: str
-    frames: int
-    fps: float
-    duration: float = Field(description="seconds")
+    name: str = Field(description="what a request's motion.clip takes")
+    frames: int = Field(description="T, frames of the clip")
+    fps: float = Field(description="the clip's frame rate, frames per second (a request's motion.fps does not "
+                                   "change it)")
+    duration: float = Field(description="frames / fps, seconds")
 
 
 class MotionList(BaseModel):
-    motions: list[MotionInfo]
+    """The embedded motion clips (GET /v1/motions)."""
+
+    motions: list[MotionInfo] = Field(description="every clip, by name")

@@ -19,9 +19,9 @@ EXAMPLE_LATENT_SIZE = 100  # the paper's latent size: what the examples assume
 class GarmentInfo(BaseModel):
     """A served garment template and its models."""
 
-    name: str
-    num_vertices: int
-    num_faces: int
+    name: str = Field(description="what the garment routes' {name} takes")
+    num_vertices: int = Field(description="N, the template's vertex count: every stream and shape of it is (N, 3)")
+    num_faces: int = Field(description="F, the template's triangle count")
     body: str = Field(description="the body preset the template is dressed on and the model was trained with")
     models: list[str] = Field(description="the models of this template: 'intrinsic', or 'deepsd' for a layer "
                                           "template (GET /v1/layers)")
@@ -33,16 +33,18 @@ class GarmentInfo(BaseModel):
 
 
 class GarmentList(BaseModel):
-    garments: list[GarmentInfo]
+    """The served garment templates (GET /v1/garments)."""
+
+    garments: list[GarmentInfo] = Field(description="the intrinsic templates, then the layer templates")
 
 
 class GarmentTemplate(BaseModel):
     """The template mesh in rest pose on its body: vertices (N, 3) metres, faces (F, 3)."""
 
-    name: str
-    body: str
-    vertices: list[Vec3]
-    faces: list[list[int]]
+    name: str = Field(description="the template's name")
+    body: str = Field(description="the body preset the template is dressed on")
+    vertices: list[Vec3] = Field(description="(N, 3) rest-pose vertices, metres, +Y up")
+    faces: list[list[int]] = Field(description="(F, 3) triangles: 0-based indices into vertices")
 
 
 class EncodeFields(BaseModel):
@@ -57,13 +59,14 @@ class EncodeFields(BaseModel):
 class EncodeRequest(EncodeFields):
     """A keyframe shape and the motion it belongs to (the frames up to `frame` give its motion window)."""
 
-    motion: MotionInput
+    motion: MotionInput = Field(description="the body's motion; `frame` indexes it")
 
 
 class EncodeResponse(BaseModel):
     """The keyframe's latent (Z,)."""
 
-    latent: list[float]
+    latent: list[float] = Field(description="(Z,) the shape's latent, Z the template's latent_size (GET "
+                                            "/v1/garments): a keyframe's `latent` in animate")
 
 
 class Keyframe(BaseModel):
@@ -71,12 +74,16 @@ class Keyframe(BaseModel):
     to that frame) or as a latent (Z,) (from encode or sample). Exactly one of the two."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
-    frame: int = Field(ge=0)
-    vertices: list[Vec3] | None = None
-    latent: list[float] | None = None
+    frame: int = Field(ge=0, description="0-based index of the motion frame the keyframe belongs to")
+    vertices: list[Vec3] | None = Field(None, description="(N, 3) the garment's shape, metres, world space at "
+                                        "`frame`, in the template's vertex order")
+    latent: list[float] | None = Field(None, description="(Z,) a latent from encode or sample")
 
 
 class KeyframeFields(BaseModel):
+    """Keyframes and how to meet them: a keyframe animate request without its motion (the `request` field of the
+    multipart form, beside its motion_file)."""
+
     model_config = ConfigDict(extra="forbid", strict=True)
     keyframes: list[Keyframe] = Field(min_length=1, description="at least one; one keyframe per frame")
     match_keyframes: bool = Field(True, description="keyframes given as vertices are met exactly at their frames: "
@@ -99,10 +106,13 @@ class KeyframeAnimateRequest(KeyframeFields):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"motion": EXAMPLE_MOTION, "keyframes": EXAMPLE_KEYFRAMES},
         {"motion": EXAMPLE_MOTION, "keyframes": EXAMPLE_KEYFRAMES[1:], "refine": True}]})
-    motion: MotionInput
+    motion: MotionInput = Field(description="the body's motion: the stream has its T frames")
 
 
 class SampleFields(BaseModel):
+    """How many candidates, the seed and the frame: a sample request without its motion (the `request` field of
+    the multipart form, beside its motion_file)."""
+
     model_config = ConfigDict(extra="forbid", strict=True)
     count: int = Field(ge=1, le=MAX_SAMPLES, description="design candidates to draw")
     seed: int = Field(0, ge=0, le=MAX_SEED, description="the random generator's seed: same seed, same latents")
@@ -116,11 +126,11 @@ class SampleRequest(SampleFields):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"count": 4, "seed": 7, "motion": EXAMPLE_MOTION, "frame": 2},
         {"count": 2, "seed": 1, "motion": {"clip": "kick"}, "frame": 10}]})
-    motion: MotionInput
+    motion: MotionInput = Field(description="the body's motion; `frame` indexes it")
 
 
 class SampleResponse(BaseModel):
     """latents (count, Z) and their shapes (count, N, 3) metres, world space at the frame."""
 
-    latents: list[list[float]]
-    vertices: list[list[Vec3]]
+    latents: list[list[float]] = Field(description="(count, Z) the drawn latents")
+    vertices: list[list[Vec3]] = Field(description="(count, N, 3) their shapes, metres, world space at `frame`")

@@ -11,8 +11,8 @@ from drape.schemas.outfits import MotionInput, RefineOptions, Vec3
 class LayerInfo(BaseModel):
     """A served combination of two garment templates (each served by GET /v1/garments/{name})."""
 
-    inner: str
-    outer: str
+    inner: str = Field(description="the inner garment template's name (GET /v1/garments/{name})")
+    outer: str = Field(description="the outer garment template's name, worn over the inner")
     body: str = Field(description="the body preset both templates are dressed on")
     thickness: list[float] = Field(description="[min, max]: the inner thicknesses served, metres")
     model: str = Field(description="what poses the layers: '<inner_model>+<outer_model>', or the one name when "
@@ -25,7 +25,9 @@ class LayerInfo(BaseModel):
 
 
 class LayerList(BaseModel):
-    layers: list[LayerInfo]
+    """The served combinations (GET /v1/layers)."""
+
+    layers: list[LayerInfo] = Field(description="every combination POST /v1/layers/animate takes")
 
 
 class LayersFields(BaseModel):
@@ -46,16 +48,16 @@ class LayersAnimateRequest(LayersFields):
 
     model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [
         {"inner": "tshirt", "outer": "jacket", "thickness": 0.006, "motion": {"clip": "walk"}, "refine": True}]})
-    motion: MotionInput
+    motion: MotionInput = Field(description="the body's motion: both streams have its T frames")
 
 
 class LayersAnimateResponse(BaseModel):
     """Both layers' frames: inner_vertices (T, Ni, 3), outer_vertices (T, No, 3) metres, and their faces."""
 
-    inner: str
-    outer: str
-    fps: float
-    inner_vertices: list[list[Vec3]]
-    inner_faces: list[list[int]]
-    outer_vertices: list[list[Vec3]]
-    outer_faces: list[list[int]]
+    inner: str = Field(description="the inner template's name")
+    outer: str = Field(description="the outer template's name")
+    fps: float = Field(description="frames per second of both streams")
+    inner_vertices: list[list[Vec3]] = Field(description="(T, Ni, 3) the inner layer per frame, metres, world space")
+    inner_faces: list[list[int]] = Field(description="(Fi, 3) the inner layer's triangles, 0-based indices")
+    outer_vertices: list[list[Vec3]] = Field(description="(T, No, 3) the outer layer per frame, metres, world space")
+    outer_faces: list[list[int]] = Field(description="(Fo, 3) the outer layer's triangles, 0-based indices")
