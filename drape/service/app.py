@@ -101,6 +101,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             return app.openapi_schema
         schema = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
         comps = schema.setdefault("components", {}).setdefault("schemas", {})
+        _drop_default_validation_errors(schema)
         for model in (RigRequest, RigResponse, FitRequest, FitResponse, AnimateRequest, AnimateResponse, RefineRequest, Problem,
                       GarmentTemplate, EncodeRequest, EncodeFields, EncodeResponse, KeyframeAnimateRequest,
                       KeyframeFields, SampleRequest, SampleFields, SampleResponse, BodyMesh, BodyRegistered,
@@ -114,6 +115,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.openapi = openapi  # type: ignore[method-assign]
     return app
+
+
+def _drop_default_validation_errors(schema: dict) -> None:
+    """FastAPI declares a 422 (HTTPValidationError, application/json) on every route with a parameter; drape's
+    routes read their bodies themselves and their path parameters are plain strings, so that answer never
+    occurs (and every 422 drape gives is problem+json, declared by the routes that give it): drop it and its
+    schemas."""
+    ref = "#/components/schemas/HTTPValidationError"
+    for item in schema.get("paths", {}).values():
+        for operation in item.values():
+            responses = operation.get("responses", {}) if isinstance(operation, dict) else {}
+            if responses.get("422", {}).get("content", {}).get("application/json", {}).get("schema", {}).get(
+                    "$ref") == ref:
+                del responses["422"]
+    for name in ("HTTPValidationError", "ValidationError"):
+        schema.get("components", {}).get("schemas", {}).pop(name, None)
 
 
 def _garment_name_examples(schema: dict, names: list[str]) -> None:

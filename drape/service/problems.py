@@ -59,10 +59,36 @@ def from_error(exc: errors.DrapeError) -> JSONResponse:
     return problem(status, type_, title, exc.detail, headers)
 
 
+# what each status means on the routes that declare it (the OpenAPI responses' descriptions)
+WHEN: dict[int, str] = {
+    400: "malformed-input: the body cannot be read (broken JSON, npz, multipart form or mesh file)",
+    401: "unauthorized: the service has an API key (DRAPE_API_KEY) and the request's 'Authorization: Bearer "
+         "<key>' is missing or wrong",
+    404: "not-found: an unknown name or id (body, garment, combination, clip, outfit_id: ids leave the cache; "
+         "rig again)",
+    406: "not-acceptable: no media type in Accept is one this route answers",
+    408: "request-timeout: the request body did not arrive within DRAPE_BODY_TIMEOUT_S",
+    409: "conflict: the request conflicts with the resource (a preset body cannot be deleted)",
+    413: "limit-exceeded: over a configured limit, named in the detail: the body's bytes, vertices, faces, frames, "
+         "or the answer's size in the asked format (ask for npz or the frame stream)",
+    415: "unsupported-media-type: a Content-Type this route does not take",
+    422: "invalid-input: well-formed but wrong (a shape, a non-finite number, an index out of range, a value "
+         "out of its bounds, a mesh not on the body); the detail names the field",
+    503: "overloaded: every computing slot and queue place is taken; retry after Retry-After seconds",
+    507: "store-full: the user body store is full (DRAPE_MAX_BODIES bodies, DRAPE_MAX_BODY_STORE_BYTES); delete one first",
+}
+HEADERS: dict[int, dict] = {
+    401: {"WWW-Authenticate": {"description": "Bearer", "schema": {"type": "string"}}},
+    503: {"Retry-After": {"description": "seconds to wait before retrying", "schema": {"type": "integer"}}},
+}
+
+
 def problem_responses(*statuses: int) -> dict[int | str, dict]:
-    """OpenAPI `responses` entries declaring problem+json bodies for the given statuses."""
+    """OpenAPI `responses` entries declaring problem+json bodies for the given statuses, each described by
+    what it means (WHEN) and with its headers (Retry-After on a 503, WWW-Authenticate on a 401)."""
     schema = {"$ref": "#/components/schemas/Problem"}
-    return {s: {"description": "problem details (RFC 9457)", "content": {PROBLEM: {"schema": schema}}}
+    return {s: {"description": f"problem details (RFC 9457), {WHEN[s]}", "content": {PROBLEM: {"schema": schema}},
+                **({"headers": HEADERS[s]} if s in HEADERS else {})}
             for s in statuses}
 
 

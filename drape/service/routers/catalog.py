@@ -6,8 +6,9 @@ from fastapi import APIRouter, Request
 
 from drape.schemas.catalog import BodyList, MotionList
 from drape.service import catalog
+from drape.service.problems import problem_responses
 
-router = APIRouter(prefix="/v1", tags=["catalog"])
+router = APIRouter(prefix="/v1", tags=["catalog"], responses=problem_responses(401))
 
 
 @router.get("/bodies", response_model=BodyList)
