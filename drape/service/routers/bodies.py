@@ -23,7 +23,6 @@ from drape.service.problems import problem_responses
 
 router = APIRouter(prefix="/v1/bodies", tags=["bodies"])
 NAME = Path(description="a preset's name (GET /v1/bodies) or a body_id (POST /v1/bodies)")
-BINARY = {"schema": {"type": "string", "format": "binary"}}
 NPZ_HELP = ("npz with vertices (V, 3) m, faces (F, 3), weights (V, 24) rows summing to 1, joints (24, 3) m; "
             "optional parents (24,) (SMPL's), joint_names (24,) (SMPL's names, any order), rest_pose (24, 3) "
             "axis-angle radians of the pose the body is given in (default: it is in T-pose)")
@@ -39,7 +38,7 @@ def store_of(request: Request) -> BodyStore:
     status_code=201,
     response_model=BodyRegistered,
     responses={201: {"description": "the body is held; its body_id names it wherever a body is accepted",
-                     "headers": {"Location": {"schema": {"type": "string"}}}},
+                     "headers": {"Location": {"description": "/v1/bodies/{body_id}", "schema": {"type": "string"}}}},
                **problem_responses(400, 401, 408, 413, 415, 422, 503, 507)},
     openapi_extra={"requestBody": {"required": True, "content": {
         "multipart/form-data": {"schema": {"type": "object", "required": ["body_file"], "properties": {
@@ -79,7 +78,9 @@ async def register_body(request: Request) -> Response:
 @router.get(
     "/{name}",
     responses={200: {"description": "the body's mesh and skeleton", "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/BodyMesh"}}, NPZ: BINARY}},
+        JSON: {"schema": {"$ref": "#/components/schemas/BodyMesh"}},
+        NPZ: {"schema": {"type": "string", "format": "binary", "description": "npz with vertices (V, 3) metres, faces "
+                         "(F, 3), weights (V, 24), joints (24, 3) metres, parents (24,), joint_names (24,) text"}}}},
         **problem_responses(401, 404, 406, 413)},
 )
 def get_body(request: Request, name: str = NAME) -> Response:

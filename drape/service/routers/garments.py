@@ -32,13 +32,17 @@ from drape.service.http import engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
 from drape.service.routers.outfits import (
-    BINARY,
     ERRORS,
     FORM_FPS,
     FORM_UP,
+    FRAMES_ANSWER,
     MOTION_FILE,
+    PC2_ANSWER,
     STREAM_FORMATS,
+    STREAM_NPZ,
+    VERTEX_GLB,
     max_posed,
+    npz_answer,
     stream_answer,
     vertex_animation_answer,
     whole_answer,
@@ -48,7 +52,8 @@ from drape.service.settings import Settings
 router = APIRouter(prefix="/v1/garments", tags=["garments"])
 NAME = Path(description="the garment template's name (GET /v1/garments)")
 BODY_KINDS = (JSON, NPZ, "multipart/form-data", "")
-MOTION_NPZ_HELP = "the motion: clip (text) or poses (T, 24, 3) / (T, 72) with optional translation (T, 3) and fps"
+MOTION_NPZ_HELP = ("the motion: clip (text) or poses (T, 24, 3) / (T, 72) / (T, 156) radians with optional "
+                   "translation (T, 3) metres and fps (default 30)")
 
 
 def _form(fields_model: str, help: str) -> dict:
@@ -109,7 +114,8 @@ def list_garments(request: Request) -> GarmentList:
 
 
 @router.get("/{name}", responses={200: {"description": "the template mesh in rest pose on its body", "content": {
-    JSON: {"schema": {"$ref": "#/components/schemas/GarmentTemplate"}}, NPZ: BINARY}},
+    JSON: {"schema": {"$ref": "#/components/schemas/GarmentTemplate"}},
+    NPZ: npz_answer("name (text), body (text), vertices (N, 3) metres, faces (F, 3)")}},
     **problem_responses(401, 404, 406)})
 def get_garment(request: Request, name: str = NAME) -> Response:
     """The template mesh: vertices (N, 3) metres in rest pose on its body, faces (F, 3); JSON or npz by Accept."""
@@ -123,7 +129,7 @@ def get_garment(request: Request, name: str = NAME) -> Response:
 
 
 @router.post("/{name}/encode", responses={200: {"description": "the keyframe's latent (Z,)", "content": {
-    JSON: {"schema": {"$ref": "#/components/schemas/EncodeResponse"}}, NPZ: BINARY}}, **ERRORS},
+    JSON: {"schema": {"$ref": "#/components/schemas/EncodeResponse"}}, NPZ: npz_answer("latent (Z,)")}}, **ERRORS},
     openapi_extra=_request_body("EncodeRequest", "vertices (N, 3), frame (integer scalar)", "EncodeFields",
                                 "vertices, frame"))
 async def encode_keyframe(request: Request, name: str = NAME) -> Response:
@@ -144,8 +150,8 @@ async def encode_keyframe(request: Request, name: str = NAME) -> Response:
 @router.post("/{name}/animate", responses={200: {
     "description": "the garment's frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB (a vertex "
                    "animation)", "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY, PC2: BINARY,
-        GLB: BINARY}}, **ERRORS},
+        JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: STREAM_NPZ, FRAMES: FRAMES_ANSWER,
+        PC2: PC2_ANSWER, GLB: VERTEX_GLB}}, **ERRORS},
     openapi_extra=_request_body(
         "KeyframeAnimateRequest", "vertex_frames (Kv,) integers with vertices (Kv, N, 3) and/or latent_frames (Kl,) "
         "with latents (Kl, Z); match_keyframes (boolean scalar); refine (boolean scalar) and/or the refine options as "
@@ -181,7 +187,8 @@ async def animate_keyframes(request: Request, name: str = NAME) -> Response:
 
 @router.post("/{name}/sample", responses={200: {
     "description": "latents (count, Z) and their shapes (count, N, 3) at the frame", "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/SampleResponse"}}, NPZ: BINARY}}, **ERRORS},
+        JSON: {"schema": {"$ref": "#/components/schemas/SampleResponse"}},
+        NPZ: npz_answer("latents (count, Z), vertices (count, N, 3) metres")}}, **ERRORS},
     openapi_extra=_request_body("SampleRequest", "count, seed, frame (integer scalars)", "SampleFields",
                                 "count, seed, frame"))
 async def sample_designs(request: Request, name: str = NAME) -> Response:

@@ -26,13 +26,16 @@ from drape.service.http import engine_of, media_type, read_body, settings_of
 from drape.service.negotiate import choose
 from drape.service.problems import problem_responses
 from drape.service.routers.outfits import (
-    BINARY,
     ERRORS,
     FORM_FPS,
     FORM_UP,
+    FRAMES_ANSWER,
     MOTION_FILE,
+    PC2_ANSWER,
     STREAM_FORMATS,
+    VERTEX_GLB,
     max_posed,
+    npz_answer,
     stream_answer,
     vertex_animation_answer,
     whole_answer,
@@ -53,8 +56,10 @@ def list_layers(request: Request) -> LayerList:
     "description": "both layers' frames: JSON or npz (inner_vertices (T, Ni, 3), inner_faces, outer_vertices "
                    "(T, No, 3), outer_faces); the frame stream, PC2 or GLB (a vertex animation) of the two as one "
                    "mesh, inner first (the frame stream's header names the ranges in `layers`)", "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY,
-        PC2: BINARY, GLB: BINARY}}, **ERRORS},
+        JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateResponse"}},
+        NPZ: npz_answer("inner, outer (text), fps (scalar), inner_vertices (T, Ni, 3) and outer_vertices (T, No, 3) "
+                        "float32 metres, inner_faces (Fi, 3), outer_faces (Fo, 3)"),
+        FRAMES: FRAMES_ANSWER, PC2: PC2_ANSWER, GLB: VERTEX_GLB}}, **ERRORS},
     openapi_extra={"requestBody": {"required": True, "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateRequest"}},
         FORM: {"schema": {"type": "object", "required": ["motion_file", "request"], "properties": {

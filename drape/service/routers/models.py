@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Path, Request
 
 from drape.schemas.models import ModelInfo, ModelList
 from drape.service.errors import NotFound
@@ -32,7 +32,8 @@ def list_models(request: Request) -> ModelList:
 
 
 @router.get("/models/{name}", response_model=ModelInfo, responses=problem_responses(404))
-def get_model(name: str, request: Request) -> ModelInfo:
+def get_model(request: Request, name: str = Path(description="a model's name (GET /v1/models): 'deepsd' or "
+                                                            "'intrinsic-<template>'")) -> ModelInfo:
     """One loaded model by name."""
     for info in _info(request):
         if info.name == name:

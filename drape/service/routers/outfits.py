@@ -20,6 +20,7 @@ from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
 from drape.schemas.gltf import GLB, vertex_animation_glb
+from drape.schemas.outfits import FIT_HELP, INFLUENCES_HELP
 from drape.schemas.pc2 import PC2
 from drape.service import decode, handlers
 from drape.service.answers import JSON, FrameSource, stream_frames
@@ -30,8 +31,35 @@ from drape.service.problems import problem_responses
 from drape.service.settings import Settings
 
 router = APIRouter(prefix="/v1/outfits", tags=["outfits"])
-BINARY = {"schema": {"type": "string", "format": "binary"}}
 ERRORS = problem_responses(400, 401, 404, 406, 408, 413, 415, 422, 503)
+MESH_FILE = {"type": "string", "format": "binary", "description": "the mesh: an OBJ, PLY, GLB or glTF file (by its "
+             "name's extension), metres, +Y up, on the body at rest (unless fitted)"}
+FORM_BODY = {"type": "string", "description": "a preset (GET /v1/bodies) or a body_id (POST /v1/bodies); default "
+             "neutral"}
+FORM_INFLUENCES = {"type": "string", "enum": ["4", "8"], "description": INFLUENCES_HELP + " (default 4)"}
+
+
+def npz_answer(members: str) -> dict:
+    """An npz answer's content entry, naming its members."""
+    return {"schema": {"type": "string", "format": "binary", "description": f"npz with {members}"}}
+
+
+def glb_answer(what: str) -> dict:
+    """A GLB answer's content entry (glTF 2.0 binary: metres, +Y up; frame t at t / fps seconds)."""
+    return {"schema": {"type": "string", "format": "binary", "description": f"glTF 2.0 binary, metres, +Y up: {what}"}}
+
+
+SKINNED_GLB = ("the outfit as a mesh skinned to the body's 24 SMPL-named joints (skin weights in sets of 4), its blend "
+               "shapes as morph targets psd_<p>, and the body as a second skinned mesh")
+VERTEX_GLB = glb_answer("the stream as a vertex animation: frame 0 the base mesh, every later frame a morph target "
+                        "with weight 1 at its frame (t / fps seconds)")
+RIG_NPZ = npz_answer(
+    "outfit_id (text), skinning_weights (N, 24), blend_shapes (P, N, 3) metres, rest_joints (24, 3) metres, parents "
+    "(24,), joint_names (24,) text, diagnostics (JSON text: RigDiagnostics); with fit, fit_vertices (N, 3), "
+    "fit_faces (F, 3), fit_transform (4, 4), fit_report (JSON text: FitReport); for an OBJ of several objects, "
+    "parts (JSON text: [MeshPart])")
+FIT_NPZ = npz_answer("vertices (N, 3) metres, faces (F, 3) int32, transform (4, 4) float64, report (JSON text: "
+                     "FitReport)")
 
 
 def _rig_payload(outfit: RiggedOutfit) -> dict[str, np.ndarray]:
@@ -49,13 +77,13 @@ def _rig_payload(outfit: RiggedOutfit) -> dict[str, np.ndarray]:
     "/rig",
     responses={200: {"description": "the rig (GLB: the outfit skinned with its blend shapes as morph targets, "
                                     "and the body)", "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/RigResponse"}}, NPZ: BINARY, GLB: BINARY}}, **ERRORS},
+        JSON: {"schema": {"$ref": "#/components/schemas/RigResponse"}}, NPZ: RIG_NPZ, GLB: glb_answer(SKINNED_GLB)}},
+        **ERRORS},
     openapi_extra={"requestBody": {"required": True, "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/RigRequest"}},
         "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
-            "mesh": {"type": "string", "format": "binary", "description": "OBJ, PLY, GLB or glTF file"},
-            "body": {"type": "string"}, "influences": {"type": "string", "enum": ["4", "8"]},
-            "fit": {"type": "string", "enum": ["true", "false"]}}}},
+            "mesh": MESH_FILE, "body": FORM_BODY, "influences": FORM_INFLUENCES,
+            "fit": {"type": "string", "enum": ["true", "false"], "description": FIT_HELP + " (default false)"}}}},
         NPZ: {"schema": {"type": "string", "format": "binary",
                          "description": "npz with vertices (N, 3), faces (F, 3), optional body (unicode scalar), "
                                         "optional influences (integer scalar, 4 or 8), optional fit (boolean "
@@ -122,14 +150,18 @@ def _fit_members(fit: dict, prefix: str = "") -> dict[str, np.ndarray]:
 @router.post(
     "/fit",
     responses={200: {"description": "the garment fitted onto the body at rest", "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/FitResponse"}}, NPZ: BINARY}}, **ERRORS},
+        JSON: {"schema": {"$ref": "#/components/schemas/FitResponse"}}, NPZ: FIT_NPZ}}, **ERRORS},
     openapi_extra={"requestBody": {"required": True, "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/FitRequest"}},
         "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
-            "mesh": {"type": "string", "format": "binary", "description": "OBJ, PLY, GLB or glTF file"},
-            "body": {"type": "string"}, "units": {"type": "string", "enum": ["m", "cm", "mm"]},
-            "up": {"type": "string", "enum": ["y", "z"]},
-            "pose": {"type": "string", "description": "t, a, or a JSON (24, 3) array of axis-angle radians"}}}},
+            "mesh": {"type": "string", "format": "binary", "description": "the garment: an OBJ, PLY, GLB or glTF "
+                     "file (by its name's extension), in any units and up axis, placed anywhere"},
+            "body": {**FORM_BODY, "description": "the body to fit the garment onto: " + FORM_BODY["description"]},
+            "units": {"type": "string", "enum": ["m", "cm", "mm"], "description": "the mesh's units (default: "
+                      "inferred from its size)"},
+            "up": {"type": "string", "enum": ["y", "z"], "description": "the mesh's up axis (default: inferred)"},
+            "pose": {"type": "string", "description": "the pose the garment was made in: t (T-pose, the default), "
+                     "a (arms 45 degrees down), or a JSON (24, 3) array of axis-angle radians"}}}},
         NPZ: {"schema": {"type": "string", "format": "binary",
                          "description": "npz with vertices (N, 3), faces (F, 3), optional body, units, up (unicode "
                                         "scalars), optional pose (unicode scalar t or a, or (24, 3) radians)"}},
@@ -180,10 +212,28 @@ def vertex_animation_answer(src: FrameSource, settings: Settings, kind: str, fie
     return Response(vertex_animation_glb(frames, src.faces, src.fps, name=name), media_type=GLB)
 
 
-FRAME_ANSWERS = {200: {"description": "frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB "
-                                      "(animate: the rig and its animation; refine: a vertex animation)", "content": {
-    JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: BINARY, FRAMES: BINARY, PC2: BINARY,
-    GLB: BINARY}}, **ERRORS}
+STREAM_NPZ = npz_answer("vertices (T, N, 3) float32 metres, faces (F, 3), fps (float32 scalar), outfit_id (text; "
+                        "'' but for animate)")
+FRAMES_ANSWER = {"schema": {"type": "string", "format": "binary", "description":
+                            "the frame stream, little-endian: b'DRPF', u32 version 1, u32 header length H, H bytes of "
+                            "JSON header {num_frames, num_vertices, num_faces, fps, dtype '<f4', outfit_id; layers: "
+                            "[{name, start, stop}] vertex ranges for POST /v1/layers/animate}; faces "
+                            "F x 3 int32; then chunks, each a u32 frame count n and n x N x 3 float32 metres; a "
+                            "chunk with n = 0 ends it"}}
+PC2_ANSWER = {"schema": {"type": "string", "format": "binary", "description":
+                         "PointCache2: a 32-byte header ('POINTCACHE2\\0', int32 version 1, int32 points N, float32 "
+                         "start frame 0, float32 sample rate 1, int32 samples T), then T x N x 3 float32 metres; "
+                         "the format holds no fps"}}
+
+
+def frame_answers(glb: dict) -> dict:
+    """The 200 and error responses of animate and refine, with the route's GLB."""
+    return {200: {"description": "frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB "
+                                 "(animate: the rig and its animation; refine: a vertex animation)", "content": {
+        JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: STREAM_NPZ, FRAMES: FRAMES_ANSWER,
+        PC2: PC2_ANSWER, GLB: glb}}, **ERRORS}
+
+
 STREAM_FORMATS = [JSON, NPZ, FRAMES, PC2, GLB]
 
 
@@ -195,23 +245,35 @@ MOTION_FILE = {"type": "string", "format": "binary", "description":
 FORM_FPS = {"type": "number", "exclusiveMinimum": 0, "maximum": 1000, "default": 30,
             "description": "frame rate the motion file is resampled to"}
 FORM_UP = {"type": "string", "enum": ["y", "z"], "description": "the motion file's up axis (default: detected)"}
-FORM_OPTIONS = {"eps": {"type": "number"}, "max_iterations": {"type": "integer"},
-                "relief_iterations": {"type": "integer"}}
+FORM_OPTIONS = {"eps": {"type": "number", "description": "refine option (RefineOptions.eps): distance kept from the "
+                        "body surface, metres, in (0, 0.05], default 0.003"},
+                "max_iterations": {"type": "integer", "description": "refine option (RefineOptions.max_iterations): "
+                                   "1 to 20, default 3"},
+                "relief_iterations": {"type": "integer", "description": "refine option "
+                                      "(RefineOptions.relief_iterations): 0 to 50, default 10"}}
 ANIMATE_FORM = {"schema": {"type": "object", "required": ["motion_file", "outfit_id"], "properties": {
     "motion_file": MOTION_FILE, "outfit_id": {"type": "string", "description": "from POST /v1/outfits/rig"},
-    "fps": FORM_FPS, "up": FORM_UP, "body": {"type": "string"}, "influences": {"type": "string", "enum": ["4", "8"]},
-    "refine": {"type": "string", "enum": ["true", "false"]}, **FORM_OPTIONS}}}
+    "fps": FORM_FPS, "up": FORM_UP,
+    "body": {"type": "string", "description": "the rigged outfit's body, if given (another is a 422)"},
+    "influences": {"type": "string", "enum": ["4", "8"], "description": "the rigged outfit's influences, if given "
+                   "(others are a 422)"},
+    "refine": {"type": "string", "enum": ["true", "false"], "description": "collision refinement post step (default: "
+               "false, unless a refine option is given)"}, **FORM_OPTIONS}}}
 REFINE_FORM = {"schema": {"type": "object", "required": ["garment", "motion_file"], "properties": {
-    "garment": {"type": "string", "format": "binary", "description": "npz with vertices (T, N, 3) and faces (F, 3)"},
+    "garment": {"type": "string", "format": "binary", "description": "npz with vertices (T, N, 3) metres and faces "
+                "(F, 3); optionally a garment under this one: inner_vertices (T, Ni, 3), inner_faces (Fi, 3), "
+                "thickness (metres, scalar, default 0.006)"},
     "motion_file": {**MOTION_FILE, "description": MOTION_FILE["description"] + "; it must give T frames at fps"},
-    "fps": FORM_FPS, "up": FORM_UP, "body": {"type": "string"}, **FORM_OPTIONS}}}
+    "fps": FORM_FPS, "up": FORM_UP, "body": FORM_BODY, **FORM_OPTIONS}}}
 
 
-@router.post("/animate", responses=FRAME_ANSWERS, openapi_extra={"requestBody": {"required": True, "content": {
+@router.post("/animate", responses=frame_answers(glb_answer(
+    SKINNED_GLB + ", with the motion as an animation: per frame the joints' rotations, the root's translation and "
+    "the morph weights (pose keys); with refine, one sparse correction morph target per frame")), openapi_extra={"requestBody": {"required": True, "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
                      "npz: outfit_id (text) or vertices (N, 3) + faces (F, 3); clip (text) or poses (T, 24, 3) / "
-                     "(T, 72) with optional translation (T, 3) and fps; optional body (text); influences (4 or 8); fit (boolean scalar); refine (boolean "
+                     "(T, 72) / (T, 156) radians with optional translation (T, 3) metres and fps (default 30); optional body (text); influences (4 or 8); fit (boolean scalar); refine (boolean "
                      "scalar) and/or the refine options as scalars: eps, max_iterations, relief_iterations"}},
     "multipart/form-data": ANIMATE_FORM}}})
 async def animate_outfit(request: Request) -> Response:
@@ -274,11 +336,11 @@ async def stream_answer(request: Request, answer: str, plan: Any) -> Response:
 refine_router = APIRouter(prefix="/v1", tags=["refine"])
 
 
-@refine_router.post("/refine", responses=FRAME_ANSWERS, openapi_extra={"requestBody": {"required": True, "content": {
+@refine_router.post("/refine", responses=frame_answers(VERTEX_GLB), openapi_extra={"requestBody": {"required": True, "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/RefineRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
-                     "npz: vertices (T, N, 3), faces (F, 3), poses (T, 24, 3) or (T, 72) with optional translation "
-                     "(T, 3) and fps, or clip (a name); optional body, the options as scalars: eps, "
+                     "npz: vertices (T, N, 3) metres, faces (F, 3), poses (T, 24, 3) / (T, 72) / (T, 156) radians "
+                     "with optional translation (T, 3) metres and fps (default 30), or clip (a name); optional body, the options as scalars: eps, "
                      "max_iterations, relief_iterations, and a garment under this one: inner_vertices (T, Ni, 3), "
                      "inner_faces (Fi, 3), thickness (metres, scalar)"}},
     "multipart/form-data": REFINE_FORM}}})
