@@ -37,6 +37,7 @@ from drape.service.routers.outfits import (
     FORM_UP,
     FRAMES_ANSWER,
     MOTION_FILE,
+    MOTION_NPZ,
     PC2_ANSWER,
     STREAM_FORMATS,
     STREAM_NPZ,
@@ -52,8 +53,7 @@ from drape.service.settings import Settings
 router = APIRouter(prefix="/v1/garments", tags=["garments"])
 NAME = Path(description="the garment template's name (GET /v1/garments)")
 BODY_KINDS = (JSON, NPZ, "multipart/form-data", "")
-MOTION_NPZ_HELP = ("the motion: clip (text) or poses (T, 24, 3) / (T, 72) / (T, 156) radians with optional "
-                   "translation (T, 3) metres and fps (default 30)")
+MOTION_NPZ_HELP = f"the motion: {MOTION_NPZ}"
 
 
 def _form(fields_model: str, help: str) -> dict:

@@ -20,7 +20,7 @@ from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
 from drape.schemas.gltf import GLB, vertex_animation_glb
-from drape.schemas.outfits import FIT_HELP, INFLUENCES_HELP
+from drape.schemas.outfits import FIT_HELP, INFLUENCES_HELP, RefineOptions
 from drape.schemas.pc2 import PC2
 from drape.service import decode, handlers
 from drape.service.answers import JSON, FrameSource, stream_frames
@@ -245,12 +245,12 @@ MOTION_FILE = {"type": "string", "format": "binary", "description":
 FORM_FPS = {"type": "number", "exclusiveMinimum": 0, "maximum": 1000, "default": 30,
             "description": "frame rate the motion file is resampled to"}
 FORM_UP = {"type": "string", "enum": ["y", "z"], "description": "the motion file's up axis (default: detected)"}
-FORM_OPTIONS = {"eps": {"type": "number", "description": "refine option (RefineOptions.eps): distance kept from the "
-                        "body surface, metres, in (0, 0.05], default 0.003"},
-                "max_iterations": {"type": "integer", "description": "refine option (RefineOptions.max_iterations): "
-                                   "1 to 20, default 3"},
-                "relief_iterations": {"type": "integer", "description": "refine option "
-                                      "(RefineOptions.relief_iterations): 0 to 50, default 10"}}
+# the refine options as form fields: RefineOptions' own schema (type, bounds, default, description), so they cannot drift
+FORM_OPTIONS = {k: {**v, "description": f"refine option (RefineOptions.{k}): {v['description']}"}
+                for k, v in RefineOptions.model_json_schema()["properties"].items()}
+# an npz request's motion members (animate, refine, the garment routes)
+MOTION_NPZ = ("clip (text) or poses (T, 24, 3) / (T, 72) / (T, 156) radians with optional translation (T, 3) metres "
+              "and fps (default 30)")
 ANIMATE_FORM = {"schema": {"type": "object", "required": ["motion_file", "outfit_id"], "properties": {
     "motion_file": MOTION_FILE, "outfit_id": {"type": "string", "description": "from POST /v1/outfits/rig"},
     "fps": FORM_FPS, "up": FORM_UP,
@@ -272,8 +272,8 @@ REFINE_FORM = {"schema": {"type": "object", "required": ["garment", "motion_file
     "the morph weights (pose keys); with refine, one sparse correction morph target per frame")), openapi_extra={"requestBody": {"required": True, "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/AnimateRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
-                     "npz: outfit_id (text) or vertices (N, 3) + faces (F, 3); clip (text) or poses (T, 24, 3) / "
-                     "(T, 72) / (T, 156) radians with optional translation (T, 3) metres and fps (default 30); optional body (text); influences (4 or 8); fit (boolean scalar); refine (boolean "
+                     f"npz: outfit_id (text) or vertices (N, 3) + faces (F, 3); {MOTION_NPZ}; optional body (text); "
+                     "influences (4 or 8); fit (boolean scalar); refine (boolean "
                      "scalar) and/or the refine options as scalars: eps, max_iterations, relief_iterations"}},
     "multipart/form-data": ANIMATE_FORM}}})
 async def animate_outfit(request: Request) -> Response:
@@ -339,8 +339,8 @@ refine_router = APIRouter(prefix="/v1", tags=["refine"])
 @refine_router.post("/refine", responses=frame_answers(VERTEX_GLB), openapi_extra={"requestBody": {"required": True, "content": {
     JSON: {"schema": {"$ref": "#/components/schemas/RefineRequest"}},
     NPZ: {"schema": {"type": "string", "format": "binary", "description":
-                     "npz: vertices (T, N, 3) metres, faces (F, 3), poses (T, 24, 3) / (T, 72) / (T, 156) radians "
-                     "with optional translation (T, 3) metres and fps (default 30), or clip (a name); optional body, the options as scalars: eps, "
+                     f"npz: vertices (T, N, 3) metres, faces (F, 3), {MOTION_NPZ}; optional body, the options as "
+                     "scalars: eps, "
                      "max_iterations, relief_iterations, and a garment under this one: inner_vertices (T, Ni, 3), "
                      "inner_faces (Fi, 3), thickness (metres, scalar)"}},
     "multipart/form-data": REFINE_FORM}}})
