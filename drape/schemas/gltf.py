@@ -101,8 +101,10 @@ class _Writer:
         """A VEC3 float accessor of `count` elements, zero except values (k, 3) at indices (k,)."""
         idx = np.asarray(indices, dtype=np.uint32)
         val = np.ascontiguousarray(values, dtype=np.float32).reshape(-1, 3)
-        lo = np.minimum(val.min(axis=0), 0.0) if len(val) else np.zeros(3)
-        hi = np.maximum(val.max(axis=0), 0.0) if len(val) else np.zeros(3)
+        # the bounds after substitution (indices strictly increasing): the values', and 0 where an element keeps it
+        lo, hi = (val.min(axis=0), val.max(axis=0)) if len(val) else (np.zeros(3), np.zeros(3))
+        if len(idx) < count:
+            lo, hi = np.minimum(lo, 0.0), np.maximum(hi, 0.0)
         acc = gl.Accessor(componentType=_F32, count=count, type=gl.VEC3, min=lo.tolist(), max=hi.tolist(),
                           byteOffset=None)  # no bufferView: zeros, then the sparse values
         if len(idx):
