@@ -125,16 +125,18 @@ def skin_sets(weights: np.ndarray, min_weight: float = MIN_WEIGHT) -> tuple[np.n
     """weights (N, K) -> (joints (N, 4S) uint8, weights (N, 4S) float32): each vertex's influences of at
     least `min_weight`, largest first, renormalised in float32 (the last non-zero one is 1 minus the
     others); padding slots hold weight 0 on joint 0, or on joints the vertex does not use where it uses
-    joint 0. S = ceil(max influences / 4)."""
+    joint 0 (joint 0 again where the skeleton has no more: only a non-zero weight may not repeat a joint).
+    S = ceil(max influences / 4), also where the skeleton has fewer than 4S joints."""
     w = np.asarray(weights, dtype=np.float64)
     N, K = w.shape
     w = np.where(w >= min_weight, w, 0.0)
     empty = w.sum(axis=1) <= 0
     w[empty, np.argmax(np.asarray(weights)[empty], axis=1)] = 1.0  # a vertex keeps at least its top joint
-    order = np.argsort(-w, axis=1, kind="stable")  # (N, K): used joints first, by weight
-    ws = np.take_along_axis(w, order, axis=1)
-    used = (ws > 0).sum(axis=1)
+    used = (w > 0).sum(axis=1)
     width = 4 * math.ceil(int(used.max()) / 4)
+    w = np.pad(w, ((0, 0), (0, max(width - K, 0))))  # fewer joints than slots: zero columns fill the last set
+    order = np.argsort(-w, axis=1, kind="stable")  # (N, max(K, width)): used joints first, by weight
+    ws = np.take_along_axis(w, order, axis=1)
     joints, ws = order[:, :width], ws[:, :width].astype(np.float32)
     ws /= ws.sum(axis=1, keepdims=True, dtype=np.float32)
     last = used - 1
@@ -145,7 +147,7 @@ def skin_sets(weights: np.ndarray, min_weight: float = MIN_WEIGHT) -> tuple[np.n
     # the unused joints the sort put there (joint 0 twice on a vertex would be an error)
     pad = ws == 0
     pad &= ~(joints == 0).any(axis=1, where=~pad, keepdims=True)
-    joints = np.where(pad, 0, joints)
+    joints = np.where(pad | (joints >= K), 0, joints)  # a filler column is no joint: weight 0 on joint 0 (allowed)
     return joints.astype(np.uint8), ws
 
 

@@ -119,3 +119,21 @@ def test_a_correction_of_every_vertex_declares_its_own_bounds():
                       Animation(np.zeros((2, 24, 3)), np.zeros((2, 3)), 30.0, None, corrections))
     _declared_bounds_hold(glb)
 
+
+@pytest.mark.parametrize("joints", [1, 3, 6])
+def test_skin_sets_of_a_skeleton_whose_joint_count_is_no_multiple_of_4(joints):
+    # every vertex uses every joint: the sets must still come in whole 4s, hold all of it, and name real joints
+    w = np.full((5, joints), 1.0 / joints)
+    j, ws = skin_sets(w)
+    assert j.shape == ws.shape and j.shape[1] % 4 == 0 and j.shape[1] >= joints
+    assert j.max() < joints
+    assert np.all(np.abs(ws.sum(axis=1, dtype=np.float32) - 1) <= 2e-7 * joints)
+    for row, x in zip(j, ws, strict=True):
+        assert sorted(row[x > 0].tolist()) == list(range(joints))
+    skeleton = Skeleton(tuple(f"j{k}" for k in range(joints)), np.arange(joints) - 1,
+                        np.arange(joints * 3, dtype=float).reshape(joints, 3) * 0.1)
+    glb = skinned_glb(skeleton, [SkinnedMesh("m", np.eye(3, dtype=np.float32)[[0, 1, 2, 0, 1]] + [[0, 0, k]
+                                                                                            for k in range(5)],
+                                             np.array([[0, 1, 2], [2, 3, 4]]), w)])
+    attrs = GlbPlayer(glb).doc.meshes[0].primitives[0].attributes
+    assert attrs.JOINTS_0 is not None and attrs.WEIGHTS_0 is not None
