@@ -414,8 +414,9 @@ def _glb_faces_fps(path: str, z: dict[str, np.ndarray], frames: int, vertices: i
     from drape.service.settings import Settings
 
     if not key_times_finite(frames, fps):
-        raise SystemExit(f"{path}: {fps:g} fps is too low for a glTF animation: the key times of {frames} frames "
-                         "(frame / fps seconds, float32) would not be finite; use `drape export pc2`")
+        raise SystemExit(f"{path}: {fps:g} fps is too {'low' if fps < 1 else 'high'} for a glTF animation: the key "
+                         f"times of {frames} frames (frame / fps seconds, float32) would not be finite and increasing; "
+                         "use `drape export pc2`")
     limit = Settings().max_posed_values  # the service's bound on the same weights (DRAPE_MAX_POSED_VALUES)
     if frame_target_weights(frames) > limit:
         raise SystemExit(f"{path}: {frames} frames need {frames} x {frames - 1} morph-target weights in a GLB (one "

@@ -145,6 +145,8 @@ def test_export_refuses_a_malformed_stream_naming_the_member(tmp_path, monkeypat
     for fps in (0.0, -24.0, np.nan, np.inf, np.array([24.0, 30.0]), np.array("24")):
         assert "'fps' must be one positive number" in refused("glb", {"vertices": v, "faces": f, "fps": fps})
     assert "too low for a glTF animation" in refused("glb", {"vertices": v, "faces": f, "fps": np.float32(1e-44)})
+    # a rate beyond float32 would put every key at 0 s (key times must increase)
+    assert "too high for a glTF animation" in refused("glb", {"vertices": v, "faces": f, "fps": np.float64(1e39)})
     monkeypatch.setenv("DRAPE_MAX_POSED_VALUES", "11")  # the service's bound, read from the same setting
     assert "4 frames need 4 x 3 morph-target weights" in refused("glb", {"vertices": v, "faces": f})
     for start in ("nan", "inf", "1e39"):

@@ -257,10 +257,12 @@ def _add_animation(w: _Writer, a: Animation, rest: np.ndarray, joint_nodes: list
 
 
 def key_times_finite(frames: int, fps: float) -> bool:
-    """Whether glTF's float32 key times of `frames` frames at `fps` (frame t at t / fps seconds) are all finite:
-    False for a rate that rounds to 0 in float32 or puts the last frame beyond float32's range."""
+    """Whether glTF's float32 key times of `frames` frames at `fps` (frame t at t / fps seconds) are all finite (and
+    so increasing): False for a rate that rounds to 0 in float32 or puts the last frame beyond float32's range, or a
+    rate beyond float32's range (every key at 0 s)."""
     with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-        return bool(np.isfinite(np.float32(max(frames - 1, 0)) / np.float32(fps)))
+        rate = np.float32(fps)
+        return bool(np.isfinite(rate) and np.isfinite(np.float32(max(frames - 1, 0)) / rate))
 
 
 def frame_target_weights(frames: int) -> int:
