@@ -23,7 +23,9 @@ motions) and `test_params` (unseen parameters, seen motions).
 Resumable: an item is finished when its npz (or its rejection note) exists; a
 rerun skips finished items. The manifest is rewritten after every item, so a dataset still being
 simulated can already be read. Files are written to
-a temporary name and renamed, so a killed run never leaves a half-written item.
+a temporary name and renamed, so a killed run never leaves a half-written item. A sequence whose simulation raises is
+reported and skipped (nothing written, so a rerun retries it) while the others go on; the run then ends
+with an error naming it.
 Items run in a local process pool, or as Ray tasks on an existing cluster
 (`ray_address`); either way the driver writes the files, so both paths produce
 the same bytes for the same inputs.
@@ -34,7 +36,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Generator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -195,20 +197,40 @@ def split_of(params_index: int, motion: str, s: dict) -> str:
             (True, False): "test_params"}[(p_test, m_test)]
 
 
-def _local_results(todo: list[Item], workers: int) -> Iterator[dict]:
+def _failed(key: str, exc: Exception) -> dict:
+    """What a results iterator yields for an item whose simulation raised: nothing is written for it (a rerun
+    retries it), and the other items go on."""
+    return {"key": key, "error": f"{type(exc).__name__}: {exc}"}
+
+
+def _local_results(todo: list[Item], workers: int) -> Generator[dict, None, None]:
     if workers <= 1:
         for it in todo:
-            yield run_item(it)
+            try:
+                res = run_item(it)
+            except Exception as exc:  # noqa: BLE001 - one failed sequence must not stop the others
+                res = _failed(it.key, exc)
+            yield res
         return
     import multiprocessing as mp
 
     with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-        futures = [pool.submit(run_item, it) for it in todo]
-        for fut in as_completed(futures):
-            yield fut.result()
+        futures = {pool.submit(run_item, it): it.key for it in todo}
+        try:
+            for fut in as_completed(futures):
+                try:
+                    res = fut.result()
+                except Exception as exc:  # noqa: BLE001
+                    res = _failed(futures[fut], exc)
+                yield res
+        finally:
+            # stopped early (an interrupt, a driver error): leaving the pool would otherwise first simulate every
+            # queued item, whose results nobody writes
+            for fut in futures:
+                fut.cancel()
 
 
-def _ray_results(todo: list[Item], address: str) -> Iterator[dict]:
+def _ray_results(todo: list[Item], address: str) -> Generator[dict, None, None]:
     try:
         import ray
     except ImportError as exc:  # the optional extra
@@ -216,10 +238,19 @@ def _ray_results(todo: list[Item], address: str) -> Iterator[dict]:
     if not ray.is_initialized():
         ray.init(address=address, log_to_driver=False)
     remote = ray.remote(num_cpus=1)(run_item)
-    pending = [remote.remote(it) for it in todo]
-    while pending:
-        done, pending = ray.wait(pending, num_returns=1)
-        yield ray.get(done[0])
+    keys = {remote.remote(it): it.key for it in todo}
+    pending = list(keys)
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            try:
+                res = ray.get(done[0])
+            except Exception as exc:  # noqa: BLE001 - a task error: the others go on
+                res = _failed(keys[done[0]], exc)
+            yield res
+    finally:
+        for ref in pending:
+            ray.cancel(ref)
 
 
 def build_dataset(
@@ -287,28 +318,41 @@ def build_dataset(
         bar = tqdm(total=len(items), initial=len(items) - len(todo), desc="sequences", unit="seq")
     t0 = time.perf_counter()
     results = _ray_results(todo, ray_address) if ray_address else _local_results(todo, workers or os.cpu_count() or 1)
-    for res in results:
-        it = by_key[res["key"]]
-        timings[it.key] = {"seconds": res["stats"]["seconds"], "seconds_per_frame": res["stats"]["seconds_per_frame"]}
-        reasons = gate.failures(res["stats"])
-        if reasons:
-            # the sequence is kept beside its reasons: a use that does not need the failed check may take it
-            # (e.g. an outer-layer network, which never reads the simulated inner layer)
-            write_item(out / "rejected" / f"{it.key}.npz", it, res)
-            _write_json(out / "rejected" / f"{it.key}.json", {"reasons": reasons, "stats": _stable_stats(res["stats"])})
-            print(f"rejected {it.key}: {'; '.join(reasons)}")
-        else:
-            write_item(out / "items" / f"{it.key}.npz", it, res)
-        _write_json(out / "timings.json", timings)
-        # the manifest after every item: a dataset still being simulated can be trained on
-        _write_json(out / "manifest.json", _manifest(out, grid, params, s, gate, frames, body, garments, timings))
-        if bar is not None:
-            bar.update(1)
+    failed: dict[str, str] = {}
+    try:
+        for res in results:
+            it = by_key[res["key"]]
+            if "error" in res:
+                failed[it.key] = res["error"]
+                print(f"failed {it.key}: {res['error']}")
+                if bar is not None:
+                    bar.update(1)
+                continue
+            timings[it.key] = {"seconds": res["stats"]["seconds"], "seconds_per_frame": res["stats"]["seconds_per_frame"]}
+            reasons = gate.failures(res["stats"])
+            if reasons:
+                # the sequence is kept beside its reasons: a use that does not need the failed check may take it
+                # (e.g. an outer-layer network, which never reads the simulated inner layer)
+                write_item(out / "rejected" / f"{it.key}.npz", it, res)
+                _write_json(out / "rejected" / f"{it.key}.json", {"reasons": reasons, "stats": _stable_stats(res["stats"])})
+                print(f"rejected {it.key}: {'; '.join(reasons)}")
+            else:
+                write_item(out / "items" / f"{it.key}.npz", it, res)
+            _write_json(out / "timings.json", timings)
+            # the manifest after every item: a dataset still being simulated can be trained on
+            _write_json(out / "manifest.json", _manifest(out, grid, params, s, gate, frames, body, garments, timings))
+            if bar is not None:
+                bar.update(1)
+    finally:
+        results.close()  # an early stop cancels the queued items (see _local_results)
     if bar is not None:
         bar.close()
     manifest = _manifest(out, grid, params, s, gate, frames, body, garments, timings)
     manifest["last_run"] = {"simulated": len(todo), "seconds": round(time.perf_counter() - t0, 1)}
     _write_json(out / "manifest.json", manifest)
+    if failed:
+        raise RuntimeError(f"{len(failed)} of {len(todo)} sequences failed to simulate (nothing written for them; "
+                           "a rerun retries them): " + "; ".join(f"{k}: {e}" for k, e in sorted(failed.items())))
     return manifest
 
 

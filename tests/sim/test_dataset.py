@@ -80,6 +80,25 @@ def test_failed_sequences_are_reported_and_excluded(tmp_path):
             assert np.isfinite(z["vertices"]).all() and z["vertices"].shape[0] == m["frames"]
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_failing_sequence_does_not_stop_the_others(tmp_path, workers):
+    garments, params, motions = _inputs()
+    v, f = garments["skirt"]
+    bad = np.array(f, copy=True)
+    bad[0, 0] = len(v)  # a face past the last vertex: its simulations raise
+    kw = {"holdout_params": 1, "holdout_motions": 1, "progress": False}
+    with pytest.raises(RuntimeError, match="broken__p00__walk"):
+        build_dataset(tmp_path, {"skirt": (v, f), "broken": (v, bad)}, params, motions, FRAMES, workers=workers, **kw)
+    # every other sequence was simulated and written; nothing of the failed ones
+    m = json.loads((tmp_path / "manifest.json").read_text())
+    done = [e["key"] for e in m["items"]] + [r["key"] for r in m["rejected"]]
+    assert sorted(done) == sorted(f"skirt__p{p:02d}__{mo.name}" for p in range(2) for mo in motions)
+    assert not list((tmp_path / "items").glob("broken*")) and not list((tmp_path / "rejected").glob("broken*"))
+    # a rerun (the mesh mended) simulates just the failed ones
+    m = build_dataset(tmp_path, {"skirt": (v, f), "broken": (v, f)}, params, motions, FRAMES, workers=1, **kw)
+    assert m["last_run"]["simulated"] == 4 and len(m["items"]) + len(m["rejected"]) == 8
+
+
 def test_process_pool_matches_serial(tmp_path):
     _build(tmp_path / "serial", workers=1)
     _build(tmp_path / "pool", workers=2)
