@@ -23,6 +23,7 @@ repeated on a vertex is a validator error).
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,9 +117,15 @@ class _Writer:
         return len(self.doc.accessors) - 1
 
     def glb(self) -> bytes:
+        """The GLB container written here (pygltflib's save_to_bytes copies the buffer twice more): a 12-byte header,
+        the JSON chunk (padded with spaces) and the BIN chunk (the buffer, its views 4-aligned, padded with zeros)."""
+        self.blob += b"\0" * (-len(self.blob) % 4)
         self.doc.buffers.append(gl.Buffer(byteLength=len(self.blob)))
-        self.doc.set_binary_blob(bytes(self.blob))
-        return b"".join(self.doc.save_to_bytes())
+        text = self.doc.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
+        text += b" " * (-len(text) % 4)
+        head = struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text) + 8 + len(self.blob))
+        return b"".join([head, struct.pack("<I4s", len(text), b"JSON"), text,
+                         struct.pack("<I4s", len(self.blob), b"BIN\0"), self.blob])
 
 
 def skin_sets(weights: np.ndarray, min_weight: float = MIN_WEIGHT) -> tuple[np.ndarray, np.ndarray]:

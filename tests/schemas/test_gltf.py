@@ -137,3 +137,23 @@ def test_skin_sets_of_a_skeleton_whose_joint_count_is_no_multiple_of_4(joints):
                                              np.array([[0, 1, 2], [2, 3, 4]]), w)])
     attrs = GlbPlayer(glb).doc.meshes[0].primitives[0].attributes
     assert attrs.JOINTS_0 is not None and attrs.WEIGHTS_0 is not None
+
+
+def test_a_glb_is_written_without_copies_of_its_buffer_beyond_the_file():
+    # the binary buffer (here ~ the stream's bytes) is built once and copied once into the file: not again for the
+    # GLB container (pygltflib's save_to_bytes copies every bufferView into a new buffer, then joins it once more)
+    import tracemalloc
+
+    rng = np.random.default_rng(4)
+    frames = rng.normal(size=(40, 10_000, 3)).astype(np.float32)
+    faces = np.stack([np.arange(9_998), np.arange(1, 9_999), np.arange(2, 10_000)], 1)
+    tracemalloc.start()
+    try:
+        glb = vertex_animation_glb(frames, faces, fps=30.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2.5 * len(glb), (peak, len(glb))
+    player = GlbPlayer(glb)
+    for t in (0, 1, 39):
+        assert np.abs(player.positions("garment", t) - frames[t]).max() < 1e-6, t
