@@ -301,6 +301,8 @@ def build_dataset(
     def finished(it: Item) -> bool:
         return (out / "items" / f"{it.key}.npz").exists() or (out / "rejected" / f"{it.key}.json").exists()
 
+    _check_resumed(out, grid, frames)
+
     # train items first, so that a dataset stopped part-way (it resumes) can already be trained on, then
     # the test items (held-out parameters x held-out motions: the evaluation's), then the partly held out
     # within a split, in diagonals of the parameter x motion grid, so that a part-way dataset already has every
@@ -369,6 +371,26 @@ def _check_layered(garments: Mapping[str, tuple[np.ndarray, ...]], params: Seque
     if not all(isinstance(p, LayerParams) for p in params):
         raise ValueError("two-layer garments need LayerParams (drape.sim.params.sample_layer_params)")
     return True
+
+
+def _check_resumed(out: Path, grid: list[Item], frames: int) -> None:
+    """Raise when a finished item under `out` was simulated with another parameter set or frame count than the
+    same key asks for now (a rerun with another --params/--seed/--substeps/--thickness/--frames): resuming would
+    silently mix two datasets under one manifest, whose `params` then misdescribe the older items."""
+    for it in grid:
+        for path in (out / "items" / f"{it.key}.npz", out / "rejected" / f"{it.key}.npz"):
+            if not path.exists():
+                continue
+            with np.load(path, allow_pickle=False) as z:
+                stored, length = str(z["params"]), len(z["poses"])
+            try:  # through the model, so that a field added later with its default still matches
+                same = type(it.params).model_validate_json(stored) == it.params
+            except ValueError:
+                same = False
+            if not same or length != frames:
+                raise ValueError(f"{path} was simulated with other parameters or frames than this run asks for "
+                                 f"(parameter set {it.params_index}, {frames} frames); a dataset resumes only with "
+                                 "the command that started it: use another --out for other settings")
 
 
 def _load_timings(out: Path) -> dict:

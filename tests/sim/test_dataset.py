@@ -99,6 +99,19 @@ def test_a_failing_sequence_does_not_stop_the_others(tmp_path, workers):
     assert m["last_run"]["simulated"] == 4 and len(m["items"]) + len(m["rejected"]) == 8
 
 
+def test_resume_refuses_other_parameter_sets_or_frames(tmp_path):
+    garments, params, motions = _inputs()
+    kw = {"holdout_params": 1, "holdout_motions": 1, "progress": False, "workers": 1, "only_splits": ("test",)}
+    build_dataset(tmp_path, garments, params, motions, FRAMES, **kw)
+    # another seed (or --substeps, --thickness, ...): the finished item's cloth is not parameter set 1 any more
+    with pytest.raises(ValueError, match="skirt__p01__run.npz was simulated with other parameters"):
+        build_dataset(tmp_path, garments, sample_params(2, seed=8), motions, FRAMES, **kw)
+    with pytest.raises(ValueError, match="other parameters or frames"):
+        build_dataset(tmp_path, garments, params, motions, FRAMES - 1, **kw)
+    # the same command resumes (nothing left to do)
+    assert build_dataset(tmp_path, garments, params, motions, FRAMES, **kw)["last_run"]["simulated"] == 0
+
+
 def test_process_pool_matches_serial(tmp_path):
     _build(tmp_path / "serial", workers=1)
     _build(tmp_path / "pool", workers=2)
