@@ -59,6 +59,16 @@ def load_frames(dataset: str | Path | Sequence[str | Path], window: int, splits:
              and (garment is None or it["garment"] == garment)]
     if not items:
         raise ValueError(f"{', '.join(map(str, roots))}: no accepted items in splits {splits}")
+    # each folder splits by its own --holdout-* and motion list: a training item of one must not be a parameter
+    # set or motion another holds out (the test split shares neither with training)
+    held_params = {p for m in manifests for p in m.get("splits", {}).get("test_params", [])}
+    held_motions = {x for m in manifests for x in m.get("splits", {}).get("test_motions", [])}
+    for root, it in items:
+        if it["split"] == "train" and (it["params"] in held_params or it["motion"] in held_motions):
+            raise ValueError(f"{root / it['file']}: a training item of a parameter set or motion that a dataset read "
+                             f"with it holds out (test_params {sorted(held_params)}, test_motions "
+                             f"{sorted(held_motions)}); simulate the folders with the same --holdout-* and held-out "
+                             "motions")
     names = sorted({it["motion"] for _, it in items})
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("vertices", "windows", "params", "motions", "frame")}
     faces = None

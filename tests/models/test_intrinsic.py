@@ -192,6 +192,29 @@ def test_the_validation_bench_counts_the_frames_a_model_trained_on():
     assert trained_on(val, {}) is None
 
 
+def test_datasets_read_together_must_not_train_on_each_others_held_out_sets_or_motions(synthetic_dataset, tmp_path):
+    """A second folder simulated with its own held-out motion (or --holdout-params) would put the first's test
+    motion (or parameter set) into training: refused."""
+    import shutil
+
+    from drape.sim.dataset import split_of, splits
+    from drape.training.intrinsic_data import load_frames
+
+    whole = json.loads((synthetic_dataset / "manifest.json").read_text())
+    for name, motions, holdout in (("motion", ["walk", "kick", "dance_a"], 1), ("params", ["walk", "dance_a", "kick"], 2)):
+        d = tmp_path / name
+        (d / "items").mkdir(parents=True)
+        s = splits(6, motions, holdout, 1)
+        items = [{**it, "split": split_of(it["params"], it["motion"], s)} for it in whole["items"]]
+        for it in items:
+            shutil.copy(synthetic_dataset / it["file"], d / it["file"])
+        (d / "manifest.json").write_text(json.dumps({**whole, "items": items, "splits": s}))
+        assert len(load_frames(d, 5)[0])  # alone, each is a valid dataset
+        held = r"\[5\], test_motions \['dance_a', 'kick'\]" if name == "motion" else r"\[4, 5\], test_motions \['kick'\]"
+        with pytest.raises(ValueError, match=f"holds out \\(test_params {held}\\)"):
+            load_frames([synthetic_dataset, d], 5)
+
+
 def test_several_datasets_read_as_their_union_and_must_share_the_parameter_sampler(synthetic_dataset, tmp_path):
     """A dataset split in two folders by motion (as more training motions are simulated into a folder of
     their own) loads the same frames as the whole; a folder sampled with other parameters is refused."""
