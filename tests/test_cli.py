@@ -175,6 +175,12 @@ def test_sim_dataset_substeps_run_every_parameter_set_finer(tmp_path):
     r = subprocess.run([sys.executable, "-m", "drape.cli", "sim", "dataset", "--garment", str(garment), "--motions",
                         "walk,run", "--substeps", "0", "--out", str(tmp_path / "bad")], capture_output=True, text=True)
     assert r.returncode != 0 and "--substeps must be in [1, 64]" in r.stderr
+    # resumed into the same folder with other settings (the default 4 substeps): one line naming the item, no traceback
+    r = subprocess.run([sys.executable, "-m", "drape.cli", "sim", "dataset", "--garment", str(garment), "--params", "2",
+                        "--seed", "21", "--motions", "walk,run", "--frames", "2", "--holdout-params", "1",
+                        "--holdout-motions", "1", "--splits", "test", "--workers", "1", "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "simulated with other parameters" in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
 def test_sim_option_files_and_ranges_are_refused_in_one_line(tmp_path, capsys):
