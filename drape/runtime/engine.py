@@ -101,9 +101,12 @@ class InnerStream:
 
 @lru_cache(maxsize=4)
 def cached_layer_refiner(settings: RefineSettings, inner_faces: bytes, num_inner: int, outer_faces: bytes,
-                         num_outer: int, thickness: float, body: tuple[str, bytes | None, int]) -> LayerRefiner:
+                         num_outer: int, thickness: float, body: tuple[str, bytes | None, int],
+                         ) -> tuple[LayerRefiner, threading.Lock]:
     """This process's LayerRefiner for two topologies (faces: (F, 3) int32 as bytes), a thickness and a body
-    (`_surface_arguments`: a worker process knows only the presets by name)."""
+    (`_surface_arguments`: a worker process knows only the presets by name), and the lock to hold while using it:
+    its surfaces keep the frame being refined (the posed inner layer), so two threads of the serving process must
+    not refine with it at once."""
     name, faces, count = body
     if faces is None:
         b = load_body(name)
@@ -113,7 +116,7 @@ def cached_layer_refiner(settings: RefineSettings, inner_faces: bytes, num_inner
     return LayerRefiner(np.frombuffer(inner_faces, dtype=np.int32).reshape(-1, 3), num_inner,
                         np.frombuffer(outer_faces, dtype=np.int32).reshape(-1, 3), num_outer, thickness,
                         body_faces, count, eps=settings.eps, max_iterations=settings.max_iterations,
-                        relief_iterations=settings.relief_iterations)
+                        relief_iterations=settings.relief_iterations), threading.Lock()
 
 
 def refine_layer_frames(refiner: LayerRefiner, inner: np.ndarray, outer: np.ndarray, body_vertices: np.ndarray,
@@ -128,8 +131,10 @@ def _refine_layers_in_worker(inner: np.ndarray, inner_faces: bytes, outer: np.nd
                              thickness: float, body: tuple[str, bytes | None, int], body_vertices: np.ndarray,
                              settings: RefineSettings) -> tuple[np.ndarray, np.ndarray]:
     """`refine_layer_frames` in a worker process (body: `_surface_arguments`)."""
-    refiner = cached_layer_refiner(settings, inner_faces, inner.shape[1], outer_faces, outer.shape[1], thickness, body)
-    return refine_layer_frames(refiner, inner, outer, body_vertices)
+    refiner, lock = cached_layer_refiner(settings, inner_faces, inner.shape[1], outer_faces, outer.shape[1],
+                                         thickness, body)
+    with lock:
+        return refine_layer_frames(refiner, inner, outer, body_vertices)
 
 
 @lru_cache(maxsize=8)

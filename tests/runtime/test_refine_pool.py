@@ -89,3 +89,47 @@ def test_a_dead_worker_falls_back_to_the_serving_process(stream):
         assert pool._pool is not None
     finally:
         pool.close()
+
+
+def test_two_layer_streams_refined_at_once_in_process_equal_each_alone():
+    """The serving process refines layers in its own threads (one worker, or a chunk too short to split), two
+    requests at once with the same templates and thickness; the LayerRefiner they share keeps per-frame state (the
+    posed inner layer its surfaces query), so one request's frame must not be measured against the other's."""
+    import sys
+    import threading
+
+    body = load_body("neutral")
+    (vi, fi), (vo, fo) = split_outfit("tshirt,jacket", 800, seed=3)
+    clip = load_clip("dance_b")
+    settings = RefineSettings(relief_iterations=0)
+    streams = []
+    for offset in (0, 13):
+        frames = np.arange(offset, clip.num_frames, 25)[:3]
+        p, t = clip.poses[frames].astype(float), clip.trans[frames].astype(float)
+        inner, outer = (pose_mesh(x, nearest_vertex_weights(x, body.vertices, body.weights), body.joints, p, t
+                                  ).astype(np.float32) for x in (vi, vo))
+        streams.append((inner, outer, p, t))
+    pool = RefinePool(1)
+    alone = [pool.refine_layers(i, fi, o, fo, 0.006, "neutral", p, t, settings) for i, o, p, t in streams]
+    got: list[list] = [[], []]
+    start = threading.Barrier(2)
+
+    def run(k: int) -> None:
+        i, o, p, t = streams[k]
+        start.wait()
+        for _ in range(3):
+            got[k].append(pool.refine_layers(i, fi, o, fo, 0.006, "neutral", p, t, settings))
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-5)
+    try:
+        threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+    finally:
+        sys.setswitchinterval(interval)
+    for k in range(2):
+        for inner, outer in got[k]:
+            assert np.array_equal(inner, alone[k][0]) and np.array_equal(outer, alone[k][1])
