@@ -69,8 +69,30 @@ def closest_point_on_triangles(
                       ((d1 <= 0) & (d2 <= 0), 0.0, 0.0)):  # vertex a
         v, w = np.where(m, vv, v), np.where(m, ww, w)
     bary = np.stack([1 - v - w, v, w], axis=1)
+    # a zero-area triangle (corners at one place, or on one line) is the segments between its corners, where the
+    # region tests above read rounding noise (an edge of length 0 passes its region's tests for every point)
+    # va + vb + vc = |ab x ac|^2 and (d1 - d3) (d2 - d6) = |ab|^2 |ac|^2: exactly 0 <= 0 when two corners coincide
+    flat = np.nonzero(va + vb + vc <= 1e-12 * (d1 - d3) * (d2 - d6))[0]
+    if len(flat):
+        bary[flat] = _closest_on_edges(points[flat], a[flat], b[flat], c[flat])
     closest = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
     return closest, bary
+
+
+def _closest_on_edges(points: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Barycentric coords (P, 3) of the closest point to points (P, 3) on the edges ab, bc, ca of triangles (P, 3)."""
+    best, out = np.full(len(points), np.inf), np.empty((len(points), 3))
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        s, e = (a, b, c)[i], (a, b, c)[j]
+        d = e - s
+        t = np.clip(np.einsum("pc,pc->p", points - s, d) / np.maximum(np.einsum("pc,pc->p", d, d), 1e-300), 0.0, 1.0)
+        r = points - s - t[:, None] * d
+        dist = np.einsum("pc,pc->p", r, r)
+        take = dist < best
+        best[take] = dist[take]
+        out[take] = 0.0
+        out[take, i], out[take, j] = 1 - t[take], t[take]
+    return out
 
 
 class MeshDistance:

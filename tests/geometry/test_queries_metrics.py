@@ -32,6 +32,19 @@ def test_closest_point_on_triangle_regions():
     assert np.allclose(bary.sum(1), 1)
 
 
+def test_closest_point_on_a_zero_area_triangle():
+    """A sliver whose corners a and b coincide (duplicate vertices, a collapsed face; uploads may hold some) is the
+    segment a-c: the closest point lies on it. The zero-length edge ab used to claim every point (its region's
+    tests all hold with ab = 0) and answer corner a, up to the whole segment's length too far. A sliver with its
+    corners on one line is its longest edge likewise."""
+    a, c = np.zeros(3), np.array([1.0, 0, 0])
+    pts = np.array([[0.5, 0.2, 0.0], [0.25, 0.0, 0.3], [2.0, 0.1, 0.0], [-1.0, 0.0, 0.0]])
+    for tri in ((a, a.copy(), c), (a, c, c.copy()), (a, c, a.copy()), (a, np.array([0.4, 0, 0]), c)):
+        cp, bary = closest_point_on_triangles(pts, *(np.repeat(x[None], len(pts), 0) for x in tri))
+        assert np.allclose(cp, [[0.5, 0, 0], [0.25, 0, 0], [1, 0, 0], [0, 0, 0]]), tri
+        assert np.allclose(bary.sum(1), 1) and np.all(bary >= 0)
+
+
 def test_exact_distance_matches_brute_force():
     v, f = sphere(1.0, 2)
     rng = np.random.default_rng(0)
