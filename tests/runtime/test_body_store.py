@@ -1,0 +1,44 @@
+"""The user body store beside the engine: what a deleted body leaves behind."""
+
+import numpy as np
+import pytest
+
+from drape.assets.body import Body, load_body
+from drape.runtime.body_store import BodyStore, body_id
+from drape.runtime.deepsd import Rig
+from drape.runtime.engine import Engine, RiggedOutfit
+
+
+@pytest.fixture(scope="module")
+def engine():
+    return Engine(refine_workers=1, intrinsic_dir=None)
+
+
+def _user_body() -> Body:
+    p = load_body("neutral", proxy=True)
+    return Body(body_id(p.vertices, p.faces, p.weights, p.joints), p.vertices, p.faces, p.weights, p.joints,
+                p.parents, p.joint_names)
+
+
+def test_an_outfit_rigged_on_a_deleted_body_is_no_longer_found(engine):
+    """An outfit_id rigged on a user body stayed in the rig cache after DELETE /v1/bodies/{id}: animating it
+    answered 200 and then failed mid-answer (its body's joints are looked up by name while posing), a truncated
+    npz. Its outfit is not found while its body is gone, and is again once the same body is registered again."""
+    body = _user_body()
+    store = BodyStore(4, 2**30)
+    try:
+        store.add(body)
+        v = np.array([[0, 1, 0.2], [0.1, 1, 0.2], [0, 1.1, 0.2]], dtype=np.float32)
+        f = np.array([[0, 1, 2]], dtype=np.int32)
+        rig = Rig(np.full((3, 24), 1 / 24, np.float32), np.zeros((engine.model.num_keys, 3, 3), np.float32))
+        oid = engine.outfit_id(v, f, body.name)
+        engine.cache.put(oid, RiggedOutfit(oid, body.name, v, f, rig))
+        outfit = engine.lookup(oid)
+        assert outfit is not None
+        assert next(engine.pose_chunks(outfit, np.zeros((2, 24, 3)), np.zeros((2, 3)))).shape == (2, 3, 3)
+        store.delete(body.name)
+        assert engine.lookup(oid) is None
+        store.add(body)
+        assert engine.lookup(oid) is outfit
+    finally:
+        store.close()
