@@ -322,11 +322,13 @@ class Engine:
         return self.served_frames()[1] if self.collision_fit else None
 
     def outfit_id(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> str:
-        """Content hash of the canonical mesh (float32 vertices, int32 faces), the body, the rig's influences
-        per vertex and the model."""
+        """Content hash of the canonical mesh (float32 vertices, int32 faces, and their shapes), the body, the rig's
+        influences per vertex and the model."""
         h = hashlib.sha256()
-        h.update(np.ascontiguousarray(vertices, dtype="<f4").tobytes())
-        h.update(np.ascontiguousarray(faces, dtype="<i4").tobytes())
+        v, f = np.ascontiguousarray(vertices, dtype="<f4"), np.ascontiguousarray(faces, dtype="<i4")
+        h.update(f"{v.shape}{f.shape}".encode())  # where the vertices' bytes end and the faces' begin
+        h.update(v.tobytes())
+        h.update(f.tobytes())
         h.update(f"|{body}|{self.model_tag}|i{influences}|c{int(self.collision_fit)}".encode())
         return h.hexdigest()[:32]
 
