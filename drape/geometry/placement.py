@@ -70,6 +70,6 @@ def _fits_better_y_up(v: np.ndarray, distance: MeshDistance, median_mm: float) -
     """Whether the mesh turned from Z-up to Y-up (-90 degrees about x, about its centre) lies at under half
     its median distance from the body surface: then it was authored Z-up."""
     centre = v.mean(axis=0)
-    turned = (v - centre) @ np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]) + centre  # (x, y, z) -> (x, z, -y)
+    turned = (v - centre) @ np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]).T + centre  # (x, y, z) -> (x, z, -y)
     d = np.abs(distance.signed_distance(turned)) * 1e3
     return bool(np.median(d) < 0.5 * median_mm)
