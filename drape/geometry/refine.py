@@ -104,6 +104,7 @@ class BodySurface:
         slot = np.arange(inc.nnz) - np.repeat(inc.indptr[:-1], deg)
         table[np.repeat(np.arange(num_vertices), deg), slot] = inc.indices
         self.vertex_faces = table  # (M, fmax)
+        self.in_face = deg > 0  # (M,) a registered body may carry vertices no face uses
         self.incidence = inc  # (M, G) vertex-face incidence, kept for the per-frame normals
 
     def normals(self, body: np.ndarray) -> np.ndarray:
@@ -137,11 +138,20 @@ class BodySurface:
         # inner side of any of the k nearest: where the body overlaps itself (armpit, thighs) the nearest
         # vertex can belong to the part the point is not inside
         inner = np.einsum("pkc,pkc->pk", points[:, None] - around, around_n) < 0
-        close = (dist[:, 0] < self.far) | inner.any(axis=1)
+        # a nearest vertex in no face has no normal to tell the side by
+        close = (dist[:, 0] < self.far) | inner.any(axis=1) | ~self.in_face.take(near[:, 0])
         idx = np.nonzero(close)[0]
         if len(idx):
+            around_idx = near[idx]
+            lost = np.nonzero(~self.in_face.take(around_idx).any(axis=1))[0]
+            if len(lost):  # its k nearest body vertices are in no face: take the k nearest that are
+                used = np.nonzero(self.in_face)[0]
+                kk = min(k, len(used))
+                q = cKDTree(body[used]).query(points[idx[lost]], k=kk)[1].reshape(len(lost), kk)
+                around_idx = around_idx.copy()
+                around_idx[lost] = used[q[:, np.arange(k) % kk]]
             # the faces around the k nearest body vertices, each face once per point
-            cand = np.sort(self.vertex_faces.take(near[idx], axis=0).reshape(len(idx), -1), axis=1)
+            cand = np.sort(self.vertex_faces.take(around_idx, axis=0).reshape(len(idx), -1), axis=1)
             keep = cand < len(self.faces)
             keep[:, 1:] &= cand[:, 1:] != cand[:, :-1]
             row, face = np.nonzero(keep)[0], cand[keep]  # row-major: each point's candidates are contiguous

@@ -249,3 +249,24 @@ def test_the_edge_limit_pass_keeps_edges_near_their_rest_length(penetrating):
     assert inside_share(checked, b) < inside_share(limited, b)
     with pytest.raises(ValueError, match="rest"):
         Refiner(o.faces, len(o.vertices), rest=o.vertices[:-1])
+
+
+def test_body_surface_with_vertices_in_no_face():
+    """A registered body may carry vertices that no face uses (check_mesh does not refuse them). A point whose
+    nearest body vertices are all such had no candidate face: BodySurface raised an IndexError (a 500 from a
+    refine request) when it was the last such point of a query and silently took another point's closest face
+    otherwise, and one 5 cm from such vertices inside the body read as outside (their normals are 0). It now
+    measures against the faces around its nearest vertices that are in a face."""
+    from shapes import sphere
+
+    v, f = sphere(1.0, 3)
+    stray = np.array([[0.0, 0.0, 1.2], [0.01, 0.0, 1.2], [0.0, 0.01, 1.2], [0.0, 0.0, 0.0], [0.01, 0.0, 0.0]])
+    body = np.vstack([v, stray])
+    surface = BodySurface(f, len(body))
+    normals = surface.normals(body)
+    pts = np.array([[0.0, 0.0, 1.21], [0.2, 0.1, 0.3], [0.0, 0.005, 1.195], [0.9, 0.0, 0.0], [0.0, 0.05, 0.0]])
+    for order in ([0, 1, 2, 3, 4], [1, 3, 4, 0, 2]):
+        sd, cp, _ = surface.query(body, normals, pts[order])
+        exact = MeshDistance(body, f).signed_distance(pts[order])
+        assert np.allclose(sd, exact, atol=1e-9), (order, sd, exact)
+        assert np.allclose(np.linalg.norm(pts[order] - cp, axis=1), np.abs(sd))
