@@ -265,8 +265,11 @@ class RefinePool:
         try:
             futures = [pool.submit(*task(i)) for i in np.array_split(np.arange(frames), parts)]
             return [fut.result() for fut in futures]
-        except BrokenProcessPool:
-            self.close()
+        except BrokenProcessPool:  # drop that pool only: another request may have started new workers since
+            with self._lock:
+                if self._pool is pool:
+                    self._pool = None
+            pool.shutdown(cancel_futures=True)
             return None
 
     def start(self) -> Executor:

@@ -133,3 +133,27 @@ def test_two_layer_streams_refined_at_once_in_process_equal_each_alone():
     for k in range(2):
         for inner, outer in got[k]:
             assert np.array_equal(inner, alone[k][0]) and np.array_equal(outer, alone[k][1])
+
+
+def test_a_request_that_saw_a_broken_pool_leaves_the_new_one_alone(stream):
+    """Two requests in flight when a worker dies both see the pool broken; the first to fall back drops it and its
+    next chunk starts new workers. The other falling back later must not shut those down (it closed whatever pool
+    was current: the new one, cancelling the first request's queued chunks mid-answer)."""
+    g, faces, p, t = stream
+    settings = RefineSettings()
+    pool = RefinePool(2)
+    try:
+        broken = pool.start()
+        for pid in list(broken._processes):  # type: ignore[attr-defined]
+            os.kill(pid, signal.SIGKILL)
+        time.sleep(0.5)
+        pool.close()  # the first request fell back ...
+        fresh = pool.start()  # ... and its next chunk started new workers
+        pool.start = lambda: broken  # type: ignore[method-assign]  # the second request still holds the broken pool
+        out = pool.refine(g, faces, "neutral", p, t, settings)
+        del pool.start
+        assert np.array_equal(out, RefinePool(1).refine(g, faces, "neutral", p, t, settings))
+        assert pool._pool is fresh
+        assert fresh.submit(int, 7).result() == 7
+    finally:
+        pool.close()
