@@ -80,12 +80,13 @@ class SharedOutfitEngine(Engine):
         self._timeout_s = timeout_s
 
     def lookup(self, outfit_id: str) -> RiggedOutfit | None:
-        outfit = super().lookup(outfit_id)
-        if outfit is None:
+        """The local cache, else the store's copy (kept locally); None as Engine.lookup, also while the
+        outfit's body is not held on this replica (a user body deleted or never registered here)."""
+        if self.cache.get(outfit_id) is None:
             outfit = self._fetch(outfit_id)
             if outfit is not None:
                 self.cache.put(outfit_id, outfit)
-        return outfit
+        return super().lookup(outfit_id)
 
     def rig(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> RiggedOutfit:
         known = self.lookup(self.outfit_id(vertices, faces, body, influences))

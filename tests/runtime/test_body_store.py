@@ -42,3 +42,40 @@ def test_an_outfit_rigged_on_a_deleted_body_is_no_longer_found(engine):
         assert engine.lookup(oid) is outfit
     finally:
         store.close()
+
+
+class _Store:
+    """The OutfitStore deployment's handle as SharedOutfitEngine calls it: get.remote(id).result(timeout_s=)."""
+
+    def __init__(self, outfits):
+        self.get = self
+        self.outfits = outfits
+
+    def remote(self, outfit_id):
+        self.asked = outfit_id
+        return self
+
+    def result(self, timeout_s):
+        return self.outfits.get(self.asked)
+
+
+def test_a_replica_does_not_take_an_outfit_of_a_body_it_does_not_hold_from_the_store(engine):
+    """On Ray Serve the replica's lookup asked the shared store after Engine.lookup's None and answered the
+    store's outfit whatever its body: an outfit rigged on a user body deleted since (or registered on another
+    replica only) was found again, and posing it failed mid-answer. Now the store's copy passes the same check."""
+    from drape.service.ray_serve import SharedOutfitEngine
+
+    body = _user_body()
+    v = np.array([[0, 1, 0.2], [0.1, 1, 0.2], [0, 1.1, 0.2]], dtype=np.float32)
+    f = np.array([[0, 1, 2]], dtype=np.int32)
+    rig = Rig(np.full((3, 24), 1 / 24, np.float32), np.zeros((engine.model.num_keys, 3, 3), np.float32))
+    oid = engine.outfit_id(v, f, body.name)
+    replica = SharedOutfitEngine(engine, _Store({oid: RiggedOutfit(oid, body.name, v, f, rig)}))
+    assert replica.lookup(oid) is None  # the body is not registered here
+    store = BodyStore(4, 2**30)
+    try:
+        store.add(body)
+        assert replica.lookup(oid) is not None
+    finally:
+        store.close()
+    assert replica.lookup(oid) is None
