@@ -46,7 +46,7 @@ def test_a_shrunk_garment_is_reported_inside(http, shirt):
 def test_a_z_up_garment_is_named(http, shirt):
     v, f = shirt
     centre = v.mean(axis=0)
-    z_up = (v - centre) @ np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]]).T + centre  # y -> z about its centre
+    z_up = (v - centre) @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]]).T + centre  # (x, -z, y): its up (+y) now +z
     d = rig(http, z_up, f).json()["diagnostics"]
     assert any("looks Z-up" in w for w in d["warnings"]), d["warnings"]
 
