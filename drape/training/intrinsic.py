@@ -20,12 +20,15 @@ its frames' motion windows (what one keyframe gives); the best checkpoint of eac
 Data: the config's `dataset` and, optionally, `extra_datasets` (folders simulated with the same template
 and parameter sampler, e.g. more training motions; `training_datasets`), their training splits read together.
 
-Checkpoints (git-ignored) go to `checkpoints/intrinsic/<template>/`; a rerun resumes. Seeded.
+Checkpoints (git-ignored) go to `checkpoints/intrinsic/<template>/`, each written whole or not at all; a rerun
+resumes where the last one left off, with the batches the uninterrupted run would have drawn, and refuses
+checkpoints of a run on other training or validation sequences. Seeded.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -157,6 +160,26 @@ def _latest(ckpt_dir: Path, phase: str) -> Path | None:
     return found[-1] if found else None
 
 
+def _save(state: dict, path: Path) -> None:
+    """torch.save through a temporary file renamed into place: a run killed mid-save leaves the checkpoints
+    before it whole (and no `<phase>_<step>.pt` for the rerun's torch.load to fail on)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def _resume(path: Path, run: dict) -> dict:
+    """A checkpoint's state, when it was written by a run on the same training and validation sequences
+    (checkpoints from before this check carry none and are taken)."""
+    state = torch.load(path, weights_only=False)
+    if "run" in state and state["run"] != run:
+        raise ValueError(f"{path}: written by a run on other training or validation sequences (the dataset grew, "
+                         "or the config's dataset or validation split changed): resuming would mix two trainings "
+                         "and keep a checkpoint chosen on another split; delete the folder or pass another "
+                         "--checkpoints")
+    return state
+
+
 def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[IntrinsicSpace, dict]:
     """Run (or resume) both phases; returns the model with each phase's best (validation) weights and a
     summary (validation figures, steps, seconds, the config)."""
@@ -183,6 +206,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     summary: dict = {"config": config, "train_frames": len(train_f), "val_frames": len(val_f),
                      "train_sequences": _sequences(train_f), "val_sequences": _sequences(val_f),
                      "dataset_format": manifest.get("format"), "phases": {}}
+    run = {"train_sequences": summary["train_sequences"], "val_sequences": summary["val_sequences"]}
     t0 = time.perf_counter()
 
     # phase 1: the shape autoencoder
@@ -191,10 +215,12 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     start, best = 0, (float("inf"), None)  # type: tuple[int, tuple[float, dict | None]]
     last = _latest(ckpt, "shape")
     if last is not None:
-        state = torch.load(last, weights_only=False)
+        state = _resume(last, run)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         start, best = state["step"], state["best"]
+        if "rng" in state:  # the batches the uninterrupted run drew after this step
+            rng.bit_generator.state = state["rng"]
     verts = torch.as_tensor(train_f.vertices)
     for step in tqdm(range(start, sc["steps"]), desc="shape", initial=start, total=sc["steps"]):
         idx = torch.as_tensor(rng.integers(0, len(verts), sc["batch"]))
@@ -210,8 +236,8 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             err = shape_error_mm(model, val_f)
             if err < best[0]:
                 best = (err, {k: t.clone() for k, t in model.shape.state_dict().items()})
-            torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
-                        "best": best}, ckpt / f"shape_{step + 1}.pt")
+            _save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
+                   "best": best, "rng": rng.bit_generator.state, "run": run}, ckpt / f"shape_{step + 1}.pt")
             log(f"shape step {step + 1}: validation vertex error {err:.2f} mm (best {best[0]:.2f})")
     if best[1] is not None:
         model.shape.load_state_dict(best[1])
@@ -227,13 +253,15 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     opt = torch.optim.AdamW(params, lr=ic["lr"], weight_decay=wd) if wd > 0 else torch.optim.Adam(params, lr=ic["lr"])
     start, best = 0, (float("inf"), None)
     parts: dict = {}
+    rng = np.random.default_rng(config["seed"])  # each phase its own batches: a run resumed here equals a fresh one
     last = _latest(ckpt, "invariant")
     if last is not None:
-        state = torch.load(last, weights_only=False)
+        state = _resume(last, run)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         start, best, parts = state["step"], state["best"], state.get("parts", {})
-    rng = np.random.default_rng(config["seed"])  # each phase its own batches: a run resumed here equals a fresh one
+        if "rng" in state:
+            rng.bit_generator.state = state["rng"]
     by_set = {p: np.flatnonzero(train_f.params == p) for p in np.unique(train_f.params)}
     set_ids = np.array(sorted(by_set))
     wins = torch.as_tensor(train_f.windows)
@@ -254,8 +282,9 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             err = set_latent_error_mm(model, val_f)
             if err < best[0]:
                 best = (err, {k: t.clone() for k, t in model.state_dict().items()})
-            torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
-                        "best": best, "parts": parts}, ckpt / f"invariant_{step + 1}.pt")
+            _save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
+                   "best": best, "parts": parts, "rng": rng.bit_generator.state, "run": run},
+                  ckpt / f"invariant_{step + 1}.pt")
             log(f"invariant step {step + 1}: {parts}, validation set-latent vertex error {err:.2f} mm "
                 f"(best {best[0]:.2f})")
     if best[1] is not None:
@@ -266,8 +295,8 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     if start == ic["steps"] and done.exists():  # nothing left to train: the run that trained it took its time
         summary["seconds"] = torch.load(done, weights_only=False)["summary"].get("seconds", summary["seconds"])
     summary["latent_mean"], summary["latent_std"] = latent_statistics(model, train_f)
-    torch.save({"model": model.state_dict(), "config": config, "model_config": model.cfg.to_dict(),
-                "summary": summary, "faces": faces}, ckpt / "best.pt")
+    _save({"model": model.state_dict(), "config": config, "model_config": model.cfg.to_dict(),
+           "summary": summary, "faces": faces}, ckpt / "best.pt")
     return model, summary
 
 

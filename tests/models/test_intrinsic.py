@@ -248,3 +248,43 @@ def test_several_datasets_read_as_their_union_and_must_share_the_parameter_sampl
     (folders[1] / "manifest.json").write_text(json.dumps({**other, "params": ["another sampler"]}))
     with pytest.raises(ValueError, match="'params' differs"):
         load_frames(folders, 5)
+
+
+def test_a_run_killed_while_saving_a_checkpoint_resumes_to_the_run_it_would_have_been(synthetic_dataset, tmp_path,
+                                                                                      monkeypatch):
+    """A kill mid-save leaves no half-written checkpoint for the rerun to choke on, and a run resumed mid-phase
+    draws the batches the uninterrupted run drew after that step (not the first steps' again)."""
+    from drape.training.intrinsic import train
+
+    config = _tiny_config(synthetic_dataset, width=32, steps=(100, 100), batch=32, every=25)
+    _, fresh = train(config, tmp_path / "fresh", log=lambda *_: None)
+    real_save = torch.save
+
+    def killed_at(stem: str):
+        def save(obj, f, *args, **kwargs):  # noqa: ANN001, ANN202
+            if stem in str(f):
+                with open(f, "wb") as fh:
+                    fh.write(b"PK\x03\x04 half a checkpoint")
+                raise KeyboardInterrupt
+            return real_save(obj, f, *args, **kwargs)
+        return save
+
+    for stem in ("shape_75", "invariant_50"):  # killed in each phase, resumed from the checkpoint before
+        monkeypatch.setattr(torch, "save", killed_at(stem))
+        with pytest.raises(KeyboardInterrupt):
+            train(config, tmp_path / "killed", log=lambda *_: None)
+    monkeypatch.setattr(torch, "save", real_save)
+    _, resumed = train(config, tmp_path / "killed", log=lambda *_: None)
+    assert resumed["phases"] == fresh["phases"]
+
+
+def test_a_rerun_on_other_training_or_validation_sequences_does_not_resume_the_old_checkpoints(synthetic_dataset,
+                                                                                               tmp_path):
+    """Checkpoints of a run on other sequences (a dataset that grew since, another validation split) would mix
+    two trainings and keep a 'best' chosen on another split: the rerun refuses them."""
+    from drape.training.intrinsic import train
+
+    config = _tiny_config(synthetic_dataset, width=32, steps=(30, 30), batch=32, every=30)
+    train(config, tmp_path / "ckpt", log=lambda *_: None)
+    with pytest.raises(ValueError, match="other training or validation sequences"):
+        train({**config, "val_params": 2}, tmp_path / "ckpt", log=lambda *_: None)
