@@ -80,6 +80,11 @@ def is_registered(name: str) -> bool:
     return name in _registered
 
 
+def has_body(name: str) -> bool:
+    """True for an embedded preset or a user body registered in this process: a name load_body finds."""
+    return name in _preset_names() or is_registered(name)
+
+
 def load_body(name: str = "neutral", proxy: bool = False) -> Body:
     """A preset or a registered user body (KeyError if neither); proxy=True gives a preset's
     low-resolution collision proxy (a user body is its own proxy)."""

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.assets.body import is_registered, list_bodies, load_body
+from drape.assets.body import has_body, is_registered, load_body
 from drape.geometry.layers import LayerRefiner
 from drape.geometry.lbs import rest_space_offsets
 from drape.geometry.mesh import coincident_groups, regroup_faces
@@ -362,7 +362,7 @@ class Engine:
         """The rigged outfit of `outfit_id`, or None: not cached, or its body is no longer held (a user body
         deleted since; posing needs its joints). The same body registered again finds it again."""
         outfit = self.cache.get(outfit_id)
-        if outfit is None or not (is_registered(outfit.body) or outfit.body in list_bodies()):
+        if outfit is None or not has_body(outfit.body):
             return None
         return outfit
 

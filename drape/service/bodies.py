@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from drape.assets.body import Body, is_registered, list_bodies, load_body
+from drape.assets.body import Body, has_body, list_bodies, load_body
 from drape.geometry.lbs import unpose_body
 from drape.geometry.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
 from drape.runtime.body_store import PREFIX, BodyStore, body_id
@@ -249,7 +249,7 @@ def register(store: BodyStore, body: Body) -> bool:
 
 def known_body(name: str, field: str = "body") -> Body:
     """A preset or a registered body by name, or NotFound."""
-    if name in list_bodies() or is_registered(name):
+    if has_body(name):
         return load_body(name)
     hint = "register it first: POST /v1/bodies" if name.startswith(PREFIX) else f"presets: {', '.join(list_bodies())}"
     raise NotFound(f"unknown body {quoted(name, 60)}; {hint}", field)

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from drape.assets.body import is_registered, list_bodies, load_body
+from drape.assets.body import has_body, list_bodies, load_body
 from drape.assets.motion import MAX_POSE_RAD, MAX_TRANSLATION_M, list_clips, load_clip
 from drape.geometry.body_scale import body_height
 from drape.geometry.fitting import UNITS, FitError, FitResult, fit_garment, infer_units
@@ -89,7 +89,7 @@ def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "",
 def check_body(name: str | None, field: str = "body") -> str:
     """A preset's name or a registered user body's id (default: neutral); unknown ids are a 404."""
     name = name or "neutral"
-    if name in list_bodies() or is_registered(name):
+    if has_body(name):
         return name
     if name.startswith(USER_BODY_PREFIX):
         raise NotFound(f"unknown body {quoted(name, 60)}: register it first (POST /v1/bodies)", field)
