@@ -31,13 +31,12 @@ from scipy.optimize import minimize
 
 from drape.assets.body import Body
 from drape.geometry.mesh import unique_edges
-from drape.geometry.placement import FAR_M
+from drape.geometry.placement import FAR_M, Z_UP_TO_Y_UP
 from drape.geometry.queries import MeshDistance, nearest_vertex_weights
 from drape.geometry.refine import EPS, refine
 from drape.geometry.skeleton import forward_kinematics
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
-Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y, z) -> (x, z, -y)
 CAP_M = 0.10  # a vertex farther than this from the body counts as this far in the placement score
 INSIDE_COST = 1.0  # an inside vertex costs this many times its depth
 SAMPLE = 400  # vertices scored during the placement search

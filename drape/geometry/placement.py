@@ -16,6 +16,7 @@ from drape.geometry.queries import MeshDistance
 
 INSIDE_WARNING = 0.02  # share of vertices inside the body at rest past which the rig warns
 FAR_M = 0.30  # a garment with no vertex this close to the body is not on it
+Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y, z) -> (x, z, -y), column vectors
 
 
 def body_distance(body_vertices: np.ndarray, body_faces: np.ndarray) -> MeshDistance:
@@ -70,6 +71,6 @@ def _fits_better_y_up(v: np.ndarray, distance: MeshDistance, median_mm: float) -
     """Whether the mesh turned from Z-up to Y-up (-90 degrees about x, about its centre) lies at under half
     its median distance from the body surface: then it was authored Z-up."""
     centre = v.mean(axis=0)
-    turned = (v - centre) @ np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]).T + centre  # (x, y, z) -> (x, z, -y)
+    turned = (v - centre) @ Z_UP_TO_Y_UP.T + centre
     d = np.abs(distance.signed_distance(turned)) * 1e3
     return bool(np.median(d) < 0.5 * median_mm)
