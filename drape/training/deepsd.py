@@ -15,7 +15,8 @@ Three phases, each a number of steps of one outfit x `batch_frames` poses:
    poses plus noise), the rest frozen.
 
 Checkpoints go to `checkpoints/deepsd/` (git-ignored); a rerun resumes from the
-latest one. The run is seeded; the config is recorded in every checkpoint.
+latest one (of the same config: another one's checkpoints are refused, `validation` aside). The run is seeded;
+the config is recorded in every checkpoint.
 A config with `"init_checkpoints": DIR` is a fine-tune: a fresh run starts from the
 networks of DIR's latest checkpoint (a finished run of another config) instead of
 random weights; phases with 0 steps are skipped. `"loss_phase": {PHASE: {NAME: WEIGHT}}` overrides
@@ -41,6 +42,7 @@ from drape.training import DEFAULT_DEEPSD_CONFIG as DEFAULT_CONFIG
 from drape.training import physics
 from drape.training.config_file import read_config
 from drape.training.deepsd_data import TrainOutfit, pose_pool, prepare_outfits, train_specs
+from drape.training.validated_steps import check_same_config
 
 PHASES = ("prior", "physics", "chi")
 
@@ -154,6 +156,9 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
     ran_on = None
     if latest is not None:
         state = torch.load(latest, weights_only=True, map_location="cpu")
+        # the checkpoint choice (`validation`) runs after training: a rerun may change it and keep the checkpoints
+        check_same_config({k: v for k, v in json.loads(state["config"]).items() if k != "validation"},
+                          {k: v for k, v in config.items() if k != "validation"}, latest)
         net.load_state_dict(state["outfit"])
         pose.load_state_dict(state["pose"])
         done = dict(zip(PHASES, state["done"].tolist(), strict=True))

@@ -14,6 +14,7 @@ comparison only. Runs on numpy + ONNX Runtime (torch only to load and export che
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import tempfile
 from collections.abc import Callable
@@ -142,11 +143,12 @@ def validate_baseline(cfg: dict, log: Callable[[str], object] = print) -> dict:
 
 
 def best_candidate(candidates: dict[str, dict], max_weights_off_prior_pct: float | None = None) -> str | None:
-    """The lowest-score candidate among those whose weights_off_prior_pct is at most the limit (every candidate
-    when the limit is None); None when none qualifies."""
+    """The lowest-score candidate (a NaN score, a diverged network, ranks last) among those whose
+    weights_off_prior_pct is at most the limit (every candidate when the limit is None); None when none qualifies."""
     eligible = {k: c for k, c in candidates.items()
                 if max_weights_off_prior_pct is None or c["weights_off_prior_pct"] <= max_weights_off_prior_pct}
-    return min(eligible, key=lambda k: eligible[k]["score"]) if eligible else None
+    return (min(eligible, key=lambda k: math.inf if math.isnan(eligible[k]["score"]) else eligible[k]["score"])
+            if eligible else None)
 
 
 def choose_checkpoint(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print) -> dict:

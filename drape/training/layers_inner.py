@@ -127,7 +127,7 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print)
     model = InnerPSD(InnerConfig(num_vertices=len(task.vertices), **cfg["model"]))
     opt = torch.optim.Adam(model.parameters(), lr=cfg["lr"])
     record: dict = {"rule": "lowest inside % + edge error mm, validation split", "steps": {}}
-    done, elapsed, record = resume(ckpt_dir, model, opt, record, log)
+    done, elapsed, record = resume(ckpt_dir, model, opt, record, log, cfg)
     pool = torch.as_tensor(pose_pool(cfg))
     log(f"{cfg['inner']}: {len(task.vertices)} vertices, {len(pool)} training poses")
     total = int(cfg["steps"])

@@ -451,7 +451,7 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
                             + (f"; on the real validation clips L-Coll <= {cfg.get('max_clip_l_coll_pct', 100.0)}% "
                                f"and H-Coll <= {cfg.get('max_clip_h_coll_pct', 100.0)}%" if clip_val else ""),
                     "steps": {}}
-    done, elapsed, record = resume(ckpt_dir, model, opt, record, log)
+    done, elapsed, record = resume(ckpt_dir, model, opt, record, log, cfg)
     frames = sum(len(s.poses) for s in train_seqs)
     log(f"{cfg['pair']}: {len(task.vertices)} outer vertices; {len(train_seqs)} training sequences ({frames} frames), "
         f"{len(val_seqs)} validation sequences; {len(clip_train)} real training clips "

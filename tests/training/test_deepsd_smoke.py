@@ -28,6 +28,9 @@ def test_train_export_parity(tmp_path, monkeypatch):
     # a rerun resumes from the last checkpoint and does no more steps
     _, _, again = train(cfg, tmp_path / "ckpt", log=lambda *_: None)
     assert again["phases"] == {} and again["device"] == "cpu"
+    # a rerun with another config does not resume (mix into, or take as its own) the first run's checkpoints
+    with pytest.raises(ValueError, match="another config"):
+        train({**cfg, "lr": cfg["lr"] * 2}, tmp_path / "ckpt", log=lambda *_: None)
     paths = export_deepsd(net, pose, tmp_path / "onnx")
     spec = deepsd_data.train_specs(cfg)[0]
     v, f = deepsd_data.load_outfit(spec)
