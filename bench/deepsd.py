@@ -7,6 +7,9 @@
 3. The shipped model's rig at the same sizes, whose weights keep to each vertex's candidate joints when its
    manifest says so (drape.geometry.queries.candidate_joints, computed per request from the body): the
    candidate joints alone, and the whole rig against (1)'s rig without them (same architecture).
+Every ONNX Runtime model here reads a mesh as it is (`densify_edge=None`, `ort_model`), as the torch side does:
+the service reads a mesh with a mean edge over 25 mm subdivided (the 1k outfit as ~3.9k vertices), which would
+time ORT's rig on another mesh than torch's (and than (3)'s candidate joints alone).
 Run: .venv/bin/python -m bench.deepsd   (needs the [train] extra for the torch side)
 """
 
@@ -15,6 +18,7 @@ from __future__ import annotations
 import statistics
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -25,7 +29,7 @@ from drape.assets.outfits import generate_outfit
 from drape.export.deepsd import export_deepsd_from_checkpoints
 from drape.geometry.queries import candidate_joints
 from drape.models.deepsd import DeployedOutfitNet, OutfitNet, PoseNet
-from drape.runtime.deepsd import DeePSDModel, network_inputs, pose_outfit
+from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, network_inputs, pose_outfit
 
 
 def timed(fn, repeat: int) -> float:
@@ -38,11 +42,16 @@ def timed(fn, repeat: int) -> float:
     return statistics.median(times)
 
 
+def ort_model(model_dir: str | Path = MODEL_DIR) -> DeePSDModel:
+    """A DeePSD export on 2 threads, reading a mesh as it is (no subdivision), as `network_inputs` gives torch."""
+    return DeePSDModel(model_dir, threads=2, densify_edge=None)
+
+
 def main() -> None:
     torch.set_num_threads(2)
     with tempfile.TemporaryDirectory() as d:
         export_deepsd_from_checkpoints("unused", d, init=True)
-        model = DeePSDModel(d, threads=2)
+        model = ort_model(d)
         torch.manual_seed(0)  # the same initial weights the export used
         net = DeployedOutfitNet(OutfitNet()).eval()
         PoseNet()
@@ -80,7 +89,7 @@ def main() -> None:
         print(f"batched: {t_b:.3f} s ({len(poses) / t_b:.0f} frames/s); per-frame loop: {t_l:.3f} s "
               f"({len(poses) / t_l:.0f} frames/s); loop/batched = {t_l / t_b:.1f}x")
 
-        shipped = DeePSDModel(threads=2)
+        shipped = ort_model()
         print(f"\nthe shipped model's rig ({shipped.manifest['version']}; candidate joints: "
               f"{shipped.joint_candidates})")
         print(f"{'N':>6s} {'candidates ms':>13s} {'rig ms':>9s} {'no-candidates rig ms':>20s} {'ratio':>6s}")

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
-from drape.training.intrinsic import validation_masks
+from drape.training.intrinsic import training_datasets, validation_masks
 from drape.training.intrinsic_data import load_frames
 from drape.training.intrinsic_eval import _load, keyframe_errors
 
@@ -26,14 +26,17 @@ COUNTS = (2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 30, 40)
 NO_FADE_S = 1e9
 
 
-def validation_items(config: dict, window: int) -> list[dict]:
-    """The manifest items of the config's validation split (`drape.training.intrinsic.validation_masks`: the
+def validation_items(config: dict, window: int) -> list[tuple[Path, dict]]:
+    """(dataset folder, manifest item) of each sequence of the config's validation split, as training splits
+    it (`drape.training.intrinsic.validation_masks` over every folder it trains on, `training_datasets`: the
     last `val_params` training parameter sets, every motion, and the `val_motions`, every parameter set)."""
-    frames, _, manifest = load_frames(config["dataset"], window, ("train",))
+    roots = [Path(d) for d in training_datasets(config)]
+    frames, _, _ = load_frames(roots, window, ("train",))
     held_set, held_motion = validation_masks(frames, config["val_params"], list(config.get("val_motions", ())))
     val = held_set | held_motion
     pairs = {(int(p), frames.motion_names[m]) for p, m in zip(frames.params[val], frames.motions[val], strict=True)}
-    return [it for it in manifest["items"] if it["split"] == "train" and (it["params"], it["motion"]) in pairs]
+    return [(root, it) for root in roots for it in json.loads((root / "manifest.json").read_text())["items"]
+            if it["split"] == "train" and (it["params"], it["motion"]) in pairs]
 
 
 def main() -> None:
@@ -46,8 +49,8 @@ def main() -> None:
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
     fades = {f: (NO_FADE_S if f == "none" else float(f)) for f in args.fades.split(",")}
     items = validation_items(config, garment.window)
-    rows = [keyframe_errors(garment, _load(Path(config["dataset"]), it), COUNTS,
-                            {f"matched, fade {k}": f for k, f in fades.items()}) for it in items]
+    rows = [keyframe_errors(garment, _load(root, it), COUNTS,
+                            {f"matched, fade {k}": f for k, f in fades.items()}) for root, it in items]
     methods = list(rows[0])
     print(f"model {garment.path} ({garment.version}), {len(items)} validation sequences of {args.config}; "
           "mean vertex error of the whole sequence (mm), mean over sequences")

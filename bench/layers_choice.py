@@ -7,7 +7,9 @@ prints both scores and what the rule would serve.
 - inner networks (drape/assets/models/mgn_inner/<template>): score = inside % (closest triangle) + edge error mm
   on the validation split of drape.training.layers_inner (lower wins);
 - outer networks (drape/assets/models/mgn_outer/<pair>): RMSE mm to the simulated outer layer on the dataset's
-  validation sequences (drape.training.layers_outer; needs `make layers-data`'s sequences under data/layers).
+  validation sequences, plus layers_outer.PENALTY where the config's collision caps (on those sequences, or on
+  its real validation clips) are exceeded (drape.training.layers_outer; needs `make layers-data`'s sequences
+  under data/layers).
 
 Run: .venv/bin/python -m bench.layers_choice  (a few minutes on the 2-core machine)
 """
@@ -44,7 +46,8 @@ def main() -> None:
             continue
         task = layers_outer.OuterTask(m["config"])
         seqs = task.sequences("test")
-        now = layers_outer.deepsd_validation(task, seqs)
+        # with the real validation clips and their caps, as training measured both sides (layers_outer.train)
+        now = layers_outer.deepsd_validation(task, seqs, layers_outer.validation_clips(task))
         ours, then = m["validation"]["score"], m["deepsd_validation"]["score"]
         rule = "mgn_outer" if ours < now["score"] else "deepsd"
         print(f"{'mgn_outer/' + folder.name:28} {ours:15.2f} {then:12.2f} {now['score']:11.2f}  {m['served']} -> {rule}"

@@ -7,8 +7,8 @@ within a round, so that load from other processes falls on all of them alike, 0.
 
   new        `pose_outfit`, returning a fresh (T, N, 3) array (what the engine does)
   new,out=   `pose_outfit` writing into a preallocated array (no page faults on a new 36 MB+)
-  new/c      `pose_outfit` called on c-frame slices, outputs kept (the engine's chunks:
-             settings.stream_chunk_frames = 32)
+  new/c      `pose_outfit` called on c-frame slices, outputs kept (the stream's chunks are
+             settings.stream_chunk_frames = 32; the engine poses POSE_BLOCK = 128 frames a call)
   old        the previous formulation: offsets keys @ D (numpy), `forward_kinematics`,
              `linear_blend_skinning` (einsums), as `pose_outfit` was before issue 24
   old best   its fastest round: its (T, N, 12) float32 temporaries (144 MB at 10k) are fresh

@@ -192,6 +192,38 @@ def test_the_validation_bench_counts_the_frames_a_model_trained_on():
     assert trained_on(val, {}) is None
 
 
+def test_the_keyframe_bench_reads_the_validation_split_of_every_folder_a_config_trains_on(synthetic_dataset,
+                                                                                          tmp_path):
+    """bench.intrinsic_keyframes on a config with `extra_datasets` (its validation motion in the extra folder):
+    the sequences of training's validation split, from both folders (it read `dataset` alone: a ValueError here,
+    and only part of the split where the validation motion is in `dataset`)."""
+    import shutil
+
+    from bench.intrinsic_keyframes import validation_items
+    from drape.training.intrinsic import split_validation, training_datasets
+    from drape.training.intrinsic_data import load_frames
+
+    whole = json.loads((synthetic_dataset / "manifest.json").read_text())
+    folders = []
+    for name, keep in (("a", {"walk"}), ("b", {"dance_a", "kick"})):  # kick: the test split's motion
+        d = tmp_path / name
+        (d / "items").mkdir(parents=True)
+        items = [it for it in whole["items"] if it["motion"] in keep]
+        for it in items:
+            shutil.copy(synthetic_dataset / it["file"], d / it["file"])
+        (d / "manifest.json").write_text(json.dumps({**whole, "items": items}))
+        folders.append(d)
+    for val_motions in (["dance_a"], ["walk"]):
+        config = {"dataset": str(folders[0]), "extra_datasets": [str(folders[1])], "val_params": 1,
+                  "val_motions": val_motions}
+        frames, _, _ = load_frames(training_datasets(config), 5)
+        _, val = split_validation(frames, 1, val_motions)
+        expected = {(int(p), val.motion_names[m]) for p, m in zip(val.params, val.motions, strict=True)}
+        got = validation_items(config, 5)
+        assert {(it["params"], it["motion"]) for _, it in got} == expected and len(got) == len(expected)
+        assert all((root / it["file"]).exists() for root, it in got)
+
+
 def test_datasets_read_together_must_not_train_on_each_others_held_out_sets_or_motions(synthetic_dataset, tmp_path):
     """A second folder simulated with its own held-out motion (or --holdout-params) would put the first's test
     motion (or parameter set) into training: refused."""

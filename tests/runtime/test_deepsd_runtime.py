@@ -61,3 +61,23 @@ def test_batched_posing_equals_loop_and_torch(model_dir):
     ref = physics.lbs(torch.as_tensor(o.vertices + offs, dtype=torch.float64),
                       torch.as_tensor(rig.weights, dtype=torch.float64), tr).numpy() + trans[:, None]
     assert np.abs(ref - batched).max() < 1e-4
+
+
+def test_the_speed_bench_runs_ort_on_the_mesh_torch_runs_on(model_dir):
+    """bench.deepsd times ORT's rig against torch eager on `network_inputs(vertices, faces)`: the ORT model must
+    read the same mesh (the service's default subdivides the 1k outfit's 25+ mm edges into ~3.9k vertices)."""
+    from bench.deepsd import ort_model
+    from drape.runtime.deepsd import network_inputs
+
+    model = ort_model(model_dir)
+    o = generate_outfit("tshirt,trousers", vertices=1000, seed=1000)
+    session, seen = model.sessions["outfit"], []
+
+    class Spy:
+        def run(self, outputs, inputs):
+            seen.append(len(inputs["features"]))
+            return session.run(outputs, inputs)
+
+    model.sessions["outfit"] = Spy()
+    model.rig(o.vertices, o.faces)
+    assert seen == [len(network_inputs(o.vertices, o.faces)["features"])] == [len(o.vertices)]

@@ -84,3 +84,46 @@ def test_step_loss_compares_the_steps_of_each_pair_only():
     v[1] += [0.0, 0.003, 0.004]  # the first pair's second frame 5 mm off
     want = 0.005 ** 2 / 3
     assert abs(float(step_loss(torch.as_tensor(v), torch.as_tensor(truth))) - want) < 1e-12
+
+
+def test_the_choice_bench_measures_deepsd_with_the_validation_clips_as_training_did(monkeypatch, tmp_path, capsys):
+    """bench.layers_choice re-measures DeePSD's outer rig by training's rule (layers_outer.train: the validation
+    clips and their caps' PENALTY included, as in the 'DeePSD then' score it prints beside). Here DeePSD's rig has
+    the lower RMSE but is over the clip cap: the network stays served."""
+    import json
+
+    import bench.layers_choice as lc
+    from drape.training import layers_outer
+
+    (tmp_path / "deepsd").mkdir()
+    (tmp_path / "deepsd" / "manifest.json").write_text(json.dumps({"version": "x"}))
+    (tmp_path / "mgn_inner").mkdir()
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "manifest.json").write_text("{}")
+    pair = tmp_path / "mgn_outer" / "tshirt_jacket"
+    pair.mkdir(parents=True)
+    pair.joinpath("manifest.json").write_text(json.dumps({
+        "config": {"data": str(tmp_path / "data")}, "served": "mgn_outer", "validation": {"score": 70.0},
+        "deepsd_validation": {"score": 1064.0}}))
+    calls = []
+
+    class Task:
+        def __init__(self, cfg):
+            self.cfg = cfg
+
+        def sequences(self, split):
+            return [f"{split} sequence"]
+
+    def deepsd_validation(task, seqs, clips=None):
+        calls.append(clips)
+        return {"score": 64.0 + (layers_outer.PENALTY if clips else 0.0), "rmse_mm": 64.0, "l_coll_pct": 0.4,
+                "sted": 0.1}
+
+    monkeypatch.setattr(lc, "DEEPSD_DIR", tmp_path / "deepsd")
+    monkeypatch.setattr(lc, "ASSETS", tmp_path)
+    monkeypatch.setattr(layers_outer, "OuterTask", Task)
+    monkeypatch.setattr(layers_outer, "validation_clips", lambda task: ["a real validation clip"])
+    monkeypatch.setattr(layers_outer, "deepsd_validation", deepsd_validation)
+    lc.main()
+    assert calls == [["a real validation clip"]]
+    assert "mgn_outer -> mgn_outer" in capsys.readouterr().out
