@@ -140,6 +140,39 @@ fs.writeFileSync(outPath, JSON.stringify(out));
 """
 
 
+ONE_FRAME_JS = BROWSER_JS + r"""
+import fs from 'node:fs';
+const [base, bvh, outPath] = process.argv.slice(2);
+const out = {problems: [], plays: []};
+const browser = await launch();
+try {
+  const page = await browser.newPage({viewport: {width: 800, height: 600}});
+  page.on('console', (m) => { if (m.type() === 'error') out.problems.push('console: ' + m.text()); });
+  page.on('pageerror', (e) => out.problems.push('pageerror: ' + e.message));
+  await page.goto(base + '/viewer/');
+  await page.waitForFunction(() => window.drapeViewer && (window.drapeViewer.ready || window.drapeViewer.error),
+                             null, {timeout: 60000});
+  const values = await page.$$eval('#outfit option', (os) => os.map((o) => o.value));
+  await page.selectOption('#clip', 'file');
+  await page.setInputFiles('#motionFile', bvh);
+  for (const outfit of [values.find((v) => v.startsWith('intrinsic:')), values.find((v) => v.startsWith('layers:')),
+                        'tshirt']) {
+    await page.selectOption('#outfit', outfit);
+    await page.evaluate(() => { window.drapeViewer.loaded = false; });
+    await page.click('#play');
+    await page.waitForFunction(() => (window.drapeViewer.loaded && window.drapeViewer.framesRendered >= 3)
+                               || window.drapeViewer.error, null, {timeout: 180000});
+    await page.waitForTimeout(300);  // more frames drawn: the one frame must stay put
+    out.plays.push({outfit, state: await page.evaluate(() => ({...window.drapeViewer})),
+                    label: await page.textContent('#frameLabel'), status: await page.textContent('#status'),
+                    sliderDisabled: await page.isDisabled('#frame')});
+  }
+} finally {
+  await browser.close();
+}
+fs.writeFileSync(outPath, JSON.stringify(out));
+"""
+
 def test_the_viewer_files(http):
     r = http.get("/viewer", follow_redirects=False)
     assert r.status_code == 308 and r.headers["location"] == "viewer/"
@@ -233,6 +266,22 @@ def test_the_page_plays_an_outfit_in_chromium(server_url, tmp_path):
         assert u["state"]["error"] is None and u["state"]["loaded"] and u["state"]["frames"] == 30, u
         assert "jump_120fps.bvh: 30 frames" in u["status"], u["status"]
 
+
+def test_the_page_shows_a_one_frame_motion(server_url, tmp_path):
+    """A mocap file of one frame (a single pose) is a valid motion: the routes answer a GLB of one frame (the
+    vertex animations with no animation at all, the skinned one a clip of duration 0), and the page shows it at
+    frame 0 of 0 through the keyframe group, the layers group and a generated outfit, without an error."""
+    from tests.cmu_bvh import cmu_bvh
+
+    bvh = tmp_path / "pose.bvh"
+    bvh.write_bytes(cmu_bvh(frames=1, fps=30.0))
+    out = run_node(ONE_FRAME_JS, server_url, str(bvh), timeout=500)
+    assert out["problems"] == []
+    assert [p["outfit"].split(":")[0] for p in out["plays"]] == ["intrinsic", "layers", "tshirt"]
+    for p in out["plays"]:
+        assert p["state"]["error"] is None and p["state"]["loaded"], p
+        assert p["state"]["frames"] == 1 and p["state"]["frame"] == 0 and p["label"] == "0 / 0", p
+        assert p["sliderDisabled"] and "pose.bvh: 1 frames" in p["status"], p
 
 def test_the_page_asks_for_the_api_key_when_the_service_has_one(settings):
     """The page itself needs no key; the catalogue answers 401 until the key is typed into the page."""

@@ -330,15 +330,19 @@ async function show(buffer, clip, layers = null) {
     if (o.isSkinnedMesh && !root) root = o.skeleton.bones[0];
   });
   scene.add(model);
+  // A one-frame answer (a single pose) has nothing to play: a vertex animation then has no animation, a skinned
+  // one a clip of duration 0 (its pose, set once below; advancing it would take the time to NaN).
+  const animation = gltf.animations[0] || null;
+  const moving = Boolean(animation && animation.duration > 0);
   mixer = new THREE.AnimationMixer(model);
-  action = mixer.clipAction(gltf.animations[0]);
-  action.play();
+  action = animation ? mixer.clipAction(animation) : null;
+  if (action) action.play();
   fps = clip ? clip.fps : 30;
-  state.frames = clip ? clip.frames : Math.round(gltf.animations[0].duration * fps) + 1;
+  state.frames = clip ? clip.frames : (moving ? Math.round(animation.duration * fps) + 1 : 1);
   const slider = $('frame');
   slider.max = String(state.frames - 1);
-  slider.disabled = false;
-  $('pause').disabled = false;
+  slider.disabled = !moving;
+  $('pause').disabled = !moving;
   mixer.update(0);
   model.updateMatrixWorld(true);
   if (root) {  // look at the body from the front (+Z), and follow its root from here on
@@ -354,7 +358,8 @@ async function show(buffer, clip, layers = null) {
     controls.target.copy(centre);
     camera.position.set(centre.x + 0.6, centre.y + 0.4, centre.z + 4.2);  // room for a walk towards the camera
   }
-  setPlaying(true);
+  setPlaying(moving);
+  showFrame();
   state.loaded = true;
 }
 
@@ -364,7 +369,7 @@ function setPlaying(playing) {
 }
 
 function showFrame() {
-  const frame = Math.min(state.frames - 1, Math.max(0, Math.round(action.time * fps)));
+  const frame = Math.min(state.frames - 1, Math.max(0, Math.round((action ? action.time : 0) * fps)));
   state.frame = frame;
   $('frame').value = String(frame);
   $('frameLabel').textContent = `${frame} / ${state.frames - 1}`;
