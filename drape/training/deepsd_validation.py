@@ -143,20 +143,35 @@ def validate_baseline(cfg: dict, log: Callable[[str], object] = print) -> dict:
 
 
 def best_candidate(candidates: dict[str, dict], max_weights_off_prior_pct: float | None = None) -> str | None:
-    """The lowest-score candidate (a NaN score, a diverged network, ranks last) among those whose
-    weights_off_prior_pct is at most the limit (every candidate when the limit is None); None when none qualifies."""
-    eligible = {k: c for k, c in candidates.items()
-                if max_weights_off_prior_pct is None or c["weights_off_prior_pct"] <= max_weights_off_prior_pct}
-    return (min(eligible, key=lambda k: math.inf if math.isnan(eligible[k]["score"]) else eligible[k]["score"])
-            if eligible else None)
+    """The lowest-score candidate among those whose weights_off_prior_pct is at most the limit (every candidate
+    when the limit is None) and whose score is not NaN (a diverged network); None when none qualifies
+    (no_candidate_reason says why)."""
+    eligible = {k: c["score"] for k, c in candidates.items()
+                if (max_weights_off_prior_pct is None or c["weights_off_prior_pct"] <= max_weights_off_prior_pct)
+                and not math.isnan(c["score"])}
+    return min(eligible, key=lambda k: eligible[k]) if eligible else None
+
+
+def no_candidate_reason(candidates: dict[str, dict], max_weights_off_prior_pct: float | None) -> str:
+    """Why best_candidate chose none: every candidate within the weights limit diverged (NaN score), or none is
+    within the limit."""
+    within = [k for k, c in candidates.items()
+              if max_weights_off_prior_pct is None or c["weights_off_prior_pct"] <= max_weights_off_prior_pct]
+    if within:
+        among = ("" if max_weights_off_prior_pct is None
+                 else f" among those with weights_off_prior_pct <= {max_weights_off_prior_pct}")
+        return f"every candidate diverged (NaN validation score){among}: {sorted(within)}"
+    return (f"no candidate has its weights on the body's joints (weights_off_prior_pct <= {max_weights_off_prior_pct}: "
+            f"{ {k: round(c['weights_off_prior_pct'], 1) for k, c in candidates.items()} })")
 
 
 def choose_checkpoint(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print) -> dict:
     """Validate the checkpoints at the config's `validation.steps` (summed steps of every phase), copy the
     best to `ckpt_dir/best.pt` (what `drape export deepsd` exports when present) and write every figure to
     `ckpt_dir/validation.json`. Returns that record. With `validation.max_weights_off_prior_pct` in the config,
-    only candidates whose weights stay on the body's joints that far qualify (`best_candidate`); when none does,
-    ValueError after the record is written (so `make deepsd-model` stops before it exports)."""
+    only candidates whose weights stay on the body's joints that far qualify (`best_candidate`); a diverged one (NaN
+    score) never does. When none qualifies, ValueError saying why after the record is written (so
+    `make deepsd-model` stops before it exports)."""
     import torch
 
     from drape.export.deepsd import export_deepsd, write_manifest
@@ -193,9 +208,8 @@ def choose_checkpoint(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], obje
     (ckpt_dir / "validation.json").write_text(json.dumps(record, indent=2) + "\n")
     if best is None:
         (ckpt_dir / "best.pt").unlink(missing_ok=True)
-        raise ValueError(f"no candidate has its weights on the body's joints (weights_off_prior_pct <= {limit}: "
-                         f"{ {k: round(c['weights_off_prior_pct'], 1) for k, c in record['candidates'].items()} }); "
-                         f"nothing to export ({ckpt_dir / 'validation.json'} has every figure)")
+        raise ValueError(f"{no_candidate_reason(record['candidates'], limit)}; nothing to export "
+                         f"({ckpt_dir / 'validation.json'} has every figure)")
     shutil.copyfile(ckpt_dir / best, ckpt_dir / "best.pt")
     log(f"chosen on validation: {best}")
     return record

@@ -14,7 +14,10 @@ real CMU clips of `mocap.train`. Every `validate_every` steps the model is measu
 (`validation`: other procedural seeds and real clips no training or evaluation uses; `frames_per_clip` frames
 each) as it is served: inside the posed body (exact closest triangle, %) + edge error (mm), the DeePSD rule;
 the lowest score's weights are kept (`best.pt`) and exported. Checkpoints go to `checkpoints/mgn_inner_<inner>/`
-(git-ignored); a rerun resumes from the latest. Seeded; the config is recorded in every checkpoint.
+(git-ignored); a rerun resumes from the latest. Seeded; the config is recorded in every checkpoint, and a rerun
+of another config is refused. The config fixes the training poses and the validation motions but for one thing:
+the embedded clips (drape.assets.motion.list_clips, minus `heldout_clips`) join the pose pool, so their names are
+recorded too and a rerun after a clip was added or removed is refused as well.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import numpy as np
 import torch
 
 from drape.assets.body import Body, load_body
+from drape.assets.motion import list_clips
 from drape.assets.outfits import split_outfit
 from drape.geometry.mesh import neighbour_table, unique_edges
 from drape.models.layers import InnerConfig, InnerPSD
@@ -115,6 +119,13 @@ def measure(cfg: dict, vertices: np.ndarray, faces: np.ndarray, body: Body, pose
     return {"score": figures["inside_triangle_pct"] + figures["edge_error_mm"], **figures}
 
 
+def pool_clips(cfg: dict) -> dict[str, list[str]]:
+    """What of the training poses the config does not name: {"train_embedded_clips": the embedded clips the pose
+    pool reads (deepsd_data.pose_pool: all but `heldout_clips`)}. The procedural motions, the real clips and the
+    validation motions are the config's own."""
+    return {"train_embedded_clips": [c for c in list_clips() if c not in cfg["heldout_clips"]]}
+
+
 def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print) -> tuple[InnerPSD, InnerTask, dict]:
     """Train (or resume) one inner template's network; returns the validation-chosen model, its task and a
     summary (steps, seconds, the validation record)."""
@@ -127,7 +138,8 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print)
     model = InnerPSD(InnerConfig(num_vertices=len(task.vertices), **cfg["model"]))
     opt = torch.optim.Adam(model.parameters(), lr=cfg["lr"])
     record: dict = {"rule": "lowest inside % + edge error mm, validation split", "steps": {}}
-    done, elapsed, record = resume(ckpt_dir, model, opt, record, log, cfg)
+    sequences = pool_clips(cfg)
+    done, elapsed, record = resume(ckpt_dir, model, opt, record, log, cfg, sequences)
     pool = torch.as_tensor(pose_pool(cfg))
     log(f"{cfg['inner']}: {len(task.vertices)} vertices, {len(pool)} training poses")
     total = int(cfg["steps"])
@@ -157,7 +169,7 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print)
             record["steps"][str(done)] = figures
             log(f"step {done}: validation {figures['inside_triangle_pct']:.2f}% inside, "
                 f"{figures['edge_error_mm']:.2f} mm edge error")
-            save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg)
+            save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg, sequences)
     elapsed += time.time() - t0
     best = restore_best(ckpt_dir, model, record)
     log(f"chosen on validation: step {best} ({record['steps'][best]['score']:.2f})")

@@ -32,7 +32,8 @@ training clips are) and of the embedded clips `mocap.embedded` (none of the eval
 in the config's range, by the terms that need no simulation: repulsion, body and the relative edge-length error against the outer template at rest (weights `mocap.loss`); and it is
 validated on the clips `mocap.validation` (real CMU or embedded clips, `mocap.validation_frames` frames each, no
 training or evaluation uses them): their L-Coll and H-Coll are capped by `max_clip_l_coll_pct` / `max_clip_h_coll_pct` in the rule.
-Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resumes from the latest.
+Checkpoints go to `checkpoints/mgn_outer_<outer>/` (git-ignored); a rerun resumes from the latest, and refuses
+(ValueError) checkpoints of another config or of a run on other training or validation sequences (dataset keys).
 """
 
 from __future__ import annotations
@@ -451,7 +452,9 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
                             + (f"; on the real validation clips L-Coll <= {cfg.get('max_clip_l_coll_pct', 100.0)}% "
                                f"and H-Coll <= {cfg.get('max_clip_h_coll_pct', 100.0)}%" if clip_val else ""),
                     "steps": {}}
-    done, elapsed, record = resume(ckpt_dir, model, opt, record, log, cfg)
+    # the sequences, named by their dataset keys: a rerun after make layers-data added or dropped some is refused
+    sequences = {"train": sorted(s.key for s in train_seqs), "validation": sorted(s.key for s in val_seqs)}
+    done, elapsed, record = resume(ckpt_dir, model, opt, record, log, cfg, sequences)
     frames = sum(len(s.poses) for s in train_seqs)
     log(f"{cfg['pair']}: {len(task.vertices)} outer vertices; {len(train_seqs)} training sequences ({frames} frames), "
         f"{len(val_seqs)} validation sequences; {len(clip_train)} real training clips "
@@ -492,12 +495,11 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
                 f"H-Coll {figures['h_coll_pct']:.2f}%, STED {figures['sted']:.3f}"
                 + (f"; real clips L-Coll {figures['clip_l_coll_pct']:.2f}%, H-Coll {figures['clip_h_coll_pct']:.2f}%"
                    if clip_val else ""))
-            save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg)
+            save_step(ckpt_dir, model, opt, done, elapsed + time.time() - t0, record, cfg, sequences)
     elapsed += time.time() - t0
     best = restore_best(ckpt_dir, model, record)
     log(f"chosen on validation: step {best} ({record['steps'][best]['score']:.2f} mm)")
-    data = {"train": sorted(s.key for s in train_seqs), "validation": sorted(s.key for s in val_seqs),
-            "train_frames": frames,
+    data = {**sequences, "train_frames": frames,
             "gate_rejected": {s.key: s.rejected_for for s in train_seqs + val_seqs if s.rejected_for}}
     if clip_train:
         data |= {"clips": [s.motion for s in clip_train], "clip_frames": sum(len(s.poses) for s in clip_train),
