@@ -1,6 +1,7 @@
 # drape service image: ONNX Runtime serving, no torch.
 #   docker build -t drape .
-#   docker run --rm -p 8000:8000 drape            # settings by DRAPE_* environment variables
+#   docker run --rm --stop-timeout 30 -p 8000:8000 drape   # settings by DRAPE_* environment variables;
+#   --stop-timeout 30: `docker stop` waits 10 s by default, less than DRAPE_SHUTDOWN_GRACE_S (20 s)
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1

@@ -38,7 +38,8 @@ class Settings(BaseSettings):
     # the server
     limit_concurrency: int = 512  # connections + tasks; over it new connections get a 503
     timeout_keep_alive_s: int = 5
-    shutdown_grace_s: int = 20  # SIGTERM: in-flight requests get this long, then are cut (below a container's 30 s)
+    shutdown_grace_s: int = 20  # SIGTERM: in-flight requests get this long, then are cut (below Kubernetes' 30 s;
+    # plain `docker stop` waits 10 s: the README's `docker run` sets --stop-timeout 30)
     outfit_cache_bytes: int = 512 * 2**20
     # user bodies (POST /v1/bodies): how many and how many bytes of arrays are kept; kept across restarts
     # only in body_dir (DRAPE_BODY_DIR), one npz per body
