@@ -101,7 +101,10 @@ class BodyStore:
         try:
             with os.fdopen(fd, "wb") as f:
                 np.savez(f, **_arrays(body))  # type: ignore[arg-type]
+                f.flush()
+                os.fsync(f.fileno())  # the bytes on disk before the name points at them
             os.replace(tmp, self.directory / f"{body.name}.npz")
+            _fsync_directory(self.directory)  # and the rename itself: a registered body survives a power cut
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
@@ -123,6 +126,7 @@ class BodyStore:
             unregister_body(name)
             if self.directory is not None:
                 (self.directory / f"{name}.npz").unlink(missing_ok=True)
+                _fsync_directory(self.directory)  # a deleted body stays deleted after a power cut
             return True
 
     def close(self) -> None:
@@ -131,3 +135,15 @@ class BodyStore:
                 unregister_body(name)
             self._bodies.clear()
             self._bytes = 0
+
+
+def _fsync_directory(directory: Path) -> None:
+    """Make a rename or unlink in `directory` durable (POSIX; a no-op where directories cannot be opened)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -1,5 +1,7 @@
 """The user body store beside the engine: what a deleted body leaves behind."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -79,3 +81,20 @@ def test_a_replica_does_not_take_an_outfit_of_a_body_it_does_not_hold_from_the_s
     finally:
         store.close()
     assert replica.lookup(oid) is None
+
+
+def test_a_registered_body_reaches_the_disk_before_the_answer(tmp_path, monkeypatch):
+    """The body's bytes and its rename are fsynced (a 201 then a power cut must not leave an empty or missing
+    file): the file's descriptor before the rename, the folder's after it."""
+    synced: list[str] = []
+    real_fsync = os.fsync
+
+    def fsync(fd: int) -> None:
+        synced.append("dir" if os.path.isdir(f"/proc/self/fd/{fd}") else "file")
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    store = BodyStore(4, 2**30, directory=tmp_path)
+    assert store.add(_user_body())
+    assert synced == ["file", "dir"]
+    assert len(list(tmp_path.glob("body-*.npz"))) == 1 and not list(tmp_path.glob("*.tmp"))
