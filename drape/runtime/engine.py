@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drape.assets.body import has_body, is_registered, load_body
+from drape.assets.body import Body, has_body, list_bodies, load_body
 from drape.geometry.layers import LayerRefiner
 from drape.geometry.lbs import rest_space_offsets
 from drape.geometry.mesh import coincident_groups, regroup_faces
@@ -148,17 +148,24 @@ def body_surface(body: str, faces: bytes | None = None, num_vertices: int = 0) -
     return BodySurface(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices)
 
 
-def _surface_arguments(body: str) -> tuple[str, bytes | None, int]:
-    """What a worker needs to build `body`'s surface: presets by name, user bodies by their faces too."""
-    if not is_registered(body):
-        return body, None, 0
-    b = load_body(body)
-    return body, np.ascontiguousarray(b.faces, dtype=np.int32).tobytes(), len(b.vertices)
+def resolved_body(body: str | Body) -> Body:
+    """A body given by name (looked up now) or already resolved. A request resolves its body once and passes the
+    Body on, so that a user body DELETEd while its answer streams (drape.runtime.body_store) still finishes it."""
+    return body if isinstance(body, Body) else load_body(body)
 
 
-def posed_body(body: str, poses: np.ndarray, translation: np.ndarray) -> np.ndarray:
+def _surface_arguments(body: str | Body) -> tuple[str, bytes | None, int]:
+    """What a worker needs to build `body`'s surface: presets by name, any other body (a user body, which a
+    worker cannot load, and which may be deleted from this process by now) by its faces and vertex count."""
+    b = resolved_body(body)
+    if b.name in list_bodies() and b is load_body(b.name):
+        return b.name, None, 0
+    return b.name, np.ascontiguousarray(b.faces, dtype=np.int32).tobytes(), len(b.vertices)
+
+
+def posed_body(body: str | Body, poses: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """The body's vertices posed by (poses (n, 24, 3) or (n, 72), translation (n, 3)): (n, M, 3) float64, m."""
-    return load_body(body).pose(poses, translation).astype(np.float64)
+    return resolved_body(body).pose(poses, translation).astype(np.float64)
 
 
 def refine_against(frames: np.ndarray, surface: BodySurface, body_vertices: np.ndarray, refiner: Refiner) -> np.ndarray:
@@ -218,10 +225,12 @@ class RefinePool:
         self._pool: Executor | None = None
         self._lock = threading.Lock()
 
-    def refine(self, frames: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray, translation: np.ndarray,
-               settings: RefineSettings) -> np.ndarray:
-        """frames (n, N, 3), faces (F, 3), poses (n, 24, 3) or (n, 72), translation (n, 3) -> refined (n, N, 3)
-        float32. Vertices that coincide in every frame (UV seams; within 1 um) are refined as one and stay together."""
+    def refine(self, frames: np.ndarray, faces: np.ndarray, body: str | Body, poses: np.ndarray,
+               translation: np.ndarray, settings: RefineSettings) -> np.ndarray:
+        """frames (n, N, 3), faces (F, 3), body (a name or a resolved Body), poses (n, 24, 3) or (n, 72), translation
+        (n, 3) -> refined (n, N, 3) float32. Vertices that coincide in every frame (UV seams; within 1 um) are
+        refined as one and stay together."""
+        body = resolved_body(body)
         first, group = coincident_groups(np.ascontiguousarray(np.asarray(frames).transpose(1, 0, 2)).reshape(
             frames.shape[1], -1))
         if len(first) < frames.shape[1]:
@@ -236,14 +245,15 @@ class RefinePool:
                                                           settings))
         if done is not None:
             return np.concatenate(done)
-        return refine_against(frames, body_surface(body), vertices, cached_refiner(settings, f, frames.shape[1]))
+        return refine_against(frames, body_surface(*surface), vertices, cached_refiner(settings, f, frames.shape[1]))
 
     def refine_layers(self, inner: np.ndarray, inner_faces: np.ndarray, outer: np.ndarray, outer_faces: np.ndarray,
-                      thickness: float, body: str, poses: np.ndarray, translation: np.ndarray,
+                      thickness: float, body: str | Body, poses: np.ndarray, translation: np.ndarray,
                       settings: RefineSettings) -> tuple[np.ndarray, np.ndarray]:
         """Two layers' frames, inner (n, Ni, 3) and outer (n, No, 3) with their faces, through the post step
         between layers (drape.geometry.layers; thickness: H_in, m) against `body` posed by (poses, translation),
         split over the workers as `refine` splits a garment's frames -> (inner, outer) float32."""
+        body = resolved_body(body)
         vertices = posed_body(body, poses, translation)
         fi = np.ascontiguousarray(inner_faces, dtype=np.int32).tobytes()
         fo = np.ascontiguousarray(outer_faces, dtype=np.int32).tobytes()
@@ -368,14 +378,18 @@ class Engine:
 
     def pose_chunks(self, outfit: RiggedOutfit, poses: np.ndarray, translation: np.ndarray,
                     chunk: int = 32, refine: RefineSettings | None = None,
-                    pose_keys: Callable[[np.ndarray], np.ndarray] | None = None) -> Iterator[np.ndarray]:
+                    pose_keys: Callable[[np.ndarray], np.ndarray] | None = None,
+                    body: Body | None = None) -> Iterator[np.ndarray]:
         """Posed vertices in chunks of up to `chunk` frames: (n, N, 3) float32 each, refined if asked.
 
         Posing runs POSE_BLOCK frames per call (a 32-frame call re-packs the blend shapes for its GEMM
         and poses ~1.5x slower a frame: bench/pose.py) and the block is handed out `chunk` frames at a time.
         pose_keys: poses (n, 24, 3) -> the rig's keys (n, P); default DeePSD's pose network.
+        body: the outfit's body as the request resolved it; default looked up by `outfit.body` when the first
+        chunk is asked for, once: every chunk is posed and refined on that Body, even if it is deleted meanwhile.
         """
-        joints = load_body(outfit.body).joints
+        body = body if body is not None else load_body(outfit.body)
+        joints = body.joints
         keys_of = pose_keys or self.model.pose_keys
         block = max(chunk, POSE_BLOCK)
         for start in range(0, len(poses), block):
@@ -390,22 +404,24 @@ class Engine:
                 part = frames[s : s + chunk]
                 if refine is not None:
                     t = time.perf_counter()
-                    part = self.refine_pool.refine(part, outfit.faces, outfit.body, p[s : s + chunk],
-                                                   tr[s : s + chunk], refine)
+                    part = self.refine_pool.refine(part, outfit.faces, body, p[s : s + chunk], tr[s : s + chunk],
+                                                   refine)
                     self._observe("refine", time.perf_counter() - t)
                 yield part
 
     def export_animation(self, outfit: RiggedOutfit, poses: np.ndarray, translation: np.ndarray,
-                         refine: RefineSettings | None = None, chunk: int = 32,
+                         refine: RefineSettings | None = None, chunk: int = 32, body: Body | None = None,
                          ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]] | None]:
         """What an engine needs to replay `pose_chunks`: the pose keys (T, P) float32 (the morph-target
         weights) and, with `refine`, per frame what refinement moved, in the outfit's rest space (so a
-        morph target before skinning reproduces it): (vertex indices (k,) int64, offsets (k, 3) float32 m)."""
+        morph target before skinning reproduces it): (vertex indices (k,) int64, offsets (k, 3) float32 m).
+        body: the outfit's body as the request resolved it (default: looked up by name, once)."""
         keys = np.concatenate([self.model.pose_keys(poses[s : s + POSE_BLOCK])
                                for s in range(0, len(poses), POSE_BLOCK)]) if len(poses) else np.zeros((0, 0))
         if refine is None:
             return keys.astype(np.float32), None
-        joints = load_body(outfit.body).joints
+        body = body if body is not None else load_body(outfit.body)
+        joints = body.joints
         corrections: list[tuple[np.ndarray, np.ndarray]] = []
         for start in range(0, len(poses), POSE_BLOCK):
             p, tr = poses[start : start + POSE_BLOCK], translation[start : start + POSE_BLOCK]
@@ -413,21 +429,23 @@ class Engine:
             rotations = forward_kinematics(p, joints, PARENTS, tr)[0][:, :, :3, :3]
             for s in range(0, len(frames), chunk):
                 part = frames[s : s + chunk]
-                refined = self.refine_pool.refine(part, outfit.faces, outfit.body, p[s : s + chunk],
-                                                  tr[s : s + chunk], refine)
+                refined = self.refine_pool.refine(part, outfit.faces, body, p[s : s + chunk], tr[s : s + chunk],
+                                                  refine)
                 for i, delta in enumerate(refined - part):
                     moved = np.flatnonzero(np.any(delta != 0, axis=1))
                     corrections.append((moved, rest_space_offsets(delta[moved], outfit.rig.weights[moved],
                                                                    rotations[s + i])))
         return keys.astype(np.float32), corrections
 
-    def refine_chunks(self, vertices: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray,
+    def refine_chunks(self, vertices: np.ndarray, faces: np.ndarray, body: str | Body, poses: np.ndarray,
                       translation: np.ndarray, options: RefineSettings, chunk: int = 32,
                       inner: InnerStream | None = None) -> Iterator[np.ndarray]:
         """A given garment stream (T, N, 3), refined against the body in chunks: (n, N, 3) float32 each. With
         an inner layer, the post step between layers (drape.geometry.layers: the inner against the body, then the
         stream against the body, the refined inner, and both at once), frames split over the refinement workers
-        (`RefinePool.refine_layers`); seams welded as in RefinePool."""
+        (`RefinePool.refine_layers`); seams welded as in RefinePool. A body given by name is looked up once, when the
+        first chunk is asked for: every chunk is refined against that Body, even if it is deleted meanwhile."""
+        body = resolved_body(body)
         if inner is not None:
             yield from self._refine_layers(vertices, faces, body, poses, translation, options, chunk, inner)
             return
@@ -437,7 +455,7 @@ class Engine:
             yield self.refine_pool.refine(vertices[s], faces, body, poses[s], translation[s], options)
             self._observe("refine", time.perf_counter() - t)
 
-    def _refine_layers(self, vertices: np.ndarray, faces: np.ndarray, body: str, poses: np.ndarray,
+    def _refine_layers(self, vertices: np.ndarray, faces: np.ndarray, body: Body, poses: np.ndarray,
                        translation: np.ndarray, options: RefineSettings, chunk: int,
                        inner: InnerStream) -> Iterator[np.ndarray]:
         def welded(frames: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

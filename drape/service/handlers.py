@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from drape.assets.body import has_body, list_bodies, load_body
+from drape.assets.body import Body, has_body, list_bodies, load_body
 from drape.assets.motion import MAX_POSE_RAD, MAX_TRANSLATION_M, list_clips, load_clip
 from drape.geometry.body_scale import body_height
 from drape.geometry.fitting import UNITS, FitError, FitResult, fit_garment, infer_units
@@ -97,15 +97,26 @@ def check_body(name: str | None, field: str = "body") -> str:
                        "from POST /v1/bodies", field)
 
 
+def held_body(name: str, field: str = "body") -> Body:
+    """The body a request computes on, resolved once when it is planned (a name check_body passed): the answer
+    is computed on this Body to its end even if it is DELETEd while it streams; a 404 if it is gone already."""
+    try:
+        return load_body(name)
+    except KeyError:
+        raise NotFound(f"unknown body {quoted(name, 60)}: register it first (POST /v1/bodies)", field) from None
+
+
 @dataclass(frozen=True)
 class AnimationPlan:
-    """What to compute: an outfit and a motion (poses (T, 24, 3) rad, translation (T, 3) m)."""
+    """What to compute: an outfit and a motion (poses (T, 24, 3) rad, translation (T, 3) m), on the outfit's
+    body as resolved when planned (`held_body`)."""
 
     outfit: RiggedOutfit
     poses: np.ndarray
     translation: np.ndarray
     fps: float
     refine: RefineSettings | None = None
+    body: Body | None = None
 
     @property
     def num_frames(self) -> int:
@@ -332,16 +343,17 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
         poses, trans, fps = check_motion(request["motion"], settings)
         check_answer_size(len(poses), len(v), max_posed, "motion")
         outfit = engine.rig(v, f, body, influences)
-    return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")))
+    return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")), held_body(outfit.body))
 
 
 @dataclass(frozen=True)
 class RefinePlan:
-    """A garment stream (T, N, 3) float32 + faces to refine against `body` posed by (poses, translation)."""
+    """A garment stream (T, N, 3) float32 + faces to refine against `body` (resolved when planned: `held_body`)
+    posed by (poses, translation)."""
 
     vertices: np.ndarray
     faces: np.ndarray
-    body: str
+    body: Body
     poses: np.ndarray
     translation: np.ndarray
     fps: float
@@ -388,21 +400,21 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
         layer = check_inner(inner, len(v), settings)
         # the inner layer is refined too: its frames count against the same bound as the answer's
         check_answer_size(v.shape[0], v.shape[1] + layer.vertices.shape[1], max_posed, "inner.vertices")
-    return RefinePlan(v.astype(np.float32), f, check_body(body), poses, trans, fps, opts, layer)
+    return RefinePlan(v.astype(np.float32), f, held_body(check_body(body)), poses, trans, fps, opts, layer)
 
 
 def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None = None) -> bytes:
     """The rig as a GLB: the outfit skinned to the body's skeleton with its blend shapes as morph targets
     (`psd_<p>`), the body skinned beside it; with a plan, its motion as an animation whose morph weights
     are the pose keys (and, with refinement, one sparse correction target per frame)."""
-    body = load_body(outfit.body)
+    body = plan.body if plan is not None and plan.body is not None else load_body(outfit.body)
     rig = outfit.rig
     meshes = [SkinnedMesh("outfit", outfit.vertices, outfit.faces, rig.weights, rig.blend_shapes,
                           tuple(f"psd_{p}" for p in range(len(rig.blend_shapes)))),
               SkinnedMesh("body", body.vertices, body.faces, body.weights)]
     animation = None
     if plan is not None:
-        keys, corrections = engine.export_animation(outfit, plan.poses, plan.translation, plan.refine)
+        keys, corrections = engine.export_animation(outfit, plan.poses, plan.translation, plan.refine, body=body)
         animation = Animation(plan.poses, plan.translation, plan.fps, keys, corrections)
     extras = {"drape": {"outfit_id": outfit.outfit_id, "influences": outfit.influences,
                         **({"diagnostics": outfit.diagnostics} if outfit.diagnostics else {})}}

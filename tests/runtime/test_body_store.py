@@ -5,10 +5,12 @@ import os
 import numpy as np
 import pytest
 
-from drape.assets.body import Body, load_body
+from drape.assets.body import Body, has_body, load_body
+from drape.assets.outfits import generate_outfit
+from drape.geometry.lbs import pose_mesh
 from drape.runtime.body_store import BodyStore, body_id
 from drape.runtime.deepsd import Rig
-from drape.runtime.engine import Engine, RiggedOutfit
+from drape.runtime.engine import Engine, RefinePool, RefineSettings, RiggedOutfit
 
 
 @pytest.fixture(scope="module")
@@ -44,6 +46,68 @@ def test_an_outfit_rigged_on_a_deleted_body_is_no_longer_found(engine):
         assert engine.lookup(oid) is outfit
     finally:
         store.close()
+
+
+def _shirt_on_the_chest(body: Body, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A shirt following the chest alone while the arms come down through its sleeves (refinement moves it):
+    (rest vertices (N, 3), faces, poses (T, 24, 3), the posed shirt (T, N, 3))."""
+    o = generate_outfit("tshirt", vertices=400, seed=5, body="neutral")
+    poses = np.zeros((frames, 24, 3))
+    poses[:, 16, 2] = poses[:, 17, 2] = np.linspace(-0.2, -0.9, frames)
+    rigid = np.zeros((len(o.vertices), 24), np.float32)
+    rigid[:, 9] = 1.0
+    return o.vertices, o.faces, poses, pose_mesh(o.vertices, rigid, body.joints, poses).astype(np.float32)
+
+
+def test_an_animation_started_on_a_user_body_finishes_on_it_after_a_delete(engine):
+    """DELETE /v1/bodies/{id} while an animate answer with refinement streamed: each chunk's refinement looked the
+    body up by name again, so the chunks after the delete failed (KeyError) and the answer was cut mid-stream.
+    A started answer finishes on the body it started on, the same frames as without the delete."""
+    body = _user_body()
+    v, f, poses, _ = _shirt_on_the_chest(body, 4)
+    trans = np.zeros((4, 3))
+    rigid = np.zeros((len(v), 24), np.float32)
+    rigid[:, 9] = 1.0
+    outfit = RiggedOutfit("chest", body.name, v, f, Rig(rigid, np.zeros((engine.model.num_keys, len(v), 3),
+                                                                           np.float32)))
+    settings = RefineSettings()
+    store = BodyStore(4, 2**30)
+    try:
+        store.add(body)
+        whole = np.concatenate(list(engine.pose_chunks(outfit, poses, trans, chunk=2, refine=settings)))
+        chunks = engine.pose_chunks(outfit, poses, trans, chunk=2, refine=settings)
+        first = next(chunks)
+        store.delete(body.name)
+        assert not has_body(body.name)
+        got = np.concatenate([first, *chunks])
+    finally:
+        store.close()
+    assert np.array_equal(got, whole)
+
+
+def test_a_refine_stream_started_on_a_user_body_finishes_on_it_after_a_delete(engine):
+    """/v1/refine's chunks, split over two worker processes: a worker got a user body's faces only while it was
+    registered, else its name, which a worker cannot load (KeyError mid-stream once the body was deleted)."""
+    body = _user_body()
+    _, f, poses, frames = _shirt_on_the_chest(body, 8)
+    trans = np.zeros((8, 3))
+    settings = RefineSettings()
+    serving, engine.refine_pool = engine.refine_pool, RefinePool(2)
+    store = BodyStore(4, 2**30)
+    try:
+        store.add(body)
+        whole = np.concatenate(list(engine.refine_chunks(frames, f, body.name, poses, trans, settings, chunk=4)))
+        chunks = engine.refine_chunks(frames, f, body.name, poses, trans, settings, chunk=4)
+        first = next(chunks)
+        store.delete(body.name)
+        assert not has_body(body.name)
+        got = np.concatenate([first, *chunks])
+    finally:
+        store.close()
+        engine.refine_pool.close()
+        engine.refine_pool = serving
+    assert np.abs(whole - frames).max() > 1e-3  # refinement moved the shirt
+    assert np.array_equal(got, whole)
 
 
 class _Store:
@@ -95,6 +159,9 @@ def test_a_registered_body_reaches_the_disk_before_the_answer(tmp_path, monkeypa
 
     monkeypatch.setattr(os, "fsync", fsync)
     store = BodyStore(4, 2**30, directory=tmp_path)
-    assert store.add(_user_body())
+    try:
+        assert store.add(_user_body())
+    finally:
+        store.close()  # the body stays registered in this process otherwise
     assert synced == ["file", "dir"]
     assert len(list(tmp_path.glob("body-*.npz"))) == 1 and not list(tmp_path.glob("*.tmp"))

@@ -114,6 +114,39 @@ def test_deleting_forgets_the_body_and_presets_stay(http, registered, shirt):
     problem(http.delete("/v1/bodies/neutral"), 409, "preset")
 
 
+def test_a_body_deleted_while_its_refine_answer_streams_finishes_the_answer(http, app, registered, proxy, shirt,
+                                                                           monkeypatch):
+    """DELETE /v1/bodies/{id} while a /v1/refine answer on that body streamed: every chunk looked the body up by
+    name, so the answer was cut after its 200 (a truncated npz). The answer finishes on the body it started on;
+    a request after the delete answers 404."""
+    from drape.runtime.engine import Engine
+
+    v, f = shirt
+    poses = np.zeros((8, 24, 3))
+    poses[:, 16, 2] = poses[:, 17, 2] = np.linspace(-0.2, -0.9, 8)
+    rigid = np.zeros((len(v), 24))
+    rigid[:, 9] = 1.0
+    req = {"vertices": pose_mesh(v, rigid, proxy.joints, poses).tolist(), "faces": f.tolist(),
+           "motion": {"poses": poses.reshape(8, 72).tolist()}, "body": registered}
+    real = Engine.refine_chunks
+
+    def deleted_after_the_first_chunk(self, *args, **kwargs):
+        args = (*args[:6], 4, *args[7:])  # 4-frame chunks (two, each split over the two workers)
+        chunks = real(self, *args, **kwargs)
+        yield next(chunks)
+        assert app.state.bodies.delete(registered)  # what DELETE /v1/bodies/{id} does
+        yield from chunks
+
+    want = http.post("/v1/refine", json=req, headers={"Accept": NPZ})
+    assert want.status_code == 200, want.text[:300]
+    monkeypatch.setattr(Engine, "refine_chunks", deleted_after_the_first_chunk)
+    got = http.post("/v1/refine", json=req, headers={"Accept": NPZ})
+    assert got.status_code == 200, got.text[:300]
+    np.testing.assert_array_equal(np.load(io.BytesIO(got.content))["vertices"],
+                                  np.load(io.BytesIO(want.content))["vertices"])
+    problem(http.post("/v1/refine", json=req, headers={"Accept": NPZ}), 404, "body", "POST /v1/bodies")
+
+
 def test_an_a_pose_body_needs_its_rest_pose_and_is_un_posed_with_it(http, proxy):
     pose = a_pose()
     posed = pose_mesh(proxy.vertices, proxy.weights, proxy.joints, pose[None])[0]

@@ -305,7 +305,7 @@ async def animate_outfit(request: Request) -> Response:
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.pose_chunks(p.outfit, p.poses, p.translation, settings.stream_chunk_frames,
-                                      refine=p.refine)
+                                      refine=p.refine, body=p.body)
 
         return FrameSource(chunks, p.outfit.faces, p.num_frames, len(p.outfit.vertices), p.fps, p.outfit.outfit_id)
 
