@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
+from drape.training.config_file import read_config
 from drape.training.intrinsic import training_datasets, validation_masks
 from drape.training.intrinsic_data import load_frames
 from drape.training.intrinsic_eval import _load, keyframe_errors
@@ -45,7 +46,7 @@ def main() -> None:
     p.add_argument("--model", default=None, help="an exported model folder (default: the shipped template's)")
     p.add_argument("--fades", default="0.333,0.667,1.333,none", help="fading time constants, seconds, or none")
     args = p.parse_args()
-    config = json.loads(Path(args.config).read_text())
+    config = read_config(args.config)
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
     fades = {f: (NO_FADE_S if f == "none" else float(f)) for f in args.fades.split(",")}
     items = validation_items(config, garment.window)

@@ -14,12 +14,11 @@ Run: .venv/bin/python -m bench.intrinsic_validation --config drape/training/conf
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import numpy as np
 
 from drape.runtime.intrinsic import IntrinsicGarment
+from drape.training.config_file import read_config
 from drape.training.intrinsic import set_latent_error_of, training_datasets, validation_masks
 from drape.training.intrinsic_data import Frames, load_frames
 
@@ -52,7 +51,7 @@ def main() -> None:
     p.add_argument("--config", required=True)
     p.add_argument("models", nargs="+")
     args = p.parse_args()
-    config = json.loads(Path(args.config).read_text())
+    config = read_config(args.config)
     val_motions = list(config.get("val_motions", ()))
     garments = {m: IntrinsicGarment(m) for m in args.models}
     by_window: dict[int, dict[str, Frames]] = {}

@@ -22,6 +22,7 @@ import torch
 
 from drape.models.layers import OuterConfig, OuterTransformer
 from drape.training import layers_outer
+from drape.training.config_file import read_config
 
 
 def run_network(folder: Path, task: layers_outer.OuterTask) -> tuple[OuterTransformer, int]:
@@ -47,7 +48,7 @@ def main() -> None:
     parser.add_argument("--config", required=True, help="the config whose validation split and caps judge")
     parser.add_argument("runs", nargs="+", type=Path, help="checkpoint folders (best.pt, step_*.pt)")
     args = parser.parse_args()
-    cfg = json.loads(Path(args.config).read_text())
+    cfg = read_config(args.config)
     task = layers_outer.OuterTask(cfg)
     seqs, clips = task.sequences("test"), layers_outer.validation_clips(task)
     print(f"validation of {args.config}: {len(seqs)} sequences, clips {', '.join(s.motion for s in clips)}; "
