@@ -19,6 +19,17 @@ def _frames(x: np.ndarray) -> np.ndarray:
     return a[None] if a.ndim == 2 else a
 
 
+def _paired_frames(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T, N, 3) or (N, 3), (T, M, 3) or (M, 3) -> both (T, ., 3) float64: one frame on either side (a static
+    body or layer) is paired with every frame of the other."""
+    fa, fb = _frames(a), _frames(b)
+    if len(fb) == 1 and len(fa) > 1:
+        fb = np.broadcast_to(fb, (len(fa),) + fb.shape[1:])
+    elif len(fa) == 1 and len(fb) > 1:
+        fa = np.broadcast_to(fa, (len(fb),) + fa.shape[1:])
+    return fa, fb
+
+
 def collision_share(
     garment: np.ndarray,
     body_vertices: np.ndarray,
@@ -30,9 +41,7 @@ def collision_share(
     variant: "triangle" (exact closest point on the body's triangles) or
     "nearest_vertex" (DeePSD: offset to the nearest body vertex dotted with its normal).
     """
-    g, b = _frames(garment), _frames(body_vertices)
-    if len(b) == 1 and len(g) > 1:
-        b = np.broadcast_to(b, (len(g),) + b.shape[1:])
+    g, b = _paired_frames(garment, body_vertices)
     inside = 0
     for gt, bt in zip(g, b, strict=True):
         if variant == "triangle":
@@ -85,10 +94,11 @@ def rmse_mm(pred: np.ndarray, truth: np.ndarray) -> float:
 def hausdorff_mm(a: np.ndarray, b: np.ndarray) -> float:
     """Symmetric Hausdorff distance in mm between point sets, max over frames.
 
-    a: (T, N, 3) or (N, 3); b: (T, M, 3) or (M, 3).
+    a: (T, N, 3) or (N, 3); b: (T, M, 3) or (M, 3) (one frame on either side is compared with every frame of
+    the other).
     """
     worst = 0.0
-    for at, bt in zip(_frames(a), _frames(b), strict=True):
+    for at, bt in zip(*_paired_frames(a, b), strict=True):
         d_ab = cKDTree(bt).query(at)[0].max()
         d_ba = cKDTree(at).query(bt)[0].max()
         worst = max(worst, float(d_ab), float(d_ba))
@@ -120,10 +130,11 @@ def layer_collision_share(
 ) -> float:
     """Share of outer-garment vertices on the inside of the inner garment's surface, over frames.
 
-    outer: (T, N, 3) or (N, 3); inner: (T, M, 3) or (M, 3) with outward-facing faces.
+    outer: (T, N, 3) or (N, 3); inner: (T, M, 3) or (M, 3) with outward-facing faces (a single inner frame is
+    every outer frame's; a single outer frame is measured against every inner frame).
     """
     inside = 0
-    o, i = _frames(outer), _frames(inner)
+    o, i = _paired_frames(outer, inner)
     for ot, it in zip(o, i, strict=True):
         inside += int(np.count_nonzero(MeshDistance(it, inner_faces).signed_distance(ot) < 0))
     return inside / (o.shape[0] * o.shape[1])

@@ -138,3 +138,18 @@ def test_layer_collision_share():
     v, f = sphere(1.0, 3)
     outer = np.concatenate([v * 1.05, v[:20] * 0.97])
     assert np.isclose(layer_collision_share(outer, v, f), 20 / len(outer))
+
+
+def test_frame_metrics_pair_one_static_frame_with_every_frame_of_the_other_side():
+    """The docstrings take (T, ., 3) or (., 3) on each side; a static inner layer (or point set) beside a
+    sequence raised (zip strict) instead of being every frame's. Against per-frame copies, the same figures."""
+    v, f = sphere(1.0, 3)
+    outer = np.stack([np.concatenate([v * 1.05, np.where(np.arange(20)[:, None] < k, v[:20] * 0.97, v[:20] * 1.05)])
+                      for k in (0, 10, 20)])
+    static = np.broadcast_to(v, (3,) + v.shape)
+    assert np.isclose(layer_collision_share(outer, v, f), layer_collision_share(outer, static, f))
+    assert np.isclose(layer_collision_share(outer, v, f), 30 / outer[..., 0].size)
+    assert np.isclose(layer_collision_share(outer[2], np.stack([v, v * 2.0]), f), (20 + len(outer[2])) / (2 * len(outer[2])))
+    assert np.isclose(hausdorff_mm(outer, v), hausdorff_mm(outer, static))
+    assert np.isclose(hausdorff_mm(v, outer), hausdorff_mm(static, outer))
+    assert np.isclose(collision_share(v * 0.9, np.stack([v, v * 0.8]), f), 0.5)
