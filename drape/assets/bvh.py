@@ -245,7 +245,7 @@ def parse_bvh(text: str, max_frames: int | None = None) -> BvhClip:
 
 
 def read_bvh(path: str | Path, max_frames: int | None = None) -> BvhClip:
-    return parse_bvh(Path(path).read_text(encoding="utf-8", errors="replace"), max_frames)
+    return parse_bvh(Path(path).read_text(encoding="utf-8-sig", errors="replace"), max_frames)
 
 
 def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:

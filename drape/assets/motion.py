@@ -295,6 +295,7 @@ def import_motion(data: bytes, body: Body, *, fps: float | None = None, up: str 
         raise MotionFileError(f"up must be 'y' or 'z', got {up!r}")
     if fps is not None and not 0 < fps <= 1000:
         raise MotionFileError(f"fps must be in (0, 1000], got {fps}")
+    data = data.removeprefix(b"\xef\xbb\xbf")  # a UTF-8 byte order mark (Windows editors write one)
     kind = sniff_motion_file(data)
     if kind == "bvh":
         return _import_bvh(data, body, fps, up, floor, name, max_frames, max_source_frames)

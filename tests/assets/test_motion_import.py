@@ -416,3 +416,17 @@ def test_the_floor_line_says_which_way_the_clip_moved():
         lines[shift] = imported.summary().splitlines()[-1]
     assert lines[0.0176].startswith("floor: lowest body point moved down 17.6 mm;")
     assert lines[-0.0176].startswith("floor: lowest body point moved up 17.6 mm;")
+
+
+def test_a_bvh_saved_with_a_utf8_byte_order_mark_imports(tmp_path):
+    """Windows editors (Notepad, used to rename joints) save UTF-8 with a byte order mark: the file still starts
+    with HIERARCHY to its user, and imports as the file without it (it was 'expected a BVH file')."""
+    data = cmu_bvh(41, tpose=True)
+    plain = import_motion(data, BODY, floor=False)
+    marked = import_motion(b"\xef\xbb\xbf" + data, BODY, floor=False)
+    assert marked.dropped_tpose and marked.source_frames == plain.source_frames == 41
+    assert np.array_equal(marked.motion.poses, plain.motion.poses)
+    assert np.array_equal(marked.motion.trans, plain.motion.trans)
+    path = tmp_path / "take.bvh"
+    path.write_bytes(b"\xef\xbb\xbf" + data)
+    assert np.array_equal(read_bvh(path).values, parse_bvh(data.decode()).values)
