@@ -3,6 +3,7 @@ and unit norm, character space round-trips, training on a small synthetic datase
 errors, resumes, and the ONNX exports equal torch."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
@@ -192,27 +193,35 @@ def test_the_validation_bench_counts_the_frames_a_model_trained_on():
     assert trained_on(val, {}) is None
 
 
+def _split_by_motion(dataset: Path, tmp_path: Path, **manifest: object) -> list[Path]:
+    """The dataset's items copied into two folders, tmp_path/a (walk) and tmp_path/b (dance_a and kick, the test
+    split's motion), each with the whole's manifest (updated by `manifest`) over its own items."""
+    import shutil
+
+    whole = {**json.loads((dataset / "manifest.json").read_text()), **manifest}
+    folders = []
+    for name, keep in (("a", {"walk"}), ("b", {"dance_a", "kick"})):
+        d = tmp_path / name
+        (d / "items").mkdir(parents=True)
+        items = [it for it in whole["items"] if it["motion"] in keep]
+        for it in items:
+            shutil.copy(dataset / it["file"], d / it["file"])
+        (d / "manifest.json").write_text(json.dumps({**whole, "items": items}))
+        folders.append(d)
+    return folders
+
+
 def test_the_keyframe_bench_reads_the_validation_split_of_every_folder_a_config_trains_on(synthetic_dataset,
                                                                                           tmp_path):
     """bench.intrinsic_keyframes on a config with `extra_datasets` (its validation motion in the extra folder):
     the sequences of training's validation split, from both folders (it read `dataset` alone: a ValueError here,
     and only part of the split where the validation motion is in `dataset`)."""
-    import shutil
 
     from bench.intrinsic_keyframes import validation_items
     from drape.training.intrinsic import split_validation, training_datasets
     from drape.training.intrinsic_data import load_frames
 
-    whole = json.loads((synthetic_dataset / "manifest.json").read_text())
-    folders = []
-    for name, keep in (("a", {"walk"}), ("b", {"dance_a", "kick"})):  # kick: the test split's motion
-        d = tmp_path / name
-        (d / "items").mkdir(parents=True)
-        items = [it for it in whole["items"] if it["motion"] in keep]
-        for it in items:
-            shutil.copy(synthetic_dataset / it["file"], d / it["file"])
-        (d / "manifest.json").write_text(json.dumps({**whole, "items": items}))
-        folders.append(d)
+    folders = _split_by_motion(synthetic_dataset, tmp_path)
     for val_motions in (["dance_a"], ["walk"]):
         config = {"dataset": str(folders[0]), "extra_datasets": [str(folders[1])], "val_params": 1,
                   "val_motions": val_motions}
@@ -250,21 +259,10 @@ def test_datasets_read_together_must_not_train_on_each_others_held_out_sets_or_m
 def test_several_datasets_read_as_their_union_and_must_share_the_parameter_sampler(synthetic_dataset, tmp_path):
     """A dataset split in two folders by motion (as more training motions are simulated into a folder of
     their own) loads the same frames as the whole; a folder sampled with other parameters is refused."""
-    import shutil
 
     from drape.training.intrinsic_data import load_frames
 
-    whole = json.loads((synthetic_dataset / "manifest.json").read_text())
-    whole["params"] = ["the same sampler"]
-    folders = []
-    for name, keep in (("a", {"walk"}), ("b", {"dance_a", "kick"})):
-        d = tmp_path / name
-        (d / "items").mkdir(parents=True)
-        items = [it for it in whole["items"] if it["motion"] in keep]
-        for it in items:
-            shutil.copy(synthetic_dataset / it["file"], d / it["file"])
-        (d / "manifest.json").write_text(json.dumps({**whole, "items": items}))
-        folders.append(d)
+    folders = _split_by_motion(synthetic_dataset, tmp_path, params=["the same sampler"])
     ref, faces_ref, _ = load_frames(synthetic_dataset, 5)
     got, faces, manifest = load_frames(folders, 5)
     assert got.motion_names == ref.motion_names and np.array_equal(faces, faces_ref)

@@ -1,6 +1,7 @@
 """The user body store beside the engine: what a deleted body leaves behind."""
 
 import os
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -59,6 +60,23 @@ def _shirt_on_the_chest(body: Body, frames: int) -> tuple[np.ndarray, np.ndarray
     return o.vertices, o.faces, poses, pose_mesh(o.vertices, rigid, body.joints, poses).astype(np.float32)
 
 
+def _whole_and_deleted_after_the_first_chunk(body: Body, chunks_of: Callable[[], Iterator[np.ndarray]],
+                                             ) -> tuple[np.ndarray, np.ndarray]:
+    """With `body` registered: every chunk of chunks_of() as one array, then again with the body deleted (as
+    DELETE /v1/bodies/{id} does) after the first chunk -> (whole, got)."""
+    store = BodyStore(4, 2**30)
+    try:
+        store.add(body)
+        whole = np.concatenate(list(chunks_of()))
+        chunks = chunks_of()
+        first = next(chunks)
+        store.delete(body.name)
+        assert not has_body(body.name)
+        return whole, np.concatenate([first, *chunks])
+    finally:
+        store.close()
+
+
 def test_an_animation_started_on_a_user_body_finishes_on_it_after_a_delete(engine):
     """DELETE /v1/bodies/{id} while an animate answer with refinement streamed: each chunk's refinement looked the
     body up by name again, so the chunks after the delete failed (KeyError) and the answer was cut mid-stream.
@@ -71,17 +89,8 @@ def test_an_animation_started_on_a_user_body_finishes_on_it_after_a_delete(engin
     outfit = RiggedOutfit("chest", body.name, v, f, Rig(rigid, np.zeros((engine.model.num_keys, len(v), 3),
                                                                            np.float32)))
     settings = RefineSettings()
-    store = BodyStore(4, 2**30)
-    try:
-        store.add(body)
-        whole = np.concatenate(list(engine.pose_chunks(outfit, poses, trans, chunk=2, refine=settings)))
-        chunks = engine.pose_chunks(outfit, poses, trans, chunk=2, refine=settings)
-        first = next(chunks)
-        store.delete(body.name)
-        assert not has_body(body.name)
-        got = np.concatenate([first, *chunks])
-    finally:
-        store.close()
+    whole, got = _whole_and_deleted_after_the_first_chunk(
+        body, lambda: engine.pose_chunks(outfit, poses, trans, chunk=2, refine=settings))
     assert np.array_equal(got, whole)
 
 
@@ -93,17 +102,10 @@ def test_a_refine_stream_started_on_a_user_body_finishes_on_it_after_a_delete(en
     trans = np.zeros((8, 3))
     settings = RefineSettings()
     serving, engine.refine_pool = engine.refine_pool, RefinePool(2)
-    store = BodyStore(4, 2**30)
     try:
-        store.add(body)
-        whole = np.concatenate(list(engine.refine_chunks(frames, f, body.name, poses, trans, settings, chunk=4)))
-        chunks = engine.refine_chunks(frames, f, body.name, poses, trans, settings, chunk=4)
-        first = next(chunks)
-        store.delete(body.name)
-        assert not has_body(body.name)
-        got = np.concatenate([first, *chunks])
+        whole, got = _whole_and_deleted_after_the_first_chunk(
+            body, lambda: engine.refine_chunks(frames, f, body.name, poses, trans, settings, chunk=4))
     finally:
-        store.close()
         engine.refine_pool.close()
         engine.refine_pool = serving
     assert np.abs(whole - frames).max() > 1e-3  # refinement moved the shirt
