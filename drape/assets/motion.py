@@ -78,15 +78,27 @@ def load_clip(name: str) -> Motion:
 
 
 def load_motion_npz(path: str | Path, name: str | None = None) -> Motion:
-    """Read drape's own clip npz (poses, trans, fps) or an AMASS/SMPL-style npz.
+    """Read drape's own clip npz: `poses` (T, 24, 3) or (T, 72) rad, Y-up, `trans` (T, 3) m, `fps` (what
+    `drape motions import` and Motion.save write). Never unpickles.
 
-    AMASS-style: `poses` (T, 72) or (T, 156) (first 72 values = 24 body joints),
-    `trans` (T, 3), and `mocap_framerate` or `fps`. Never unpickles.
+    An AMASS file (its keys: `mocap_framerate`, `gender`, `betas`, ...) or an SMPL-H/-X-wide pose array is a
+    ValueError pointing at `drape motions import`, which turns it Y-up, maps its layout's joints (SMPL-H's
+    values 66-71 are left-hand fingers, not SMPL's hands) and puts its feet on the floor; read here as they
+    are, such a clip was simulated lying on its side.
     """
+    from drape.assets.amass import AMASS_KEYS
+
     with np.load(path, allow_pickle=False) as z:
         if "poses" not in z:
             raise ValueError(f"{path}: no 'poses' array")
-        poses = as_pose_array(z["poses"])
+        raw = z["poses"]
+        amass_keys = [k for k in AMASS_KEYS if k in z]
+        if amass_keys or not (raw.ndim == 3 and raw.shape[1:] == (NUM_JOINTS, 3)
+                              or raw.ndim == 2 and raw.shape[1] == 3 * NUM_JOINTS):
+            why = f"AMASS keys {amass_keys}" if amass_keys else f"poses {raw.shape}"
+            raise ValueError(f"{path}: not a drape clip ({why}); convert it first: "
+                             f"drape motions import {path} --out CLIP.npz (up axis, joint layout, floor, fps)")
+        poses = as_pose_array(raw)
         trans = z["trans"] if "trans" in z else np.zeros((len(poses), 3))
         fps = 30.0
         for key in ("fps", "mocap_framerate", "mocap_frame_rate"):

@@ -68,13 +68,22 @@ def test_tile_cycle_continues_root_motion():
     assert step.max() < 0.11  # no jump at the seams
 
 
-def test_amass_style_npz_import(tmp_path):
+def test_a_motion_npz_is_a_drape_clip_and_an_amass_file_points_at_the_importer(tmp_path):
+    """`sim run --clip`, `sim dataset --motions` and `render --motion` read drape clips. An AMASS file was read
+    as its first 72 values, Z-up (the body simulated lying on its side) and with SMPL-H's left-hand finger joints
+    as SMPL's two hands: now refused, naming `drape motions import`, which converts it."""
     rng = np.random.default_rng(1)
-    poses = rng.normal(scale=0.2, size=(20, 156))
-    path = tmp_path / "amass.npz"
-    np.savez(path, poses=poses, trans=np.zeros((20, 3)), mocap_framerate=np.array(120.0))
-    m = load_motion_npz(path)
-    assert m.fps == 120.0 and np.allclose(m.poses, poses[:, :72].reshape(20, 24, 3), atol=1e-6)
+    poses = rng.normal(scale=0.2, size=(20, 72))
+    np.savez(tmp_path / "clip.npz", poses=poses, trans=np.zeros((20, 3)), fps=np.float32(60.0))
+    m = load_motion_npz(tmp_path / "clip.npz")
+    assert m.fps == 60.0 and np.allclose(m.poses, poses.reshape(20, 24, 3), atol=1e-6)
+    np.savez(tmp_path / "amass.npz", poses=rng.normal(scale=0.2, size=(20, 156)), trans=np.zeros((20, 3)),
+             mocap_framerate=np.array(120.0))
+    np.savez(tmp_path / "smplh.npz", poses=rng.normal(scale=0.2, size=(20, 156)), trans=np.zeros((20, 3)))
+    np.savez(tmp_path / "amass72.npz", poses=poses, trans=np.zeros((20, 3)), mocap_framerate=np.array(120.0))
+    for name in ("amass", "smplh", "amass72"):
+        with pytest.raises(ValueError, match="drape motions import"):
+            load_motion_npz(tmp_path / f"{name}.npz")
     np.savez(tmp_path / "bad.npz", poses=np.array([{"a": 1}], dtype=object))
     with pytest.raises(ValueError):
         load_motion_npz(tmp_path / "bad.npz")  # object arrays are never unpickled
