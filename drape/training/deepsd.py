@@ -42,7 +42,7 @@ from drape.training import DEFAULT_DEEPSD_CONFIG as DEFAULT_CONFIG
 from drape.training import physics
 from drape.training.config_file import read_config
 from drape.training.deepsd_data import TrainOutfit, pose_pool, prepare_outfits, train_specs
-from drape.training.validated_steps import check_same_config
+from drape.training.validated_steps import check_same_config, save_whole
 
 PHASES = ("prior", "physics", "chi")
 
@@ -218,7 +218,7 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
             bar.set_postfix({k: round(v, 4) for k, v in stats.items()}, refresh=False)
             done[phase] = step + 1
             if done[phase] % config["checkpoint_every"] == 0 or done[phase] == total:
-                torch.save(_to_cpu(
+                save_whole(_to_cpu(
                     {"outfit": net.state_dict(), "pose": pose.state_dict(), "opt": opt.state_dict(),
                      "opt_phase": phase, "done": torch.tensor([done[p] for p in PHASES]),
                      "elapsed": torch.tensor(elapsed + time.time() - t0), "config": json.dumps(config),

@@ -28,7 +28,6 @@ checkpoints of a run on other training or validation sequences. Seeded.
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
@@ -38,6 +37,7 @@ import torch
 from drape.models.intrinsic import IntrinsicConfig, IntrinsicSpace, uniform_laplacian_loss
 from drape.training.config_file import read_config
 from drape.training.intrinsic_data import Frames, load_frames
+from drape.training.validated_steps import save_whole
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 
@@ -160,14 +160,6 @@ def _latest(ckpt_dir: Path, phase: str) -> Path | None:
     return found[-1] if found else None
 
 
-def _save(state: dict, path: Path) -> None:
-    """torch.save through a temporary file renamed into place: a run killed mid-save leaves the checkpoints
-    before it whole (and no `<phase>_<step>.pt` for the rerun's torch.load to fail on)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
-
-
 def _resume(path: Path, run: dict) -> dict:
     """A checkpoint's state, when it was written by a run on the same training and validation sequences
     (checkpoints from before this check carry none and are taken)."""
@@ -236,7 +228,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             err = shape_error_mm(model, val_f)
             if err < best[0]:
                 best = (err, {k: t.clone() for k, t in model.shape.state_dict().items()})
-            _save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
+            save_whole({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
                    "best": best, "rng": rng.bit_generator.state, "run": run}, ckpt / f"shape_{step + 1}.pt")
             log(f"shape step {step + 1}: validation vertex error {err:.2f} mm (best {best[0]:.2f})")
     if best[1] is not None:
@@ -282,7 +274,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             err = set_latent_error_mm(model, val_f)
             if err < best[0]:
                 best = (err, {k: t.clone() for k, t in model.state_dict().items()})
-            _save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
+            save_whole({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
                    "best": best, "parts": parts, "rng": rng.bit_generator.state, "run": run},
                   ckpt / f"invariant_{step + 1}.pt")
             log(f"invariant step {step + 1}: {parts}, validation set-latent vertex error {err:.2f} mm "
@@ -295,7 +287,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     if start == ic["steps"] and done.exists():  # nothing left to train: the run that trained it took its time
         summary["seconds"] = torch.load(done, weights_only=False)["summary"].get("seconds", summary["seconds"])
     summary["latent_mean"], summary["latent_std"] = latent_statistics(model, train_f)
-    _save({"model": model.state_dict(), "config": config, "model_config": model.cfg.to_dict(),
+    save_whole({"model": model.state_dict(), "config": config, "model_config": model.cfg.to_dict(),
            "summary": summary, "faces": faces}, ckpt / "best.pt")
     return model, summary
 

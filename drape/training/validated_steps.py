@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -70,6 +71,14 @@ def _names(keys: set[str], most: int = 5) -> str:
     return f"{shown}" + (f" and {len(keys) - most} more" if len(keys) > most else "")
 
 
+def save_whole(state: dict, path: Path) -> None:
+    """torch.save through a temporary file renamed into place (every trainer's checkpoints): a run killed
+    mid-save leaves the checkpoints before it whole, and no truncated file for the rerun's torch.load to fail on."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
 def best_step(record: dict) -> str:
     """The step of record["steps"] with the lowest score (the first of equals); NaN scores rank last."""
     steps = record["steps"]
@@ -81,12 +90,12 @@ def save_step(ckpt_dir: Path, model: torch.nn.Module, opt: torch.optim.Optimizer
     """After record["steps"][str(done)] was measured: best.pt where it scores lowest so far, and step_<done>.pt
     (with `data`, the sequences the run trains and validates on, where given: resume checks them)."""
     if best_step(record) == str(done):
-        torch.save({"model": model.state_dict(), "step": done}, ckpt_dir / "best.pt")
+        save_whole({"model": model.state_dict(), "step": done}, ckpt_dir / "best.pt")
     state = {"model": model.state_dict(), "opt": opt.state_dict(), "done": done, "elapsed": elapsed,
              "record": json.dumps(record), "config": json.dumps(cfg), "rng": torch.get_rng_state()}
     if data is not None:
         state["data"] = json.dumps(data)
-    torch.save(state, ckpt_dir / f"step_{done:07d}.pt")
+    save_whole(state, ckpt_dir / f"step_{done:07d}.pt")
 
 
 def restore_best(ckpt_dir: Path, model: torch.nn.Module, record: dict) -> str:
