@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from drape.assets.body import Body, has_body, list_bodies, load_body
+from drape.assets.body import Body, list_bodies, load_body
 from drape.geometry.lbs import unpose_body
 from drape.geometry.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
 from drape.runtime.body_store import PREFIX, BodyStore, body_id
@@ -248,9 +248,11 @@ def register(store: BodyStore, body: Body) -> bool:
 
 
 def known_body(name: str, field: str = "body") -> Body:
-    """A preset or a registered body by name, or NotFound."""
-    if has_body(name):
+    """A preset or a registered body by name, or NotFound (also when it is DELETEd as it is looked up)."""
+    try:
         return load_body(name)
+    except KeyError:
+        pass
     hint = "register it first: POST /v1/bodies" if name.startswith(PREFIX) else f"presets: {', '.join(list_bodies())}"
     raise NotFound(f"unknown body {quoted(name, 60)}; {hint}", field)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any
@@ -104,6 +106,19 @@ def held_body(name: str, field: str = "body") -> Body:
         return load_body(name)
     except KeyError:
         raise NotFound(f"unknown body {quoted(name, 60)}: register it first (POST /v1/bodies)", field) from None
+
+
+@contextmanager
+def computing_on(name: str, field: str = "body") -> Iterator[None]:
+    """Work that looks the body `name` up by name as it goes (placement, rig): a KeyError because the body was
+    DELETEd meanwhile answers the 404 the request would have had a moment earlier, not a 500."""
+    try:
+        yield
+    except KeyError:
+        if has_body(name):
+            raise
+        raise NotFound(f"body {quoted(name, 60)} was deleted while this request was computed on it; register it "
+                       "again (POST /v1/bodies)", field) from None
 
 
 @dataclass(frozen=True)
@@ -232,7 +247,7 @@ def fit(settings: Settings, vertices: Any, faces: Any, body: str | None, units: 
     if np.abs(v).max() * scale > 100.0:
         raise InvalidInput(f"coordinates beyond 100 m in {units_ or infer_units(v)}", f"{pre}vertices")
     try:
-        return fit_garment(v, f, load_body(body_name), units=units_, up=up_, pose=pose_)
+        return fit_garment(v, f, held_body(body_name), units=units_, up=up_, pose=pose_)
     except FitError as exc:
         raise InvalidInput(str(exc), f"{pre}vertices") from None
 
@@ -265,9 +280,10 @@ def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str
     fitted = fit(settings, vertices, faces, body) if fit_first else None
     v, f = check_mesh(vertices if fitted is None else fitted.vertices, faces, settings)
     body_name = check_body(body)
-    diagnostics = check_on_body(v, body_name)
-    diagnostics["warnings"] += body_scale_warnings(engine, body_name)
-    outfit = engine.rig(v, f, body_name, check_influences(influences))
+    with computing_on(body_name):
+        diagnostics = check_on_body(v, body_name)
+        diagnostics["warnings"] += body_scale_warnings(engine, body_name)
+        outfit = engine.rig(v, f, body_name, check_influences(influences))
     return replace(outfit, diagnostics=diagnostics, fit=None if fitted is None else fit_answer(fitted, f),
                    parts=parts)
 
@@ -338,11 +354,13 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
             outfit_in = {**outfit_in, "vertices": fitted.vertices}
         v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
         body = check_body(request.get("body"))
-        check_on_body(v, body, "outfit.vertices")
+        with computing_on(body):
+            check_on_body(v, body, "outfit.vertices")
         influences = check_influences(request.get("influences"))
         poses, trans, fps = check_motion(request["motion"], settings)
         check_answer_size(len(poses), len(v), max_posed, "motion")
-        outfit = engine.rig(v, f, body, influences)
+        with computing_on(body):
+            outfit = engine.rig(v, f, body, influences)
     return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")), held_body(outfit.body))
 
 
@@ -407,7 +425,7 @@ def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None 
     """The rig as a GLB: the outfit skinned to the body's skeleton with its blend shapes as morph targets
     (`psd_<p>`), the body skinned beside it; with a plan, its motion as an animation whose morph weights
     are the pose keys (and, with refinement, one sparse correction target per frame)."""
-    body = plan.body if plan is not None and plan.body is not None else load_body(outfit.body)
+    body = plan.body if plan is not None and plan.body is not None else held_body(outfit.body)
     rig = outfit.rig
     meshes = [SkinnedMesh("outfit", outfit.vertices, outfit.faces, rig.weights, rig.blend_shapes,
                           tuple(f"psd_{p}" for p in range(len(rig.blend_shapes)))),

@@ -147,6 +147,40 @@ def test_a_body_deleted_while_its_refine_answer_streams_finishes_the_answer(http
     problem(http.post("/v1/refine", json=req, headers={"Accept": NPZ}), 404, "body", "POST /v1/bodies")
 
 
+@pytest.mark.parametrize("accept", ["application/json", "model/gltf-binary"])
+@pytest.mark.parametrize("deleted", ["before the rig", "after the rig"])
+def test_a_body_deleted_while_a_rig_is_computed_on_it_answers_404(http, app, registered, shirt, monkeypatch,
+                                                                   deleted, accept):
+    """DELETE /v1/bodies/{id} while POST /v1/outfits/rig worked on that body: the placement, the rig and the answer's
+    skeleton each looked the body up by name, and the one after the delete raised a KeyError: a 500. It is the 404
+    the request would have had a moment earlier, naming the body."""
+    from drape.runtime.engine import Engine
+    from drape.service import handlers
+
+    v, f = shirt
+    if deleted == "before the rig":  # between the placement check and the rig
+        real_warnings = handlers.body_scale_warnings
+
+        def warnings_then_delete(engine, body):
+            out = real_warnings(engine, body)
+            assert app.state.bodies.delete(registered)
+            return out
+
+        monkeypatch.setattr(handlers, "body_scale_warnings", warnings_then_delete)
+    else:  # between the rig and its answer (the skeleton, the GLB's body)
+        real_rig = Engine.rig
+
+        def rig_then_delete(self, *args, **kwargs):
+            out = real_rig(self, *args, **kwargs)
+            assert app.state.bodies.delete(registered)
+            return out
+
+        monkeypatch.setattr(Engine, "rig", rig_then_delete)
+    r = http.post("/v1/outfits/rig", json={"vertices": v.tolist(), "faces": f.tolist(), "body": registered},
+                  headers={"Accept": accept})
+    problem(r, 404, "body", registered)
+
+
 def test_an_a_pose_body_needs_its_rest_pose_and_is_un_posed_with_it(http, proxy):
     pose = a_pose()
     posed = pose_mesh(proxy.vertices, proxy.weights, proxy.joints, pose[None])[0]

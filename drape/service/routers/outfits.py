@@ -16,7 +16,6 @@ from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
-from drape.assets.body import load_body
 from drape.runtime.engine import RiggedOutfit
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
 from drape.schemas.gltf import GLB, vertex_animation_glb
@@ -63,7 +62,7 @@ FIT_NPZ = npz_answer("vertices (N, 3) metres, faces (F, 3) int32, transform (4, 
 
 
 def _rig_payload(outfit: RiggedOutfit) -> dict[str, np.ndarray]:
-    body = load_body(outfit.body)
+    body = handlers.held_body(outfit.body)  # a 404 if DELETEd since the rig
     return {
         "skinning_weights": outfit.rig.weights,
         "blend_shapes": outfit.rig.blend_shapes,
