@@ -15,8 +15,9 @@ Three phases, each a number of steps of one outfit x `batch_frames` poses:
    poses plus noise), the rest frozen.
 
 Checkpoints go to `checkpoints/deepsd/` (git-ignored); a rerun resumes from the
-latest one (of the same config: another one's checkpoints are refused, `validation` aside). The run is seeded;
-the config is recorded in every checkpoint.
+latest one (of the same config: another one's checkpoints are refused, `validation` aside; and of the same data:
+`training_data` is recorded in every checkpoint, and a pose pool or outfit list changed since, e.g. an embedded
+clip added, is refused too). The run is seeded; the config is recorded in every checkpoint.
 A config with `"init_checkpoints": DIR` is a fine-tune: a fresh run starts from the
 networks of DIR's latest checkpoint (a finished run of another config) instead of
 random weights; phases with 0 steps are skipped. `"loss_phase": {PHASE: {NAME: WEIGHT}}` overrides
@@ -30,6 +31,7 @@ beyond that distance (drape.training.deepsd_data.loose_ancestor_prior); absent o
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -41,8 +43,14 @@ from drape.models.deepsd import DeePSDConfig, OutfitNet, PoseNet
 from drape.training import DEFAULT_DEEPSD_CONFIG as DEFAULT_CONFIG
 from drape.training import physics
 from drape.training.config_file import read_config
-from drape.training.deepsd_data import TrainOutfit, pose_pool, prepare_outfits, train_specs
-from drape.training.validated_steps import check_same_config, save_whole
+from drape.training.deepsd_data import (
+    OutfitSpec,
+    TrainOutfit,
+    pose_pool,
+    prepare_outfits,
+    train_specs,
+)
+from drape.training.validated_steps import check_same_config, check_same_data, save_whole
 
 PHASES = ("prior", "physics", "chi")
 
@@ -136,6 +144,14 @@ def _to_cpu(value):
     return value
 
 
+def training_data(specs: list[OutfitSpec], pool: np.ndarray) -> dict[str, list[str]]:
+    """What a run trains on, as its checkpoints record it (validated_steps.check_same_data): the outfits' keys and
+    the pose pool (P, 24, 3) by its size and content hash. The config names both, but the pool also takes every
+    embedded clip not held out and the mocap files' contents, which may change under the same config."""
+    digest = hashlib.sha256(np.ascontiguousarray(pool, dtype="<f4").tobytes()).hexdigest()[:16]
+    return {"outfits": [s.key for s in specs], "pose_pool": [f"{len(pool)} poses sha256:{digest}"]}
+
+
 def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
           device: str = "auto") -> tuple[OutfitNet, PoseNet, dict]:
     """Train (or resume) and return the networks (on the CPU) and a summary. `device`: where the steps run
@@ -176,9 +192,17 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
     # checked before the outfits are prepared: a misspelt override fails at once, not minutes in
     loss_weights = {p: phase_loss_weights(config, p) for p in PHASES}
     specs = train_specs(config)
+    pool_array = pose_pool(config)
+    data = training_data(specs, pool_array)
+    if state is not None and latest is not None:
+        if "data" in state:
+            check_same_data(json.loads(state["data"]), data, latest)
+        else:  # saved before checkpoints recorded their data: taken, the checkpoints from here on record it
+            log(f"{latest.name} does not record the data it was trained on (an older checkpoint): resuming "
+                "without checking it")
     prepare_outfits(specs)
     outfits = [TrainOutfit(s, config.get("joint_candidates"), config.get("loose_prior_share", 0.0)).to(dev) for s in specs]
-    pool = torch.as_tensor(pose_pool(config)).to(dev)
+    pool = torch.as_tensor(pool_array).to(dev)
     net.to(dev)
     pose.to(dev)
     log(f"training on {dev}")
@@ -222,7 +246,7 @@ def train(config: dict, ckpt_dir: str | Path = "checkpoints/deepsd", log=print,
                     {"outfit": net.state_dict(), "pose": pose.state_dict(), "opt": opt.state_dict(),
                      "opt_phase": phase, "done": torch.tensor([done[p] for p in PHASES]),
                      "elapsed": torch.tensor(elapsed + time.time() - t0), "config": json.dumps(config),
-                     "device": str(dev)}),
+                     "data": json.dumps(data), "device": str(dev)}),
                     ckpt_dir / f"step_{sum(done.values()):07d}.pt",
                 )
         elapsed += time.time() - t0

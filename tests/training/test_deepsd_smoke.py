@@ -1,5 +1,7 @@
 """The short smoke path: a few training steps on tiny outfits -> export -> ORT parity."""
 
+import json
+
 import numpy as np
 import onnxruntime as ort
 import pytest
@@ -8,6 +10,7 @@ import torch
 from drape.export.deepsd import export_deepsd, started_from
 from drape.models.deepsd import DeployedOutfitNet
 from drape.runtime.deepsd import network_inputs
+from drape.training import deepsd as deepsd_training
 from drape.training import deepsd_data
 from drape.training.deepsd import load_config, train
 
@@ -31,6 +34,14 @@ def test_train_export_parity(tmp_path, monkeypatch):
     # a rerun with another config does not resume (mix into, or take as its own) the first run's checkpoints
     with pytest.raises(ValueError, match="another config"):
         train({**cfg, "lr": cfg["lr"] * 2}, tmp_path / "ckpt", log=lambda *_: None)
+    # nor a rerun of the same config whose pose pool changed meanwhile (an embedded clip added, a mocap file
+    # replaced): the checkpoints record the data (training_data)
+    real_pool = deepsd_training.pose_pool
+    with monkeypatch.context() as m:
+        m.setattr(deepsd_training, "pose_pool", lambda c: real_pool(c)[:-1])
+        with pytest.raises(ValueError, match=r"other sequences \(pose_pool: \['\d+ poses sha256:"):
+            train(cfg, tmp_path / "ckpt", log=lambda *_: None)
+    assert json.loads(state["data"]) == deepsd_training.training_data(deepsd_data.train_specs(cfg), real_pool(cfg))
     paths = export_deepsd(net, pose, tmp_path / "onnx")
     spec = deepsd_data.train_specs(cfg)[0]
     v, f = deepsd_data.load_outfit(spec)
