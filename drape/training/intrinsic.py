@@ -22,7 +22,8 @@ and parameter sampler, e.g. more training motions; `training_datasets`), their t
 
 Checkpoints (git-ignored) go to `checkpoints/intrinsic/<template>/`, each written whole or not at all; a rerun
 resumes where the last one left off, with the batches the uninterrupted run would have drawn, and refuses
-checkpoints of a run on other training or validation sequences. Seeded.
+checkpoints of a run of another config or on other training or validation sequences (validated_steps'
+check_same_config / check_same_data, as the other trainers). Seeded.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import torch
 from drape.models.intrinsic import IntrinsicConfig, IntrinsicSpace, uniform_laplacian_loss
 from drape.training.config_file import read_config
 from drape.training.intrinsic_data import Frames, load_frames
-from drape.training.validated_steps import save_whole
+from drape.training.validated_steps import check_same_config, check_same_data, save_whole
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 
@@ -160,15 +161,22 @@ def _latest(ckpt_dir: Path, phase: str) -> Path | None:
     return found[-1] if found else None
 
 
-def _resume(path: Path, run: dict) -> dict:
-    """A checkpoint's state, when it was written by a run on the same training and validation sequences
-    (checkpoints from before this check carry none and are taken)."""
+def _split_sequences(run: dict) -> dict[str, list[str]]:
+    """A run record ({"train_sequences"|"val_sequences": {motion: [parameter sets]}}) as check_same_data's
+    {split: ["motion/set", ...]}."""
+    return {split: [f"{motion}/{p}" for motion, sets in run[key].items() for p in sets]
+            for split, key in (("train", "train_sequences"), ("validation", "val_sequences"))}
+
+
+def _resume(path: Path, run: dict, config: dict) -> dict:
+    """A checkpoint's state, when it was written by a run of the same config (check_same_config) on the same
+    training and validation sequences (check_same_data: the dataset grew, or the config's datasets or validation
+    split changed); checkpoints from before either check carry no record of it and are taken."""
     state = torch.load(path, weights_only=False)
-    if "run" in state and state["run"] != run:
-        raise ValueError(f"{path}: written by a run on other training or validation sequences (the dataset grew, "
-                         "or the config's dataset or validation split changed): resuming would mix two trainings "
-                         "and keep a checkpoint chosen on another split; delete the folder or pass another "
-                         "--checkpoints")
+    if "config" in state:
+        check_same_config(json.loads(state["config"]), config, path)
+    if "run" in state:
+        check_same_data(_split_sequences(state["run"]), _split_sequences(run), path)
     return state
 
 
@@ -207,7 +215,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     start, best = 0, (float("inf"), None)  # type: tuple[int, tuple[float, dict | None]]
     last = _latest(ckpt, "shape")
     if last is not None:
-        state = _resume(last, run)
+        state = _resume(last, run, config)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         start, best = state["step"], state["best"]
@@ -229,7 +237,8 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             if err < best[0]:
                 best = (err, {k: t.clone() for k, t in model.shape.state_dict().items()})
             save_whole({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
-                   "best": best, "rng": rng.bit_generator.state, "run": run}, ckpt / f"shape_{step + 1}.pt")
+                   "best": best, "rng": rng.bit_generator.state, "run": run, "config": json.dumps(config)},
+                       ckpt / f"shape_{step + 1}.pt")
             log(f"shape step {step + 1}: validation vertex error {err:.2f} mm (best {best[0]:.2f})")
     if best[1] is not None:
         model.shape.load_state_dict(best[1])
@@ -248,7 +257,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     rng = np.random.default_rng(config["seed"])  # each phase its own batches: a run resumed here equals a fresh one
     last = _latest(ckpt, "invariant")
     if last is not None:
-        state = _resume(last, run)
+        state = _resume(last, run, config)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         start, best, parts = state["step"], state["best"], state.get("parts", {})
@@ -275,7 +284,8 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             if err < best[0]:
                 best = (err, {k: t.clone() for k, t in model.state_dict().items()})
             save_whole({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
-                   "best": best, "parts": parts, "rng": rng.bit_generator.state, "run": run},
+                   "best": best, "parts": parts, "rng": rng.bit_generator.state, "run": run,
+                        "config": json.dumps(config)},
                   ckpt / f"invariant_{step + 1}.pt")
             log(f"invariant step {step + 1}: {parts}, validation set-latent vertex error {err:.2f} mm "
                 f"(best {best[0]:.2f})")

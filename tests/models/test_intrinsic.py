@@ -3,6 +3,7 @@ and unit norm, character space round-trips, training on a small synthetic datase
 errors, resumes, and the ONNX exports equal torch."""
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -311,10 +312,18 @@ def test_a_run_killed_while_saving_a_checkpoint_resumes_to_the_run_it_would_have
 def test_a_rerun_on_other_training_or_validation_sequences_does_not_resume_the_old_checkpoints(synthetic_dataset,
                                                                                                tmp_path):
     """Checkpoints of a run on other sequences (a dataset that grew since, another validation split) would mix
-    two trainings and keep a 'best' chosen on another split: the rerun refuses them."""
+    two trainings and keep a 'best' chosen on another split: the rerun refuses them, naming the sequences; and
+    checkpoints of another config (here the validation split's) are refused as the other trainers refuse them."""
     from drape.training.intrinsic import train
 
-    config = _tiny_config(synthetic_dataset, width=32, steps=(30, 30), batch=32, every=30)
+    data = tmp_path / "data"
+    shutil.copytree(synthetic_dataset, data)
+    config = _tiny_config(data, width=32, steps=(30, 30), batch=32, every=30)
     train(config, tmp_path / "ckpt", log=lambda *_: None)
-    with pytest.raises(ValueError, match="other training or validation sequences"):
+    with pytest.raises(ValueError, match=r"another config \(settings \['val_params'\] differ\)"):
         train({**config, "val_params": 2}, tmp_path / "ckpt", log=lambda *_: None)
+    manifest = json.loads((data / "manifest.json").read_text())
+    manifest["items"] = [i for i in manifest["items"] if i["key"] != "g__p00__walk"]  # a part-way dataset
+    (data / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match=r"other sequences \(train: \[\] added, \['walk/0'\] gone\)"):
+        train(config, tmp_path / "ckpt", log=lambda *_: None)
