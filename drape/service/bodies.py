@@ -16,12 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from drape.assets.body import Body, list_bodies, load_body
+from drape.assets.body import Body
 from drape.geometry.lbs import unpose_body
 from drape.geometry.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
-from drape.runtime.body_store import PREFIX, BodyStore, body_id
+from drape.runtime.body_store import BodyStore, body_id
 from drape.service.decode import npz_members, npz_numbers
-from drape.service.errors import InvalidInput, NotFound, quoted
+from drape.service.errors import InvalidInput, quoted
 from drape.service.handlers import check_mesh
 from drape.service.http import parse_form
 from drape.service.settings import Settings
@@ -245,16 +245,6 @@ def register(store: BodyStore, body: Body) -> bool:
         return store.add(body)
     except StoreFull as exc:
         raise StoreIsFull(str(exc), "body") from None
-
-
-def known_body(name: str, field: str = "body") -> Body:
-    """A preset or a registered body by name, or NotFound (also when it is DELETEd as it is looked up)."""
-    try:
-        return load_body(name)
-    except KeyError:
-        pass
-    hint = "register it first: POST /v1/bodies" if name.startswith(PREFIX) else f"presets: {', '.join(list_bodies())}"
-    raise NotFound(f"unknown body {quoted(name, 60)}; {hint}", field)
 
 
 def body_arrays(body: Body) -> dict[str, np.ndarray]:

@@ -100,12 +100,15 @@ def check_body(name: str | None, field: str = "body") -> str:
 
 
 def held_body(name: str, field: str = "body") -> Body:
-    """The body a request computes on, resolved once when it is planned (a name check_body passed): the answer
-    is computed on this Body to its end even if it is DELETEd while it streams; a 404 if it is gone already."""
+    """A preset or registered body by name, resolved once: a request computes on this Body to its end even if it
+    is DELETEd while it streams; a 404 naming `field` if it is unknown or gone already."""
     try:
         return load_body(name)
     except KeyError:
-        raise NotFound(f"unknown body {quoted(name, 60)}: register it first (POST /v1/bodies)", field) from None
+        pass
+    hint = ("register it first (POST /v1/bodies)" if name.startswith(USER_BODY_PREFIX)
+            else f"presets: {', '.join(list_bodies())}")
+    raise NotFound(f"unknown body {quoted(name, 60)}; {hint}", field)
 
 
 @contextmanager
@@ -354,12 +357,11 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
             outfit_in = {**outfit_in, "vertices": fitted.vertices}
         v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
         body = check_body(request.get("body"))
-        with computing_on(body):
-            check_on_body(v, body, "outfit.vertices")
         influences = check_influences(request.get("influences"))
         poses, trans, fps = check_motion(request["motion"], settings)
         check_answer_size(len(poses), len(v), max_posed, "motion")
         with computing_on(body):
+            check_on_body(v, body, "outfit.vertices")
             outfit = engine.rig(v, f, body, influences)
     return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")), held_body(outfit.body))
 

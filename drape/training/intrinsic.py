@@ -237,7 +237,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             if err < best[0]:
                 best = (err, {k: t.clone() for k, t in model.shape.state_dict().items()})
             save_whole({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
-                   "best": best, "rng": rng.bit_generator.state, "run": run, "config": json.dumps(config)},
+                        "best": best, "rng": rng.bit_generator.state, "run": run, "config": json.dumps(config)},
                        ckpt / f"shape_{step + 1}.pt")
             log(f"shape step {step + 1}: validation vertex error {err:.2f} mm (best {best[0]:.2f})")
     if best[1] is not None:
@@ -284,9 +284,9 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
             if err < best[0]:
                 best = (err, {k: t.clone() for k, t in model.state_dict().items()})
             save_whole({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step + 1,
-                   "best": best, "parts": parts, "rng": rng.bit_generator.state, "run": run,
+                        "best": best, "parts": parts, "rng": rng.bit_generator.state, "run": run,
                         "config": json.dumps(config)},
-                  ckpt / f"invariant_{step + 1}.pt")
+                       ckpt / f"invariant_{step + 1}.pt")
             log(f"invariant step {step + 1}: {parts}, validation set-latent vertex error {err:.2f} mm "
                 f"(best {best[0]:.2f})")
     if best[1] is not None:
@@ -298,7 +298,7 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
         summary["seconds"] = torch.load(done, weights_only=False)["summary"].get("seconds", summary["seconds"])
     summary["latent_mean"], summary["latent_std"] = latent_statistics(model, train_f)
     save_whole({"model": model.state_dict(), "config": config, "model_config": model.cfg.to_dict(),
-           "summary": summary, "faces": faces}, ckpt / "best.pt")
+                "summary": summary, "faces": faces}, ckpt / "best.pt")
     return model, summary
 
 

@@ -11,10 +11,11 @@ from fastapi import APIRouter, Path, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
+from drape.assets.body import list_bodies
 from drape.runtime.body_store import BodyStore
 from drape.schemas.binary import NPZ, encode_npz
 from drape.schemas.catalog import BodyMesh, BodyRegistered
-from drape.service import bodies
+from drape.service import bodies, handlers
 from drape.service.answers import JSON
 from drape.service.errors import Conflict, LimitExceeded, NotFound, UnsupportedMediaType, quoted
 from drape.service.http import admission_of, media_type, read_body, settings_of
@@ -86,9 +87,9 @@ async def register_body(request: Request) -> Response:
 def get_body(request: Request, name: str = NAME) -> Response:
     """A body's rest mesh, weights and skeleton (npz by Accept), so a client can draw it beside a garment."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ])
-    body = bodies.known_body(name, "name")
+    body = handlers.held_body(name, "name")
     arrays = bodies.body_arrays(body)
-    preset = body.name in bodies.list_bodies()
+    preset = body.name in list_bodies()
     if answer == NPZ:
         return Response(encode_npz(arrays), media_type=NPZ)
     numbers = sum(a.size for a in arrays.values())
@@ -108,7 +109,7 @@ def get_body(request: Request, name: str = NAME) -> Response:
 def delete_body(request: Request, name: str = NAME) -> Response:
     """Forget a user body (its file too, with DRAPE_BODY_DIR); presets cannot be deleted. Outfits rigged on it
     stay cached, but new requests naming it answer 404."""
-    if name in bodies.list_bodies():
+    if name in list_bodies():
         raise Conflict(f"{quoted(name, 60)} is a preset: only user bodies can be deleted", "name")
     if not store_of(request).delete(name):
         raise NotFound(f"no user body {quoted(name, 60)}", "name")
