@@ -24,6 +24,9 @@ $DRAPE render --sim data/sim/skirt/items/skirt__p02__walk.npz --frames 0,15,30,4
 # the intrinsic skirt keyframed on a held-out simulation (needs make intrinsic-data's test items)
 $DRAPE render --sim data/intrinsic/skirt/items/skirt__p40__walk.npz --keyframes 24,119 --frames 24,48,72,96,119 \
   --out docs/intrinsic_skirt_walk.png
+# the same for the long skirt (needs make intrinsic-data-long-skirt's test items)
+$DRAPE render --sim data/intrinsic/long_skirt/items/long_skirt__p40__walk.npz --keyframes 24,119 \
+  --frames 24,48,72,96,119 --out docs/intrinsic_long_skirt_walk.png
 # drape's layers (MGN's inner and outer networks) beside a two-layer simulation of a held-out H_in and motion
 # (a validation sequence of make layers-data)
 $DRAPE render --sim "data/layers/tshirt_jacket/items/tshirt+jacket__p06__proc7.npz" --served --frames 0,20,40,60,89 \
