@@ -112,6 +112,9 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
                     "collision_triangle_pct": 100 * float(np.mean(acc[m]["inside_tri"])),
                     "edge_error_mm": float(np.mean(acc[m]["edge"])),
                     "bending": float(np.mean(acc[m]["bend"])),
+                    # closest-triangle inside % of each motion of the set, in order
+                    "clip_triangle_pct": [100 * float(x) for x in
+                                          np.reshape(acc[m]["inside_tri"], (len(motions), -1)).mean(1)],
                 })
         log(f"{spec.types:18s} done")
     gt = ground_truth_error(ground_truth, cfg["heldout_clips"], model) if ground_truth else None
@@ -210,6 +213,12 @@ def format_table(results: dict) -> str:
         for m, v in mean.items():
             lines.append(f"| **mean** | {m} | {v['collision_nearest_vertex_pct']:.2f} "
                          f"| {v['collision_triangle_pct']:.2f} | {v['edge_error_mm']:.2f} | {v['bending']:.4f} |")
+        worst = {m: max((max(r["clip_triangle_pct"]), r["outfit"]) for r in results["rows"]
+                        if r.get("set", "deepmimic") == group and r["method"] == m and r.get("clip_triangle_pct"))
+                 for m in mean}
+        if worst:
+            lines.append("\nWorst single clip, inside (closest triangle): " + "; ".join(
+                f"{m} {pct:.2f}% ({outfit})" for m, (pct, outfit) in worst.items()) + ".")
 
     table("deepmimic", results["mean"])
     if results.get("mean_real"):

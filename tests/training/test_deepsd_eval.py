@@ -45,11 +45,16 @@ def test_eval_rows_and_written_table(tmp_path, monkeypatch):
     assert {r["body"] for r in results["rows"] if r["set"] == "unseen_body"} == {"heavy"}
     for r in results["rows"]:
         assert 0.0 <= r["collision_triangle_pct"] <= 100.0 and r["edge_error_mm"] >= 0.0
+        # one share per clip (kick alone here), whose mean over equal frame counts is the row's
+        assert len(r["clip_triangle_pct"]) == 1
+        assert np.mean(r["clip_triangle_pct"]) == pytest.approx(r["collision_triangle_pct"])
     base = [r for r in results["rows"] if r["method"] == "baseline"]
     # every method yields finite metrics, the baseline included
     assert all(np.isfinite(r["bending"]) for r in base)
     table = format_table(results)
     assert "| skirt | model |" in table and "kick" in table
+    worst = max(r["clip_triangle_pct"][0] for r in results["rows"] if r["method"] == "served" and r["set"] == "deepmimic")
+    assert f"served {worst:.2f}%" in table.split("Worst single clip")[1]
     manifest, doc = write_results(results, model, tmp_path / "eval.md")
     assert json.loads(manifest.read_text())["evaluation"]["rows"] == results["rows"]
     assert doc.read_text().startswith("# DeePSD evaluation")
