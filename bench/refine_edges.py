@@ -15,7 +15,7 @@ refinement's milliseconds per frame in this process. Variants: the stretch relie
 runs: it has no rest shape), the edge-limit pass (`Refiner(rest=...)`: edges capped at max(ratio x rest,
 input length); what animate runs), and each with the last check (+chk: `verify_k=8`, off by default).
 
-Run: .venv/bin/python -m bench.refine_edges [--every 6] (about 5 minutes on the 2-core machine)
+Run: .venv/bin/python -m bench.refine_edges [--every 6] [--within 0.03,0.01] (about 5 minutes on the 2-core machine)
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from drape.geometry.fitting import fit_garment
 from drape.geometry.mesh import unique_edges
 from drape.geometry.mesh_io import load_mesh
 from drape.geometry.queries import signed_distance_to_mesh
-from drape.geometry.refine import BodySurface, Refiner, RefineReport
+from drape.geometry.refine import VERIFY_WITHIN, BodySurface, Refiner, RefineReport
 from drape.runtime.engine import Engine
 from drape.training.deepsd_eval import REAL_CLIPS
 
@@ -74,28 +74,37 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--every", type=int, default=6, help="use every k-th frame of the real clips")
     ap.add_argument("--ratios", default="1.5", help="edge-limit caps to try, times the rest length")
+    ap.add_argument("--within", default="0.03",
+                    help="the last check's reach (Refiner.verify_within, m) in the +chk variants, one variant each")
     args = ap.parse_args()
     engine = Engine(refine_workers=1)
     body = load_body("neutral")
     surface = BodySurface(body.faces, len(body.vertices))
-    print(f"{'garment':24s} {'clip':14s} {'N':>5s} {'T':>4s} {'variant':14s} {'inside med':>10s} {'worst':>6s} "
+    print(f"{'garment':24s} {'clip':14s} {'N':>5s} {'T':>4s} {'variant':18s} {'inside med':>10s} {'worst':>6s} "
           f"{'new >2x':>7s} {'through':>7s} {'worst new':>9s} {'max/rest':>8s} {'ms/frame':>8s}")
     for name, rest, faces, clips in cases(args.every):
         out = engine.rig(rest, faces, "neutral")
         edges = unique_edges(out.faces)
         rest_len = np.linalg.norm(out.vertices[edges[:, 0]] - out.vertices[edges[:, 1]], axis=1)
-        variants = {"relief": Refiner(out.faces, len(rest)),
-                    "relief+chk": Refiner(out.faces, len(rest), verify_k=CHECK_K)}
+        within = [float(w) for w in args.within.split(",")]
+
+        def chk(w: float) -> str:  # the label of a check's reach: "" for the default 3 cm
+            return "" if w == VERIFY_WITHIN else f"{1e3 * w:g}mm"
+
+        variants = {"relief": Refiner(out.faces, len(rest))}
+        variants.update({f"relief+chk{chk(w)}": Refiner(out.faces, len(rest), verify_k=CHECK_K, verify_within=w)
+                         for w in within})
         for r in args.ratios.split(","):
             variants[f"edges {r}x"] = Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r))
-            variants[f"edges {r}x+chk"] = Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
-                                                  verify_k=CHECK_K)
+            variants.update({f"edges {r}x+chk{chk(w)}": Refiner(out.faces, len(rest), rest=out.vertices,
+                                                                stretch_ratio=float(r), verify_k=CHECK_K,
+                                                                verify_within=w) for w in within})
         for clip, poses, trans in clips:
             frames = np.concatenate(list(engine.pose_chunks(out, poses, trans))).astype(np.float64)
             bodies = body.pose(poses, trans).astype(np.float64)
             before = np.linalg.norm(frames[:, edges[:, 0]] - frames[:, edges[:, 1]], axis=2) / rest_len
             inside0 = [np.mean(signed_distance_to_mesh(f, b, body.faces) < 0) for f, b in zip(frames, bodies, strict=True)]
-            print(f"{name[:24]:24s} {clip:14s} {len(rest):5d} {len(frames):4d} {'input':14s} "
+            print(f"{name[:24]:24s} {clip:14s} {len(rest):5d} {len(frames):4d} {'input':18s} "
                   f"{np.median(inside0):10.2%} {max(inside0):6.2%} {'':7s} {'':7s} {'':9s} {before.max():7.2f}x")
             for label, refiner in variants.items():
                 t = time.perf_counter()
@@ -109,7 +118,7 @@ def main() -> None:
                                                  body.faces)[0]) for i, e in zip(*np.nonzero(new), strict=True))
                 inside = [np.mean(signed_distance_to_mesh(f, b, body.faces) < 0)
                           for f, b in zip(refined, bodies, strict=True)]
-                print(f"{'':24s} {'':14s} {'':5s} {'':4s} {label:14s} {np.median(inside):10.2%} {max(inside):6.2%} "
+                print(f"{'':24s} {'':14s} {'':5s} {'':4s} {label:18s} {np.median(inside):10.2%} {max(inside):6.2%} "
                       f"{int(new.sum()):7d} {through:7d} {worst_new:8.2f}x {after.max():7.2f}x {ms:8.1f}", flush=True)
 
 
