@@ -60,6 +60,8 @@ VARIANTS: dict[str, tuple] = {  # name: (targets, rounds, gain[, pushed_targets 
     # only cloth lying on the body at rest (fully nearer than 1.5 cm, none beyond 3 cm), no vertex deeper than 3 cm
     "push_g3_r1_tight": ("push", 1, 3.0, {"tight": (0.015, 0.03)}),
     "push_g3_r1_deep3": ("push", 1, 3.0, {"deepest": 0.03}),
+    # the served fit (push_g3_r1_deep3) at a lower gain: re-chosen for DeePSD 0.11.0, which leaves less inside
+    "push_g1_r1_deep3": ("push", 1, 1.0, {"deepest": 0.03}), "push_g2_r1_deep3": ("push", 1, 2.0, {"deepest": 0.03}),
     "push_g3_r1_tight_deep3": ("push", 1, 3.0, {"tight": (0.015, 0.03), "deepest": 0.03}),
 }
 STRIDES = {150: (4, 12), 300: (2, 6), 600: (1, 3)}  # fit poses: (clip frame stride, procedural frame stride)
