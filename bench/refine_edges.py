@@ -76,10 +76,12 @@ def main() -> None:
     ap.add_argument("--ratios", default="1.5", help="edge-limit caps to try, times the rest length")
     ap.add_argument("--within", default="0.03",
                     help="the last check's reach (Refiner.verify_within, m) in the +chk variants, one variant each")
+    ap.add_argument("--far-k", type=int, default=None,
+                    help="BodySurface(far_k=...): far points read outside are asked again over that many vertices")
     args = ap.parse_args()
     engine = Engine(refine_workers=1)
     body = load_body("neutral")
-    surface = BodySurface(body.faces, len(body.vertices))
+    surface = BodySurface(body.faces, len(body.vertices), far_k=args.far_k)
     print(f"{'garment':24s} {'clip':14s} {'N':>5s} {'T':>4s} {'variant':18s} {'inside med':>10s} {'worst':>6s} "
           f"{'new >2x':>7s} {'through':>7s} {'worst new':>9s} {'max/rest':>8s} {'ms/frame':>8s}")
     for name, rest, faces, clips in cases(args.every):

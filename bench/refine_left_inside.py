@@ -29,10 +29,12 @@ from drape.runtime.engine import Engine
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--every", type=int, default=12, help="use every k-th frame of the real clips")
+    ap.add_argument("--far-k", type=int, default=None,
+                    help="BodySurface(far_k=...): far points read outside are asked again over that many vertices")
     args = ap.parse_args()
     engine = Engine(refine_workers=1)
     body = load_body("neutral")
-    surface = BodySurface(body.faces, len(body.vertices))
+    surface = BodySurface(body.faces, len(body.vertices), far_k=args.far_k)
     missed: list[float] = []  # the refiner's own depth reading (mm) of every vertex left inside
     total = 0
     for name, rest, faces, clips in cases(args.every):

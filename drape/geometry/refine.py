@@ -91,12 +91,16 @@ class Collider(Protocol):
 class BodySurface:
     """Closest points on one posed body: candidates are the faces around the k nearest body vertices.
 
+    far_k: a point farther than `far` from every body vertex that the normals of its k nearest call outside is
+    asked again over its far_k nearest (None: not; off in the service: bench/refine_edges --far-k, docs/refine.md).
+
     body_faces' vertex->face incidence is built once per topology and reused for every frame.
     """
 
-    def __init__(self, body_faces: np.ndarray, num_vertices: int, k: int = 2, far: float = 0.015):
+    def __init__(self, body_faces: np.ndarray, num_vertices: int, k: int = 2, far: float = 0.015,
+                 far_k: int | None = None):
         self.faces = np.asarray(body_faces, dtype=np.int64)
-        self.k, self.far = k, far
+        self.k, self.far, self.far_k = k, far, far_k
         inc = vertex_face_incidence(self.faces, num_vertices)
         deg = np.diff(inc.indptr)
         self.fmax = int(deg.max())
@@ -140,6 +144,17 @@ class BodySurface:
         inner = np.einsum("pkc,pkc->pk", points[:, None] - around, around_n) < 0
         # a nearest vertex in no face has no normal to tell the side by
         close = (dist[:, 0] < self.far) | inner.any(axis=1) | ~self.in_face.take(near[:, 0])
+        if self.far_k and self.far_k > k and not close.all():
+            # a far point read outside by its k nearest normals: asked again over its far_k nearest, where the
+            # body folds (the armpit) the k nearest can all face it from outside while it is inside the limb
+            far = np.nonzero(~close)[0]
+            near_far = tree.query(points[far], k=self.far_k)[1]
+            around_far = body.take(near_far, axis=0)
+            recheck = far[(np.einsum("pkc,pkc->pk", points[far][:, None] - around_far,
+                                     normals.take(near_far, axis=0)) < 0).any(axis=1)]
+            if len(recheck):
+                sd_r, cp_r, n_r, _ = self._query(body, normals, points[recheck], tree, self.far_k)
+                sd[recheck], cp[recheck], n[recheck] = sd_r, cp_r, n_r
         idx = np.nonzero(close)[0]
         if len(idx):
             around_idx = near[idx]
