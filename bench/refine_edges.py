@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.refine_spikes import passes_through
-from drape.assets.body import load_body
+from drape.assets.body import Body, load_body
 from drape.assets.motion import import_motion, load_clip
 from drape.assets.outfits import generate_outfit
 from drape.geometry.fitting import fit_garment
@@ -70,18 +70,22 @@ def cases(every: int):  # noqa: ANN201
     return out
 
 
+def setup(ap: argparse.ArgumentParser) -> tuple[argparse.Namespace, Engine, Body, BodySurface]:
+    """`--far-k` added to the bench's arguments, parsed -> (args, the engine, the neutral body, its surface)."""
+    ap.add_argument("--far-k", type=int, default=None,
+                    help="BodySurface(far_k=...): far points read outside are asked again over that many vertices")
+    args = ap.parse_args()
+    body = load_body("neutral")
+    return args, Engine(refine_workers=1), body, BodySurface(body.faces, len(body.vertices), far_k=args.far_k)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--every", type=int, default=6, help="use every k-th frame of the real clips")
     ap.add_argument("--ratios", default="1.5", help="edge-limit caps to try, times the rest length")
     ap.add_argument("--within", default="0.03",
                     help="the last check's reach (Refiner.verify_within, m) in the +chk variants, one variant each")
-    ap.add_argument("--far-k", type=int, default=None,
-                    help="BodySurface(far_k=...): far points read outside are asked again over that many vertices")
-    args = ap.parse_args()
-    engine = Engine(refine_workers=1)
-    body = load_body("neutral")
-    surface = BodySurface(body.faces, len(body.vertices), far_k=args.far_k)
+    args, engine, body, surface = setup(ap)
     print(f"{'garment':24s} {'clip':14s} {'N':>5s} {'T':>4s} {'variant':18s} {'inside med':>10s} {'worst':>6s} "
           f"{'new >2x':>7s} {'through':>7s} {'worst new':>9s} {'max/rest':>8s} {'ms/frame':>8s}")
     for name, rest, faces, clips in cases(args.every):

@@ -18,23 +18,16 @@ import argparse
 
 import numpy as np
 
-from bench.refine_edges import cases
-from drape.assets.body import load_body
+from bench.refine_edges import cases, setup
 from drape.geometry.queries import signed_distance_to_mesh, winding_number
-from drape.geometry.refine import BodySurface, Refiner, RefineReport, body_tree
+from drape.geometry.refine import Refiner, RefineReport, body_tree
 from drape.geometry.skeleton import JOINT_NAMES
-from drape.runtime.engine import Engine
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--every", type=int, default=12, help="use every k-th frame of the real clips")
-    ap.add_argument("--far-k", type=int, default=None,
-                    help="BodySurface(far_k=...): far points read outside are asked again over that many vertices")
-    args = ap.parse_args()
-    engine = Engine(refine_workers=1)
-    body = load_body("neutral")
-    surface = BodySurface(body.faces, len(body.vertices), far_k=args.far_k)
+    args, engine, body, surface = setup(ap)
     missed: list[float] = []  # the refiner's own depth reading (mm) of every vertex left inside
     total = 0
     for name, rest, faces, clips in cases(args.every):

@@ -147,14 +147,9 @@ class BodySurface:
         if self.far_k and self.far_k > k and not close.all():
             # a far point read outside by its k nearest normals: asked again over its far_k nearest, where the
             # body folds (the armpit) the k nearest can all face it from outside while it is inside the limb
+            # (one the far_k nearest also read outside keeps the same nearest vertex, distance and normal)
             far = np.nonzero(~close)[0]
-            near_far = tree.query(points[far], k=self.far_k)[1]
-            around_far = body.take(near_far, axis=0)
-            recheck = far[(np.einsum("pkc,pkc->pk", points[far][:, None] - around_far,
-                                     normals.take(near_far, axis=0)) < 0).any(axis=1)]
-            if len(recheck):
-                sd_r, cp_r, n_r, _ = self._query(body, normals, points[recheck], tree, self.far_k)
-                sd[recheck], cp[recheck], n[recheck] = sd_r, cp_r, n_r
+            sd[far], cp[far], n[far], _ = self._query(body, normals, points[far], tree, self.far_k)
         idx = np.nonzero(close)[0]
         if len(idx):
             around_idx = near[idx]
