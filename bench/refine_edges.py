@@ -11,11 +11,13 @@ frame, by an exact signed distance independent of the refiner's own query), the 
 2x their rest length that were not already that long in the input (count over all frame-edges, how many
 of them pass through the body: ends on opposite sides of a limb, bench/refine_spikes.passes_through; and
 the worst such edge's length over its rest length), the largest stretch against rest of any edge, and the
-refinement's milliseconds per frame in this process. Variants: the stretch relief pass (what /v1/refine
-runs: it has no rest shape), the edge-limit pass (`Refiner(rest=...)`: edges capped at max(ratio x rest,
-input length); what animate runs), and each with the last check (+chk: `verify_k=8`, off by default).
+refinement's milliseconds per frame in this process. Variants: `relief` (what /v1/refine runs: it has no rest
+shape), `edges 1.5x` (what animate runs: the edge-limit pass, `Refiner(rest=...)`, edges capped at max(ratio x rest,
+input length)), each with the refinement's defaults (the last check over 8 nearest body vertices on what lies within
+1 cm, the surface's FAR_K) and without the last check (-chk); `before`: the relief pass without the check on a
+surface without FAR_K, what both routes ran before them.
 
-Run: .venv/bin/python -m bench.refine_edges [--every 6] [--within 0.03,0.01] (about 5 minutes on the 2-core machine)
+Run: .venv/bin/python -m bench.refine_edges [--every 6] [--far-k 0] (about 5 minutes on the 2-core machine)
 """
 
 from __future__ import annotations
@@ -34,18 +36,19 @@ from drape.geometry.fitting import fit_garment
 from drape.geometry.mesh import unique_edges
 from drape.geometry.mesh_io import load_mesh
 from drape.geometry.queries import signed_distance_to_mesh
-from drape.geometry.refine import VERIFY_WITHIN, BodySurface, Refiner, RefineReport
+from drape.geometry.refine import FAR_K, BodySurface, Refiner, RefineReport
 from drape.runtime.engine import Engine
 from drape.training.deepsd_eval import REAL_CLIPS
 
 SHARED = Path("..") / "shared" / "data"
 LONG = 2.0  # the bar: no edge made longer than 2x its rest length
-CHECK_K = 8  # the last check's nearest body vertices (Refiner.verify_k) in the +chk variants
 
 
-def motions(body):  # noqa: ANN001, ANN201
-    """[(name, poses (T, 24, 3), translation (T, 3))]: real CMU clips at 30 fps (those present)."""
-    paths = [SHARED / "external" / "fairmotion_01_01.bvh", *(SHARED / "mocap" / f"{c}.bvh" for c in REAL_CLIPS)]
+def motions(body, clips=None):  # noqa: ANN001, ANN201
+    """[(name, poses (T, 24, 3), translation (T, 3))]: real CMU clips at 30 fps (those present): fairmotion 01_01
+    and REAL_CLIPS, or the named clips of ../shared/data/mocap."""
+    paths = ([SHARED / "external" / "fairmotion_01_01.bvh", *(SHARED / "mocap" / f"{c}.bvh" for c in REAL_CLIPS)]
+             if clips is None else [SHARED / "mocap" / f"{c}.bvh" for c in clips])
     out = []
     for p in paths:
         if p.exists():
@@ -54,10 +57,10 @@ def motions(body):  # noqa: ANN001, ANN201
     return out
 
 
-def cases(every: int):  # noqa: ANN201
-    """[(garment name, rest vertices (N, 3), faces, [(clip, poses, translation)])]."""
+def cases(every: int, clips=None):  # noqa: ANN001, ANN201
+    """[(garment name, rest vertices (N, 3), faces, [(clip, poses, translation)])]; clips: as `motions`."""
     body = load_body("neutral")
-    real = [(n, p[::every], t[::every]) for n, p, t in motions(body)]
+    real = [(n, p[::every], t[::every]) for n, p, t in motions(body, clips)]
     out = []
     for path in sorted((SHARED / "external").glob("*.obj")):
         v, f = load_mesh(path)
@@ -72,39 +75,38 @@ def cases(every: int):  # noqa: ANN201
 
 def setup(ap: argparse.ArgumentParser) -> tuple[argparse.Namespace, Engine, Body, BodySurface]:
     """`--far-k` added to the bench's arguments, parsed -> (args, the engine, the neutral body, its surface)."""
-    ap.add_argument("--far-k", type=int, default=None,
-                    help="BodySurface(far_k=...): far points read outside are asked again over that many vertices")
+    ap.add_argument("--far-k", type=int, default=FAR_K,
+                    help="BodySurface(far_k=...): far points read outside are asked again over that many vertices "
+                         f"(0: not; the refinement's surfaces: {FAR_K})")
     args = ap.parse_args()
     body = load_body("neutral")
-    return args, Engine(refine_workers=1), body, BodySurface(body.faces, len(body.vertices), far_k=args.far_k)
+    return args, Engine(refine_workers=1), body, BodySurface(body.faces, len(body.vertices), far_k=args.far_k or None)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--every", type=int, default=6, help="use every k-th frame of the real clips")
     ap.add_argument("--ratios", default="1.5", help="edge-limit caps to try, times the rest length")
-    ap.add_argument("--within", default="0.03",
-                    help="the last check's reach (Refiner.verify_within, m) in the +chk variants, one variant each")
+    ap.add_argument("--clips", default=None,
+                    help="comma-separated clips of ../shared/data/mocap instead of fairmotion 01_01 and REAL_CLIPS "
+                         "(e.g. the validation clips 05_04_dance,06_01_walk,06_03_sports)")
     args, engine, body, surface = setup(ap)
+    # what both routes ran before the last check and FAR_K were on: the relief pass, the plain surface
+    plain = BodySurface(body.faces, len(body.vertices))
     print(f"{'garment':24s} {'clip':14s} {'N':>5s} {'T':>4s} {'variant':18s} {'inside med':>10s} {'worst':>6s} "
           f"{'new >2x':>7s} {'through':>7s} {'worst new':>9s} {'max/rest':>8s} {'ms/frame':>8s}")
-    for name, rest, faces, clips in cases(args.every):
+    for name, rest, faces, clips in cases(args.every, args.clips.split(",") if args.clips else None):
         out = engine.rig(rest, faces, "neutral")
         edges = unique_edges(out.faces)
         rest_len = np.linalg.norm(out.vertices[edges[:, 0]] - out.vertices[edges[:, 1]], axis=1)
-        within = [float(w) for w in args.within.split(",")]
-
-        def chk(w: float) -> str:  # the label of a check's reach: "" for the default 3 cm
-            return "" if w == VERIFY_WITHIN else f"{1e3 * w:g}mm"
-
-        variants = {"relief": Refiner(out.faces, len(rest))}
-        variants.update({f"relief+chk{chk(w)}": Refiner(out.faces, len(rest), verify_k=CHECK_K, verify_within=w)
-                         for w in within})
+        variants = {"before": (Refiner(out.faces, len(rest), verify_k=0), plain),
+                    "relief -chk": (Refiner(out.faces, len(rest), verify_k=0), surface),
+                    "relief": (Refiner(out.faces, len(rest)), surface)}
         for r in args.ratios.split(","):
-            variants[f"edges {r}x"] = Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r))
-            variants.update({f"edges {r}x+chk{chk(w)}": Refiner(out.faces, len(rest), rest=out.vertices,
-                                                                stretch_ratio=float(r), verify_k=CHECK_K,
-                                                                verify_within=w) for w in within})
+            variants[f"edges {r}x -chk"] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
+                                                    verify_k=0), surface)
+            variants[f"edges {r}x"] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r)),
+                                       surface)
         for clip, poses, trans in clips:
             frames = np.concatenate(list(engine.pose_chunks(out, poses, trans))).astype(np.float64)
             bodies = body.pose(poses, trans).astype(np.float64)
@@ -112,9 +114,9 @@ def main() -> None:
             inside0 = [np.mean(signed_distance_to_mesh(f, b, body.faces) < 0) for f, b in zip(frames, bodies, strict=True)]
             print(f"{name[:24]:24s} {clip:14s} {len(rest):5d} {len(frames):4d} {'input':18s} "
                   f"{np.median(inside0):10.2%} {max(inside0):6.2%} {'':7s} {'':7s} {'':9s} {before.max():7.2f}x")
-            for label, refiner in variants.items():
+            for label, (refiner, collider) in variants.items():
                 t = time.perf_counter()
-                refined = np.stack([refiner.refine_frame(f, b, surface, RefineReport())
+                refined = np.stack([refiner.refine_frame(f, b, collider, RefineReport())
                                     for f, b in zip(frames, bodies, strict=True)])
                 ms = 1e3 * (time.perf_counter() - t) / len(frames)
                 after = np.linalg.norm(refined[:, edges[:, 0]] - refined[:, edges[:, 1]], axis=2) / rest_len

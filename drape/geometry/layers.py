@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 from drape.geometry.queries import OpenSurfaceDistance
 from drape.geometry.refine import (
     EPS,
+    FAR_K,
     MAX_ITERATIONS,
     RELIEF_ITERATIONS,
     BodySurface,
@@ -165,7 +166,7 @@ class LayerRefiner:
         self.between = Refiner(outer_faces, num_outer, eps=LAYER_EPS, max_iterations=it, relief_iterations=relief)
         self.last = Refiner(outer_faces, num_outer, eps=LAYER_EPS, max_iterations=it, relief_iterations=relief,
                             verify_k=verify_k, verify_stretch=LAYER_VERIFY_STRETCH)
-        self.body_surface = BodySurface(body_faces, body_vertices)
+        self.body_surface = BodySurface(body_faces, body_vertices, far_k=FAR_K)
         self.layer_surface = LayerSurface(inner_faces, num_inner, thickness, exact=False)
         self.both_surface = BodyAndLayerSurface(self.body_surface, body_vertices, inner_faces, num_inner, thickness,
                                                 body_eps=eps)

@@ -67,9 +67,12 @@ MAX_ITERATIONS = 3  # fast-path iterations before the progressive pass
 RELIEF_ITERATIONS = 10  # rounds of the stretch relief pass (0: none)
 STRETCH_RATIO = 1.5  # with a rest shape: the edge-limit pass's cap, times the rest length
 STRETCH_ITERATIONS = 15  # rounds of the edge-limit pass
-VERIFY_K = 0  # nearest body vertices whose faces the last check looks at (0: no check; 8 in bench/refine_edges)
+VERIFY_K = 8  # nearest body vertices whose faces the last check looks at (0: no check)
 VERIFY_ROUNDS = 4  # rounds of the last check's projection
-VERIFY_WITHIN = 0.03  # metres: vertices the refinement's own query finds closer than this are checked
+VERIFY_WITHIN = 0.01  # metres: vertices the refinement's own query finds closer than this are checked
+FAR_K = 5  # the refinement's body surfaces: far points read outside are asked again over this many vertices
+SNAP_MARGIN = 0.25  # the third round's second try: eps x this from the body (0.75 mm)
+SNAP_STRETCH = 2.0  # the last check's third round: no edge longer than this x the vertex's longest in the input
 
 
 def body_tree(body: np.ndarray) -> cKDTree:
@@ -92,7 +95,8 @@ class BodySurface:
     """Closest points on one posed body: candidates are the faces around the k nearest body vertices.
 
     far_k: a point farther than `far` from every body vertex that the normals of its k nearest call outside is
-    asked again over its far_k nearest (None: not; off in the service: bench/refine_edges --far-k, docs/refine.md).
+    asked again over its far_k nearest (None: not). The refinement's surfaces use FAR_K (docs/refine.md); the served
+    rig's collision fit (drape.runtime.collision_fit) keeps None, as its model was chosen with.
 
     body_faces' vertex->face incidence is built once per topology and reused for every frame.
     """
@@ -133,56 +137,65 @@ class BodySurface:
             return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
         tree = tree or body_tree(body)
         k = k or self.k
+        # far points are asked again over far_k nearest: one KD search serves both readings
+        kk = max(k, self.far_k or 0)
         # both cores only for a whole large garment: below ~10k points the threads cost more than they save
-        dist, near = tree.query(points, k=k, workers=-1 if len(points) >= 10_000 else 1)
+        dist, near = tree.query(points, k=kk, workers=-1 if len(points) >= 10_000 else 1)
         # `take` rather than fancy indexing: it gathers rows several times faster
-        around, around_n = body.take(near, axis=0), normals.take(near, axis=0)  # (P, k, 3)
-        cp, n = around[:, 0], around_n[:, 0]
+        around, around_n = body.take(near, axis=0), normals.take(near, axis=0)  # (P, kk, 3)
+        cp, n = around[:, 0].copy(), around_n[:, 0].copy()
         sd = dist[:, 0].copy()
-        # inner side of any of the k nearest: where the body overlaps itself (armpit, thighs) the nearest
+        # inner side of any of the nearest: where the body overlaps itself (armpit, thighs) the nearest
         # vertex can belong to the part the point is not inside
         inner = np.einsum("pkc,pkc->pk", points[:, None] - around, around_n) < 0
         # a nearest vertex in no face has no normal to tell the side by
-        close = (dist[:, 0] < self.far) | inner.any(axis=1) | ~self.in_face.take(near[:, 0])
-        if self.far_k and self.far_k > k and not close.all():
-            # a far point read outside by its k nearest normals: asked again over its far_k nearest, where the
-            # body folds (the armpit) the k nearest can all face it from outside while it is inside the limb
-            # (one the far_k nearest also read outside keeps the same nearest vertex, distance and normal)
-            far = np.nonzero(~close)[0]
-            sd[far], cp[far], n[far], _ = self._query(body, normals, points[far], tree, self.far_k)
+        close = (dist[:, 0] < self.far) | inner[:, :k].any(axis=1) | ~self.in_face.take(near[:, 0])
         idx = np.nonzero(close)[0]
         if len(idx):
-            around_idx = near[idx]
-            lost = np.nonzero(~self.in_face.take(around_idx).any(axis=1))[0]
-            if len(lost):  # its k nearest body vertices are in no face: take the k nearest that are
-                used = np.nonzero(self.in_face)[0]
-                kk = min(k, len(used))
-                q = cKDTree(body[used]).query(points[idx[lost]], k=kk)[1].reshape(len(lost), kk)
-                around_idx = around_idx.copy()
-                around_idx[lost] = used[q[:, np.arange(k) % kk]]
-            # the faces around the k nearest body vertices, each face once per point
-            cand = np.sort(self.vertex_faces.take(around_idx, axis=0).reshape(len(idx), -1), axis=1)
-            keep = cand < len(self.faces)
-            keep[:, 1:] &= cand[:, 1:] != cand[:, :-1]
-            row, face = np.nonzero(keep)[0], cand[keep]  # row-major: each point's candidates are contiguous
-            f = self.faces.take(face, axis=0)
-            tri = body.take(f, axis=0)  # (candidates, 3 corners, 3)
-            pts = points[idx].take(row, axis=0)
-            c, bary = closest_point_on_triangles(pts, tri[:, 0], tri[:, 1], tri[:, 2])
-            d2 = np.einsum("pc,pc->p", pts - c, pts - c)
-            start = np.searchsorted(row, np.arange(len(idx)))
-            # the first candidate of each point reaching that point's smallest distance
-            at_min = d2 == np.repeat(np.minimum.reduceat(d2, start), np.diff(np.append(start, len(row))))
-            first = np.nonzero(at_min)[0]
-            best = first[np.searchsorted(row[first], np.arange(len(idx)))]
-            c, bary, fb = c[best], bary[best], f[best]
-            nn = np.einsum("pk,pkc->pc", bary, normals.take(fb, axis=0))
-            nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-12)
-            diff = points[idx] - c
-            d = np.linalg.norm(diff, axis=1)
-            cp[idx], n[idx] = c, nn
-            sd[idx] = np.where(np.einsum("pc,pc->p", diff, nn) < 0, -d, d)
+            sd[idx], cp[idx], n[idx] = self._closest_on_faces(body, normals, points[idx], near[idx, :k])
+        if kk > k:
+            # a far point read outside by its k nearest normals is asked again over its far_k nearest: where the
+            # body folds (the armpit) the k nearest can all face it from outside while it is inside the limb
+            # (one the far_k nearest also read outside keeps the nearest vertex, its distance and normal)
+            ask = np.nonzero(~close & inner.any(axis=1))[0]
+            if len(ask):
+                sd[ask], cp[ask], n[ask] = self._closest_on_faces(body, normals, points[ask], near[ask])
         return sd, cp, n, near[:, 0]
+
+    def _closest_on_faces(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
+                          around: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """points (P, 3), around (P, K) body vertex indices -> (signed distance (P,), closest point (P, 3), unit
+        normal there (P, 3)): the exact closest point on the faces around each point's K body vertices, its side by
+        the normal interpolated there."""
+        k = around.shape[1]
+        lost = np.nonzero(~self.in_face.take(around).any(axis=1))[0]
+        if len(lost):  # its body vertices are in no face: take the k nearest that are
+            used = np.nonzero(self.in_face)[0]
+            kk = min(k, len(used))
+            q = cKDTree(body[used]).query(points[lost], k=kk)[1].reshape(len(lost), kk)
+            around = around.copy()
+            around[lost] = used[q[:, np.arange(k) % kk]]
+        # the faces around the body vertices, each face once per point
+        cand = np.sort(self.vertex_faces.take(around, axis=0).reshape(len(points), -1), axis=1)
+        keep = cand < len(self.faces)
+        keep[:, 1:] &= cand[:, 1:] != cand[:, :-1]
+        row, face = np.nonzero(keep)[0], cand[keep]  # row-major: each point's candidates are contiguous
+        f = self.faces.take(face, axis=0)
+        tri = body.take(f, axis=0)  # (candidates, 3 corners, 3)
+        pts = points.take(row, axis=0)
+        c, bary = closest_point_on_triangles(pts, tri[:, 0], tri[:, 1], tri[:, 2])
+        d2 = np.einsum("pc,pc->p", pts - c, pts - c)
+        start = np.searchsorted(row, np.arange(len(points)))
+        # the first candidate of each point reaching that point's smallest distance
+        at_min = d2 == np.repeat(np.minimum.reduceat(d2, start), np.diff(np.append(start, len(row))))
+        first = np.nonzero(at_min)[0]
+        best = first[np.searchsorted(row[first], np.arange(len(points)))]
+        c, bary, fb = c[best], bary[best], f[best]
+        nn = np.einsum("pk,pkc->pc", bary, normals.take(fb, axis=0))
+        nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-12)
+        diff = points - c
+        d = np.linalg.norm(diff, axis=1)
+        return np.where(np.einsum("pc,pc->p", diff, nn) < 0, -d, d), c, nn
 
 
 @dataclass
@@ -227,6 +240,11 @@ class Refiner:
             if r.shape != (num_vertices, 3):
                 raise ValueError(f"rest must be ({num_vertices}, 3), got {r.shape}")
             self.rest_length = np.linalg.norm(r[self.edges[:, 0]] - r[self.edges[:, 1]], axis=1)
+            a, b = self.edges[:, 0], self.edges[:, 1]
+            # (N, N) each edge's rest length at both of its ends, for the last check
+            self.rest_pairs = sp.csr_matrix((np.concatenate([self.rest_length, self.rest_length]),
+                                             (np.concatenate([a, b]), np.concatenate([b, a]))),
+                                            shape=(num_vertices, num_vertices))
 
     def _patch_stretch(self, v: np.ndarray, inside: np.ndarray, targets: np.ndarray,
                        patch: np.ndarray, num_patches: int) -> np.ndarray:
@@ -484,17 +502,18 @@ class Refiner:
         return out, len(moving)
 
     def _put_out(self, x: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
-                 tree: cKDTree) -> tuple[np.ndarray, np.ndarray]:
+                 tree: cKDTree, margin: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """Points x (P, 3) -> (placed (P, 3), signed distance (P,) there, by the `verify_k` query).
 
-        Each inside point goes to its closest point + eps; one that lands inside another part (a crease)
-        moves along the bisector of the two parts' normals until it is eps outside both tangent planes,
-        for up to VERIFY_ROUNDS rounds."""
+        Each inside point goes to its closest point + eps (times `margin`); one that lands inside another part
+        (a crease) moves along the bisector of the two parts' normals until it is that far outside both tangent
+        planes, for up to VERIFY_ROUNDS rounds."""
+        eps = self.eps * margin
         out = x.copy()
         sd, c, nn = surface.query(body, normals, out, tree, k=self.verify_k)
         todo = np.nonzero(sd < 0)[0]
         c, nn = c[todo], nn[todo]
-        out[todo] = c + self.eps * nn
+        out[todo] = c + eps * nn
         for _ in range(VERIFY_ROUNDS):
             if len(todo) == 0:
                 break
@@ -504,7 +523,7 @@ class Refiner:
             todo, p, c, nn, c2, n2 = todo[keep], out[todo[keep]], c[keep], nn[keep], c2[keep], n2[keep]
             d = nn + n2
             d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-            need = [(self.eps - np.einsum("pc,pc->p", p - ci, ni)) / np.maximum(np.einsum("pc,pc->p", d, ni), 0.1)
+            need = [(eps - np.einsum("pc,pc->p", p - ci, ni)) / np.maximum(np.einsum("pc,pc->p", d, ni), 0.1)
                     for ci, ni in ((c, nn), (c2, n2))]
             out[todo] = p + np.maximum(np.maximum(need[0], need[1]), 0.0)[:, None] * d
             c, nn = c2, n2
@@ -523,38 +542,65 @@ class Refiner:
         put out (`_put_out`) from two starts: where it is, and its neighbours' mean plus its own offset from
         them in the input (their side of the body: straight out of an arm can be its far side). Of the two,
         the one outside whose longest edge to its neighbours is shorter is the target of one smooth step of
-        the refinement (`_solve`: the neighbours come along); twice. What is still inside counts as inside
-        in the report.
+        the refinement (`_solve`: the neighbours come along); twice. The smooth step can fall a few mm short of
+        its targets; a third round puts what is still inside straight at its place, where no edge to its
+        neighbours becomes longer than SNAP_STRETCH x the longest in the input. What is still inside counts as
+        inside in the report.
         """
         if not self.verify_k:
             return v, 0
         put = 0
-        for _ in range(2):
-            near = np.nonzero(sd < self.verify_within)[0]
-            s = surface.query(body, normals, v[near], tree, k=self.verify_k)[0]
-            sd[near] = s
-            bad = near[s < 0]
+        near = np.nonzero(sd < self.verify_within)[0]
+        sd[near] = surface.query(body, normals, v[near], tree, k=self.verify_k)[0]
+        stuck = False  # a smooth round found no place: the next smooth one would not either
+        for last in (False, False, True):
+            # every vertex within reach now has this check's reading: what moved was queried again below
+            bad = np.nonzero(sd < 0)[0]
             if len(bad) == 0:
                 break
+            if stuck and not last:
+                continue
             adj = self.adjacency[bad]  # (B, N) the bad vertices' neighbours
             deg = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)[:, None]
             anchored = (adj @ v) / deg + v0[bad] - (adj @ v0) / deg
-            rows, cols = adj.nonzero()
+            if self.rest_length is None:
+                rows, cols = adj.nonzero()
+            else:
+                pairs = self.rest_pairs[bad].tocoo()
+                rows, cols = pairs.row, pairs.col
+            given = np.linalg.norm(v0[bad][rows] - v0[cols], axis=1)  # the input's length of each edge
             # a place whose edges to the neighbours exceed `verify_stretch` x the longest in the input is not taken:
             # put out of a crease, a vertex can land centimetres from its neighbours (a spike)
             limit = np.zeros(len(bad))
-            np.maximum.at(limit, rows, np.linalg.norm(v0[bad][rows] - v0[cols], axis=1))
-            best, best_out, best_len = v[bad].copy(), np.zeros(len(bad), dtype=bool), self.verify_stretch * limit
-            for start in (v[bad], anchored):
-                x, q = self._put_out(start, surface, body, normals, tree)
+            np.maximum.at(limit, rows, given)
+            limit[limit == 0] = np.inf  # a vertex in no face (a real file can carry such) has no edge to stretch
+            cap = min(self.verify_stretch, SNAP_STRETCH) if last else self.verify_stretch
+            best, best_out, best_len = v[bad].copy(), np.zeros(len(bad), dtype=bool), cap * limit
+            # the third round also tries a margin of SNAP_MARGIN x eps: in a crease, eps outside one part can be
+            # inside the other, and the bisector's way out centimetres from the neighbours
+            tries, full = [(start, 1.0) for start in (v[bad], anchored)], None
+            for start, margin in tries + ([(v[bad], SNAP_MARGIN), (anchored, SNAP_MARGIN)] if last else []):
+                x, q = self._put_out(start, surface, body, normals, tree, margin)
+                length = np.linalg.norm(x[rows] - v[cols], axis=1)
                 longest = np.zeros(len(bad))
-                np.maximum.at(longest, rows, np.linalg.norm(x[rows] - v[cols], axis=1))
+                np.maximum.at(longest, rows, length)
                 take = (q >= 0) & (longest < best_len)
+                if self.rest_length is not None:  # nor, with a rest shape, one that makes an edge over SNAP_STRETCH
+                    over = np.zeros(len(bad), dtype=bool)  # x its rest length that was not that long in the input
+                    np.logical_or.at(over, rows, length > np.maximum(SNAP_STRETCH * pairs.data, given))
+                    take &= ~over
+                if margin != 1.0:  # only where no place at the full margin was found
+                    full = best_out.copy() if full is None else full
+                    take &= ~full
                 best[take], best_out[take], best_len[take] = x[take], True, longest[take]
             if not best_out.any():
-                break
-            # the smooth step of the refinement carries the neighbours along: no single edge spans the move
-            v, region = self._solve(v, bad[best_out], best[best_out])
+                stuck = True
+                continue
+            if last:  # straight there: moves of a few mm (the edge cap keeps it from spanning a crease alone)
+                v, region = v.copy(), bad[best_out]
+                v[region] = best[best_out]
+            else:  # the smooth step of the refinement carries the neighbours along: no single edge spans the move
+                v, region = self._solve(v, bad[best_out], best[best_out])
             sd[region] = surface.query(body, normals, v[region], tree, k=self.verify_k)[0]
             put += int(np.count_nonzero(best_out))
         return v, put
@@ -622,20 +668,21 @@ class Refiner:
 
 def refine(garment: np.ndarray, faces: np.ndarray, body: np.ndarray, body_faces: np.ndarray,
            eps: float = EPS, max_iterations: int = MAX_ITERATIONS, tear: float | None = 0.02,
-           relief_iterations: int = RELIEF_ITERATIONS) -> tuple[np.ndarray, RefineReport]:
+           relief_iterations: int = RELIEF_ITERATIONS, verify_k: int = VERIFY_K) -> tuple[np.ndarray, RefineReport]:
     """Refine a garment stream: (T, N, 3) garment, (T, M, 3) body -> ((T, N, 3) float32, report).
 
     eps: margin outside the body (m); tear: edge elongation (m) above which a patch's closest-point
     targets are checked against front-by-front placement (None: closest points only);
-    relief_iterations: rounds of the stretch relief pass (0: none).
+    relief_iterations: rounds of the stretch relief pass (0: none); verify_k: the last check's nearest body
+    vertices (0: no check).
     """
     g = np.asarray(garment)
     b = np.asarray(body)
     if g.ndim == 2:
         g, b = g[None], (b[None] if b.ndim == 2 else b)
     refiner = Refiner(faces, g.shape[1], eps=eps, max_iterations=max_iterations, tear=tear,
-                      relief_iterations=relief_iterations)
-    surface = BodySurface(body_faces, b.shape[1])
+                      relief_iterations=relief_iterations, verify_k=verify_k)
+    surface = BodySurface(body_faces, b.shape[1], far_k=FAR_K)
     report = RefineReport()
     out = np.stack([refiner.refine_frame(g[t], b[t], surface, report) for t in range(len(g))])
     return out.astype(np.float32), report

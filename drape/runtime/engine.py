@@ -28,6 +28,7 @@ from drape.geometry.lbs import rest_space_offsets
 from drape.geometry.mesh import coincident_groups, regroup_faces
 from drape.geometry.refine import (
     EPS,
+    FAR_K,
     MAX_ITERATIONS,
     RELIEF_ITERATIONS,
     BodySurface,
@@ -85,9 +86,11 @@ class RefineSettings:
     max_iterations: int = MAX_ITERATIONS
     relief_iterations: int = RELIEF_ITERATIONS
 
-    def refiner(self, faces: np.ndarray, num_vertices: int) -> Refiner:
+    def refiner(self, faces: np.ndarray, num_vertices: int, rest: np.ndarray | None = None) -> Refiner:
+        """The body refinement of one topology; with the garment's rest shape (N, 3) m, the edge-limit pass takes
+        the relief pass's place (refine.Refiner's `rest`)."""
         return Refiner(faces, num_vertices, eps=self.eps, max_iterations=self.max_iterations,
-                       relief_iterations=self.relief_iterations)
+                       relief_iterations=self.relief_iterations, rest=rest)
 
 
 @dataclass(frozen=True)
@@ -144,8 +147,8 @@ def body_surface(body: str, faces: bytes | None = None, num_vertices: int = 0) -
     count instead (a user body's name is a hash of its content, so the name keys the cache safely)."""
     if faces is None:
         b = load_body(body)
-        return BodySurface(b.faces, len(b.vertices))
-    return BodySurface(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices)
+        return BodySurface(b.faces, len(b.vertices), far_k=FAR_K)
+    return BodySurface(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices, far_k=FAR_K)
 
 
 def resolved_body(body: str | Body) -> Body:
@@ -177,15 +180,18 @@ def refine_against(frames: np.ndarray, surface: BodySurface, body_vertices: np.n
 
 
 @lru_cache(maxsize=4)
-def cached_refiner(settings: RefineSettings, faces: bytes, num_vertices: int) -> Refiner:
-    """This process's Refiner for one garment topology and settings (faces: (F, 3) int32 as bytes), built once."""
-    return settings.refiner(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices)
+def cached_refiner(settings: RefineSettings, faces: bytes, num_vertices: int, rest: bytes | None = None) -> Refiner:
+    """This process's Refiner for one garment topology, settings and rest shape (faces: (F, 3) int32 as bytes;
+    rest: (N, 3) float64 m as bytes, or None), built once."""
+    shape = None if rest is None else np.frombuffer(rest, dtype=np.float64).reshape(num_vertices, 3)
+    return settings.refiner(np.frombuffer(faces, dtype=np.int32).reshape(-1, 3), num_vertices, shape)
 
 
 def _refine_in_worker(frames: np.ndarray, faces: bytes, body: tuple[str, bytes | None, int], body_vertices: np.ndarray,
-                      settings: RefineSettings) -> np.ndarray:
+                      settings: RefineSettings, rest: bytes | None = None) -> np.ndarray:
     """`refine_against` in a worker process (body: `_surface_arguments`): (n, N, 3) float32."""
-    return refine_against(frames, body_surface(*body), body_vertices, cached_refiner(settings, faces, frames.shape[1]))
+    return refine_against(frames, body_surface(*body), body_vertices,
+                          cached_refiner(settings, faces, frames.shape[1], rest))
 
 
 def _exit_with(server_pid: int, period_s: float = 0.5) -> None:
@@ -226,26 +232,28 @@ class RefinePool:
         self._lock = threading.Lock()
 
     def refine(self, frames: np.ndarray, faces: np.ndarray, body: str | Body, poses: np.ndarray,
-               translation: np.ndarray, settings: RefineSettings) -> np.ndarray:
+               translation: np.ndarray, settings: RefineSettings, rest: np.ndarray | None = None) -> np.ndarray:
         """frames (n, N, 3), faces (F, 3), body (a name or a resolved Body), poses (n, 24, 3) or (n, 72), translation
         (n, 3) -> refined (n, N, 3) float32. Vertices that coincide in every frame (UV seams; within 1 um) are
-        refined as one and stay together."""
+        refined as one and stay together. rest: the garment's rest shape (N, 3) m, where it has one (an outfit drape
+        rigged): edges are then kept near their rest lengths (`RefineSettings.refiner`)."""
         body = resolved_body(body)
         first, group = coincident_groups(np.ascontiguousarray(np.asarray(frames).transpose(1, 0, 2)).reshape(
             frames.shape[1], -1))
         if len(first) < frames.shape[1]:
             return self.refine(frames[:, first], regroup_faces(faces, group), body, poses, translation,
-                               settings)[:, group]
+                               settings, None if rest is None else np.asarray(rest)[first])[:, group]
         # the body is posed here, for the whole chunk, in every case: posing in smaller batches would
         # change its vertices in the last float bit, and the refinement's discrete choices with them
         vertices = posed_body(body, poses, translation)
         f = np.ascontiguousarray(faces, dtype=np.int32).tobytes()
         surface = _surface_arguments(body)
+        r = None if rest is None else np.ascontiguousarray(rest, dtype=np.float64).tobytes()
         done = self._over_workers(len(frames), lambda i: (_refine_in_worker, frames[i], f, surface, vertices[i],
-                                                          settings))
+                                                          settings, r))
         if done is not None:
             return np.concatenate(done)
-        return refine_against(frames, body_surface(*surface), vertices, cached_refiner(settings, f, frames.shape[1]))
+        return refine_against(frames, body_surface(*surface), vertices, cached_refiner(settings, f, frames.shape[1], r))
 
     def refine_layers(self, inner: np.ndarray, inner_faces: np.ndarray, outer: np.ndarray, outer_faces: np.ndarray,
                       thickness: float, body: str | Body, poses: np.ndarray, translation: np.ndarray,
@@ -405,7 +413,7 @@ class Engine:
                 if refine is not None:
                     t = time.perf_counter()
                     part = self.refine_pool.refine(part, outfit.faces, body, p[s : s + chunk], tr[s : s + chunk],
-                                                   refine)
+                                                   refine, rest=outfit.vertices)
                     self._observe("refine", time.perf_counter() - t)
                 yield part
 
@@ -430,7 +438,7 @@ class Engine:
             for s in range(0, len(frames), chunk):
                 part = frames[s : s + chunk]
                 refined = self.refine_pool.refine(part, outfit.faces, body, p[s : s + chunk], tr[s : s + chunk],
-                                                  refine)
+                                                  refine, rest=outfit.vertices)
                 for i, delta in enumerate(refined - part):
                     moved = np.flatnonzero(np.any(delta != 0, axis=1))
                     corrections.append((moved, rest_space_offsets(delta[moved], outfit.rig.weights[moved],

@@ -19,7 +19,7 @@ from drape.assets.body import load_body
 from drape.assets.outfits import generate_outfit
 from drape.geometry.fitting import a_pose
 from drape.geometry.lbs import pose_mesh
-from drape.geometry.refine import BodySurface
+from drape.geometry.refine import FAR_K, BodySurface
 from drape.geometry.skeleton import forward_kinematics
 from drape.runtime.engine import RefineSettings, refine_against
 from drape.service.app import create_app
@@ -97,7 +97,7 @@ def test_a_user_body_rigs_fits_animates_and_refines(http, registered, proxy, shi
     assert out.status_code == 200, out.text[:300]
     got = np.load(io.BytesIO(out.content))["vertices"]
     settings = RefineSettings()
-    expected = refine_against(frames, BodySurface(proxy.faces, len(proxy.vertices)), proxy.pose(poses).astype(
+    expected = refine_against(frames, BodySurface(proxy.faces, len(proxy.vertices), far_k=FAR_K), proxy.pose(poses).astype(
         np.float64), settings.refiner(f, len(v)))
     np.testing.assert_allclose(got, expected, atol=1e-5)
     on_neutral = http.post("/v1/refine", json={**req, "body": "neutral"}, headers={"Accept": NPZ})
