@@ -587,7 +587,8 @@ class Refiner:
                 take = (q >= 0) & (longest < best_len)
                 if self.rest_length is not None:  # nor, with a rest shape, one that makes an edge over SNAP_STRETCH
                     over = np.zeros(len(bad), dtype=bool)  # x its rest length that was not that long in the input
-                    np.logical_or.at(over, rows, length > np.maximum(SNAP_STRETCH * pairs.data, given))
+                    cap_e = SNAP_STRETCH * pairs.data
+                    np.logical_or.at(over, rows, (length > cap_e) & (given <= cap_e))
                     take &= ~over
                 if margin != 1.0:  # only where no place at the full margin was found
                     full = best_out.copy() if full is None else full
