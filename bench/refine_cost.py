@@ -21,16 +21,12 @@ import time
 
 import numpy as np
 
+from bench.refine_relief_cost import spread
 from drape.assets.body import load_body
 from drape.assets.motion import load_clip
 from drape.assets.outfits import generate_outfit
 from drape.geometry.refine import FAR_K, BodySurface, Refiner, RefineReport
 from drape.runtime.engine import Engine
-
-
-def spread(x: np.ndarray) -> str:
-    """Per-pass figures (passes,) -> 'median (min-max)'."""
-    return f"{np.median(x):.2f} ({x.min():.2f}-{x.max():.2f})"
 
 
 def main() -> None:

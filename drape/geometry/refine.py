@@ -544,8 +544,9 @@ class Refiner:
         the one outside whose longest edge to its neighbours is shorter is the target of one smooth step of
         the refinement (`_solve`: the neighbours come along); twice. The smooth step can fall a few mm short of
         its targets; a third round puts what is still inside straight at its place, where no edge to its
-        neighbours becomes longer than SNAP_STRETCH x the longest in the input. What is still inside counts as
-        inside in the report.
+        neighbours becomes longer than SNAP_STRETCH x the longest in the input (with a rest shape, nor any edge over
+        SNAP_STRETCH x its rest length that the input did not have that long), trying SNAP_MARGIN x eps where eps
+        finds no such place. What is still inside counts as inside in the report.
         """
         if not self.verify_k:
             return v, 0
@@ -576,23 +577,25 @@ class Refiner:
             limit[limit == 0] = np.inf  # a vertex in no face (a real file can carry such) has no edge to stretch
             cap = min(self.verify_stretch, SNAP_STRETCH) if last else self.verify_stretch
             best, best_out, best_len = v[bad].copy(), np.zeros(len(bad), dtype=bool), cap * limit
+            if self.rest_length is not None:  # with a rest shape, no edge may become over SNAP_STRETCH x its rest
+                rest_cap = SNAP_STRETCH * pairs.data  # length unless the input already had it that long
+                capped = given <= rest_cap
             # the third round also tries a margin of SNAP_MARGIN x eps: in a crease, eps outside one part can be
             # inside the other, and the bisector's way out centimetres from the neighbours
-            tries, full = [(start, 1.0) for start in (v[bad], anchored)], None
+            tries, missing = [(start, 1.0) for start in (v[bad], anchored)], None
             for start, margin in tries + ([(v[bad], SNAP_MARGIN), (anchored, SNAP_MARGIN)] if last else []):
                 x, q = self._put_out(start, surface, body, normals, tree, margin)
                 length = np.linalg.norm(x[rows] - v[cols], axis=1)
                 longest = np.zeros(len(bad))
                 np.maximum.at(longest, rows, length)
                 take = (q >= 0) & (longest < best_len)
-                if self.rest_length is not None:  # nor, with a rest shape, one that makes an edge over SNAP_STRETCH
-                    over = np.zeros(len(bad), dtype=bool)  # x its rest length that was not that long in the input
-                    cap_e = SNAP_STRETCH * pairs.data
-                    np.logical_or.at(over, rows, (length > cap_e) & (given <= cap_e))
+                if self.rest_length is not None:
+                    over = np.zeros(len(bad), dtype=bool)
+                    np.logical_or.at(over, rows, capped & (length > rest_cap))
                     take &= ~over
-                if margin != 1.0:  # only where no place at the full margin was found
-                    full = best_out.copy() if full is None else full
-                    take &= ~full
+                if margin != 1.0:  # only where the full margin's tries (all before these) found no place
+                    missing = ~best_out if missing is None else missing
+                    take &= missing
                 best[take], best_out[take], best_len[take] = x[take], True, longest[take]
             if not best_out.any():
                 stuck = True
