@@ -7,7 +7,7 @@ FROM python:3.11-slim
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1
 WORKDIR /app
 
-# only the [serve] extra: fastapi, uvicorn, onnxruntime, trimesh, scipy (the shipped models live in drape/assets)
+# only the [serve] extra: fastapi, uvicorn, onnxruntime, trimesh, scipy, pykdtree (the shipped models live in drape/assets)
 COPY pyproject.toml README.md ./
 COPY drape ./drape
 RUN pip install ".[serve]" && useradd --create-home --uid 10001 drape

@@ -30,8 +30,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from drape.geometry.nearest import VertexTree
 from drape.geometry.queries import OpenSurfaceDistance
 from drape.geometry.refine import (
     EPS,
@@ -80,7 +80,7 @@ class LayerSurface:
         return self.distance.normals[2]
 
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
-              tree: cKDTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              tree: VertexTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """points (P, 3) -> (signed distance to the offset surface (P,), closest point on it (P, 3), normal).
         normals, tree and k are the body collider's arguments, unused here."""
         self._frame(body)
@@ -107,7 +107,7 @@ class BodyAndLayerSurface:
         self.shift = float(body_eps) - LAYER_EPS
         self._posed: np.ndarray | None = None
 
-    def parts(self, both: np.ndarray) -> tuple[np.ndarray, np.ndarray, cKDTree, np.ndarray, np.ndarray]:
+    def parts(self, both: np.ndarray) -> tuple[np.ndarray, np.ndarray, VertexTree, np.ndarray, np.ndarray]:
         """Body then inner vertices (M + Ni, 3) -> (body (M, 3), its normals, its KD-tree, inner (Ni, 3), its
         normals), built once per frame."""
         if both is not self._posed:
@@ -122,7 +122,7 @@ class BodyAndLayerSurface:
         return np.concatenate([parts[1], parts[4]])
 
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
-              tree: cKDTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              tree: VertexTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """points (P, 3) -> (signed distance (P,), closest point (P, 3), normal (P, 3)) of the surface each point is
         deeper inside; normals and tree are unused (each part keeps its own), k goes to the body's query."""
         b, bn, bt, i, ln = self.parts(body)

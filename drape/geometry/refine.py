@@ -59,6 +59,7 @@ from drape.geometry.mesh import (
     vertex_face_incidence,
     vertex_normals,
 )
+from drape.geometry.nearest import VertexTree
 from drape.geometry.queries import closest_point_on_triangles
 
 # the defaults of refine(), Refiner and the service's refine options (drape.schemas.outfits.RefineOptions)
@@ -75,10 +76,9 @@ SNAP_MARGIN = 0.25  # the third round's second try: eps x this from the body (0.
 SNAP_STRETCH = 2.0  # the last check's third round: no edge longer than this x the vertex's longest in the input
 
 
-def body_tree(body: np.ndarray) -> cKDTree:
-    """KD-tree over one posed body's vertices (M, 3). Leaves of 32, unbalanced: on a ~14k-vertex
-    body this builds faster than scipy's default and answers a garment's queries no slower."""
-    return cKDTree(body, leafsize=32, balanced_tree=False)
+def body_tree(body: np.ndarray) -> VertexTree:
+    """KD-tree over one posed body's vertices (M, 3), rebuilt every frame (drape.geometry.nearest)."""
+    return VertexTree(body)
 
 
 class Collider(Protocol):
@@ -88,7 +88,7 @@ class Collider(Protocol):
     def normals(self, body: np.ndarray) -> np.ndarray: ...
 
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
-              tree: cKDTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+              tree: VertexTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
 
 class BodySurface:
@@ -120,7 +120,7 @@ class BodySurface:
         return vertex_normals(body, self.faces, self.incidence)
 
     def query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray,
-              tree: cKDTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              tree: VertexTree | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """points (P, 3) -> (signed distance (P,), closest point (P, 3), unit normal there (P, 3)).
 
         Points farther than `far` from every body vertex and on the outer side of the normals of
@@ -130,17 +130,16 @@ class BodySurface:
         """
         return self._query(body, normals, points, tree, k)[:3]
 
-    def _query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray, tree: cKDTree | None,
+    def _query(self, body: np.ndarray, normals: np.ndarray, points: np.ndarray, tree: VertexTree | None,
                k: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """`query`'s answer and each point's nearest body vertex (P,) int."""
         if len(points) == 0:
             return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-        tree = tree or body_tree(body)
+        tree = tree if tree is not None else body_tree(body)
         k = k or self.k
         # far points are asked again over far_k nearest: one KD search serves both readings
         kk = max(k, self.far_k or 0)
-        # both cores only for a whole large garment: below ~10k points the threads cost more than they save
-        dist, near = tree.query(points, k=kk, workers=-1 if len(points) >= 10_000 else 1)
+        dist, near = tree.query(points, k=kk)
         # `take` rather than fancy indexing: it gathers rows several times faster
         around, around_n = body.take(near, axis=0), normals.take(near, axis=0)  # (P, kk, 3)
         cp, n = around[:, 0].copy(), around_n[:, 0].copy()
@@ -181,9 +180,10 @@ class BodySurface:
         keep[:, 1:] &= cand[:, 1:] != cand[:, :-1]
         row, face = np.nonzero(keep)[0], cand[keep]  # row-major: each point's candidates are contiguous
         f = self.faces.take(face, axis=0)
-        tri = body.take(f, axis=0)  # (candidates, 3 corners, 3)
+        # each corner (candidates, 3) contiguous: the closest-point test runs several times faster than on views
+        corners = [body.take(f[:, i], axis=0) for i in range(3)]
         pts = points.take(row, axis=0)
-        c, bary = closest_point_on_triangles(pts, tri[:, 0], tri[:, 1], tri[:, 2])
+        c, bary = closest_point_on_triangles(pts, *corners)
         d2 = np.einsum("pc,pc->p", pts - c, pts - c)
         start = np.searchsorted(row, np.arange(len(points)))
         # the first candidate of each point reaching that point's smallest distance
@@ -282,7 +282,7 @@ class Refiner:
         return out, region
 
     def _progressive_targets(self, v: np.ndarray, sd: np.ndarray, surface: Collider, body: np.ndarray,
-                             normals: np.ndarray, tree: cKDTree,
+                             normals: np.ndarray, tree: VertexTree,
                              only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Targets for inside vertices (those in the (N,) mask `only`, if given), placed front by
         front in order of graph distance from outside ones -> (vertex indices, (K, 3) targets).
@@ -316,7 +316,7 @@ class Refiner:
 
     def _untorn_targets(self, v: np.ndarray, inside: np.ndarray, direct: np.ndarray, sd: np.ndarray,
                         surface: Collider, body: np.ndarray, normals: np.ndarray,
-                        tree: cKDTree) -> np.ndarray | None:
+                        tree: VertexTree) -> np.ndarray | None:
         """Targets (K, 3) for `inside` with front-by-front placement where it tears less, or None.
 
         Closest points (`direct`) on opposite sides of a limb tear the cloth; placing front by
@@ -344,7 +344,7 @@ class Refiner:
         return targets[inside]
 
     def _hold_outside(self, xm: np.ndarray, cp: np.ndarray, nn: np.ndarray, query: bool, surface: Collider,
-                      body: np.ndarray, normals: np.ndarray, tree: cKDTree,
+                      body: np.ndarray, normals: np.ndarray, tree: VertexTree,
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """One round's collision step of the relief and edge-limit passes, on moved points xm (P, 3), in place:
         with `query`, what is inside goes to its closest body point + eps (cp, nn: renewed); otherwise onto the
@@ -363,7 +363,7 @@ class Refiner:
 
     def _settle(self, xm: np.ndarray, s: np.ndarray, inside: np.ndarray, refined: np.ndarray,
                 refined_sd: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
-                tree: cKDTree) -> None:
+                tree: VertexTree) -> None:
         """After the last round, in place on xm (P, 3) and s (P,): a point placed off one part's surface can land
         inside another (the armpit, between the thighs), so what was just put out (`inside`) is put out once
         more; what is still inside goes back to `refined` (P, 3) with its distance `refined_sd` (P,)."""
@@ -380,7 +380,7 @@ class Refiner:
 
     def _relieve(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, closest: np.ndarray,
                  closest_normal: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
-                 tree: cKDTree) -> tuple[np.ndarray, int]:
+                 tree: VertexTree) -> tuple[np.ndarray, int]:
         """Stretch relief: v0, v (N, 3) input and refined garment -> (relieved garment (N, 3), vertices worked on).
 
         sd (N,), closest (N, 3), closest_normal (N, 3): v's signed distances, closest body points and
@@ -446,7 +446,7 @@ class Refiner:
 
     def _limit_stretch(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, closest: np.ndarray,
                        closest_normal: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
-                       tree: cKDTree) -> tuple[np.ndarray, int]:
+                       tree: VertexTree) -> tuple[np.ndarray, int]:
         """Edge-length limits solved together with the collisions (needs `rest`): v0, v (N, 3) input and
         refined garment -> (garment (N, 3), vertices worked on).
 
@@ -461,17 +461,25 @@ class Refiner:
         updated in place).
         """
         assert self.rest_length is not None, "the edge-limit pass needs the rest shape"
+        rest_length = self.rest_length
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
-        cap_all = np.maximum(self.stretch_ratio * self.rest_length, np.linalg.norm(v0[e0] - v0[e1], axis=1))
-        over = np.linalg.norm(v[e0] - v[e1], axis=1) > cap_all * (1 + 1e-6)
-        if self.stretch_iterations == 0 or not over.any():
+
+        def cap_of(edges: np.ndarray) -> np.ndarray:
+            a, b = e0[edges], e1[edges]
+            return np.maximum(self.stretch_ratio * rest_length[edges], np.linalg.norm(v0[a] - v0[b], axis=1))
+
+        # an edge neither of whose ends the refinement moved keeps its input length: never over its cap
+        moved = np.any(v != v0, axis=1)
+        near = np.nonzero(moved[e0] | moved[e1])[0]
+        over = near[np.linalg.norm(v[e0[near]] - v[e1[near]], axis=1) > cap_of(near) * (1 + 1e-6)]
+        if self.stretch_iterations == 0 or len(over) == 0:
             return v, 0
         free = np.zeros(self.n, dtype=bool)
         free[e0[over]] = free[e1[over]] = True
         for _ in range(self.rings):
             free |= (self.adjacency @ free.astype(np.float32)) > 0
-        touching = free[e0] | free[e1]  # edges to held vertices pull too
-        ea, eb, cap = e0[touching], e1[touching], cap_all[touching]
+        touching = np.nonzero(free[e0] | free[e1])[0]  # edges to held vertices pull too
+        ea, eb, cap = e0[touching], e1[touching], cap_of(touching)
         verts = np.unique(np.concatenate([ea, eb]))
         a, b = np.searchsorted(verts, ea), np.searchsorted(verts, eb)
         m, k = len(verts), len(ea)
@@ -502,7 +510,7 @@ class Refiner:
         return out, len(moving)
 
     def _put_out(self, x: np.ndarray, surface: Collider, body: np.ndarray, normals: np.ndarray,
-                 tree: cKDTree, margin: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                 tree: VertexTree, margin: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """Points x (P, 3) -> (placed (P, 3), signed distance (P,) there, by the `verify_k` query).
 
         Each inside point goes to its closest point + eps (times `margin`); one that lands inside another part
@@ -532,7 +540,7 @@ class Refiner:
         return out, sd
 
     def _verify(self, v0: np.ndarray, v: np.ndarray, sd: np.ndarray, surface: Collider, body: np.ndarray,
-                normals: np.ndarray, tree: cKDTree) -> tuple[np.ndarray, int]:
+                normals: np.ndarray, tree: VertexTree) -> tuple[np.ndarray, int]:
         """The last check: v0, v (N, 3) input and refined garment -> (garment (N, 3), vertices it put out).
 
         Where the body overlaps itself (the armpit, the thighs) the faces around a point's `surface.k` nearest
