@@ -153,10 +153,12 @@ class BodySurface:
         if len(idx):
             sd[idx], cp[idx], n[idx] = self._closest_on_faces(body, normals, points[idx], near[idx, :k])
         if kk > k:
-            # a far point read outside by its k nearest normals is asked again over its far_k nearest: where the
-            # body folds (the armpit) the k nearest can all face it from outside while it is inside the limb
-            # (one the far_k nearest also read outside keeps the nearest vertex, its distance and normal)
-            ask = np.nonzero(~close & inner.any(axis=1))[0]
+            # a point read outside (by its k nearest normals when far, by the faces around its k nearest when close)
+            # that one of its far_k nearest vertices' normals reads inside is asked again over the faces around its
+            # far_k nearest: where the body folds (the armpit) the k nearest and their faces can all face it from
+            # outside while it is inside the limb (a far point all far_k nearest read outside keeps the nearest
+            # vertex, its distance and normal)
+            ask = np.nonzero(inner.any(axis=1) & (sd >= 0))[0]
             if len(ask):
                 sd[ask], cp[ask], n[ask] = self._closest_on_faces(body, normals, points[ask], near[ask])
         return sd, cp, n, near[:, 0]
@@ -504,6 +506,24 @@ class Refiner:
             query = (it + 1) % self.stretch_query_every == 0 or it == self.stretch_iterations - 1
             s, cp, nn, inside = self._hold_outside(xm, cp, nn, query, surface, body, normals, tree)
         self._settle(xm, s, inside, v[verts[moving]], sd[verts[moving]], surface, body, normals, tree)
+        # the pass leaves no edge over SNAP_STRETCH x its rest length that was not so before it nor in the input (a
+        # vertex the settle sent back to its refined place, or one put out sideways, beside a neighbour the rounds
+        # moved): the moved ends of such edges go back to their refined places until none is left
+        x[moving] = xm
+        x0 = v[verts]
+        limit = SNAP_STRETCH * rest_length[touching]
+        fine = (np.linalg.norm(x0[a] - x0[b], axis=1) <= limit) & (np.linalg.norm(v0[ea] - v0[eb], axis=1) <= limit)
+        slot = np.full(m, -1)
+        slot[moving] = np.arange(len(moving))
+        while True:
+            bad = fine & (np.linalg.norm(x[a] - x[b], axis=1) > limit)
+            ends = np.unique(np.concatenate([a[bad], b[bad]]))
+            ends = ends[(slot[ends] >= 0) & np.any(x[ends] != x0[ends], axis=1)]
+            if len(ends) == 0:  # (a bad edge has a moved end: with both at their refined places it was fine)
+                break
+            x[ends] = x0[ends]
+            s[slot[ends]] = sd[verts[ends]]
+        xm = x[moving]
         out = v.copy()
         out[verts[moving]] = xm
         sd[verts[moving]] = s
