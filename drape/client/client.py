@@ -338,7 +338,8 @@ def _animate_npz(outfit_id: str | None, arrays: tuple | None, motion: MotionLike
 
 def _refine_request(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike, body: str, eps: float | None,
                     max_iterations: int | None, relief_iterations: int | None,
-                    inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None) -> dict:
+                    inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
+                    rest_vertices: np.ndarray | None = None) -> dict:
     """The refine request's httpx arguments: an npz (binary float32 vertices instead of JSON text, about a tenth
     of the bytes); with a motion file (a MotionFile or Path), a multipart form with the garment (and inner layer)
     as the npz `garment` beside `motion_file` (the server imports it; it must give T frames). Options left None
@@ -350,6 +351,8 @@ def _refine_request(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike,
         garment["inner_faces"] = np.asarray(inner[1], np.int64)
     if thickness is not None:
         garment["thickness"] = np.array(float(thickness))
+    if rest_vertices is not None:
+        garment["rest_vertices"] = np.asarray(rest_vertices, np.float64)
     options = {k: v for k, v in (("eps", None if eps is None else float(eps)),
                                  ("max_iterations", None if max_iterations is None else int(max_iterations)),
                                  ("relief_iterations", None if relief_iterations is None else int(relief_iterations)))
@@ -635,17 +638,20 @@ class Client(_Base):
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
                eps: float | None = None, max_iterations: int | None = None, relief_iterations: int | None = None,
                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
+               rest_vertices: np.ndarray | None = None,
                format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
                eps: float | None = None, max_iterations: int | None = None, relief_iterations: int | None = None,
                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
+               rest_vertices: np.ndarray | None = None,
                format: Literal["glb", "pc2"]) -> bytes: ...
 
     def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
                eps: float | None = None, max_iterations: int | None = None, relief_iterations: int | None = None,
                inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
+               rest_vertices: np.ndarray | None = None,
                format: Format = "array") -> np.ndarray | bytes:
         """A garment stream (T, N, 3) m with body penetration removed, for the body posed by `motion` (as in
         animate; a motion file must give T frames at its fps) (format="glb" / "pc2": the refined stream as a GLB
@@ -655,9 +661,12 @@ class Client(_Base):
         relief_iterations: rounds of the stretch relief pass (0: none).
         inner: a garment worn under this one, (vertices (T, Ni, 3) m over the same frames, faces (Fi, 3)): the
         stream is also kept `thickness` (m, default 6 mm) + 1 mm outside it (outer-through-inner removed).
+        rest_vertices: the garment at rest (N, 3) m: edges are kept near their rest lengths (no edge made longer
+        than 2x its rest length), as animate keeps a rigged outfit's; not with inner.
         None: the service's default (its RefineOptions schema).
         """
-        req = _refine_request(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner, thickness)
+        req = _refine_request(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner, thickness,
+                              rest_vertices)
         if format != "array":
             return self._file("/v1/refine", _file_type(format), **req)
         return self._frames("/v1/refine", **req)
@@ -935,6 +944,7 @@ class AsyncClient(_Base):
                      eps: float | None = None, max_iterations: int | None = None,
                      relief_iterations: int | None = None,
                      inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
+                     rest_vertices: np.ndarray | None = None,
                      format: Literal["array"] = "array") -> np.ndarray: ...
 
     @overload
@@ -942,16 +952,18 @@ class AsyncClient(_Base):
                      eps: float | None = None, max_iterations: int | None = None,
                      relief_iterations: int | None = None,
                      inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
+                     rest_vertices: np.ndarray | None = None,
                      format: Literal["glb", "pc2"]) -> bytes: ...
 
     async def refine(self, vertices: np.ndarray, faces: np.ndarray, *, motion: MotionLike, body: str = "neutral",
                      eps: float | None = None, max_iterations: int | None = None,
                      relief_iterations: int | None = None,
                      inner: tuple[np.ndarray, np.ndarray] | None = None, thickness: float | None = None,
+                     rest_vertices: np.ndarray | None = None,
                      format: Format = "array") -> np.ndarray | bytes:
         """A garment stream (T, N, 3) m with body penetration removed, or GLB / PC2 bytes (see Client.refine)."""
         req = _refine_request(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner,
-                              thickness)
+                              thickness, rest_vertices)
         if format != "array":
             return await self._file("/v1/refine", _file_type(format), **req)
         return await self._frames("/v1/refine", **req)

@@ -447,12 +447,13 @@ class Engine:
 
     def refine_chunks(self, vertices: np.ndarray, faces: np.ndarray, body: str | Body, poses: np.ndarray,
                       translation: np.ndarray, options: RefineSettings, chunk: int = 32,
-                      inner: InnerStream | None = None) -> Iterator[np.ndarray]:
+                      inner: InnerStream | None = None, rest: np.ndarray | None = None) -> Iterator[np.ndarray]:
         """A given garment stream (T, N, 3), refined against the body in chunks: (n, N, 3) float32 each. With
         an inner layer, the post step between layers (drape.geometry.layers: the inner against the body, then the
         stream against the body, the refined inner, and both at once), frames split over the refinement workers
         (`RefinePool.refine_layers`); seams welded as in RefinePool. A body given by name is looked up once, when the
-        first chunk is asked for: every chunk is refined against that Body, even if it is deleted meanwhile."""
+        first chunk is asked for: every chunk is refined against that Body, even if it is deleted meanwhile. rest: the
+        garment's rest shape (N, 3) m, if given (not with inner): edges kept near their rest lengths, as animate's."""
         body = resolved_body(body)
         if inner is not None:
             yield from self._refine_layers(vertices, faces, body, poses, translation, options, chunk, inner)
@@ -460,7 +461,7 @@ class Engine:
         for start in range(0, len(vertices), chunk):
             t = time.perf_counter()
             s = slice(start, start + chunk)
-            yield self.refine_pool.refine(vertices[s], faces, body, poses[s], translation[s], options)
+            yield self.refine_pool.refine(vertices[s], faces, body, poses[s], translation[s], options, rest=rest)
             self._observe("refine", time.perf_counter() - t)
 
     def _refine_layers(self, vertices: np.ndarray, faces: np.ndarray, body: Body, poses: np.ndarray,

@@ -211,6 +211,11 @@ class RefineRequest(BaseModel):
     options: RefineOptions | None = Field(None, description="defaults: eps 3 mm, 3 iterations, 10 relief rounds")
     inner: InnerLayer | None = Field(None, description="a garment under this one: the stream is also pushed out "
                                      "of it (outer-through-inner removed)")
+    rest_vertices: list[Vec3] | None = Field(None, min_length=3, description="(N, 3) the garment at rest, metres "
+                                             "(the shape it was made in): with it, edges are kept near their rest "
+                                             "lengths as animate keeps a rigged outfit's (the edge-limit pass: no "
+                                             "edge made longer than 2x its rest length) instead of the relief pass; "
+                                             "not with inner")
 
 
 class AnimateResponse(BaseModel):

@@ -293,14 +293,15 @@ def _npz_inner(z: dict, field: str = "body") -> dict | None:
 
 
 def refine_arguments(kind: str, data: bytes, settings: Settings, content_type: str = "",
-                     ) -> tuple[Any, Any, dict, str | None, dict | None, dict | None]:
+                     ) -> tuple[Any, Any, dict, str | None, dict | None, dict | None, Any]:
     """A refine request's body (JSON, npz, or a multipart form with a garment npz and a motion_file)
     -> (vertices, faces, motion dict, body preset, options, inner layer {"vertices", "faces", "thickness"} or
-    None)."""
+    None, rest_vertices or None)."""
     if kind == "multipart/form-data":
         return _refine_form(data, content_type, settings)
     if kind == "application/x-npz":
-        names = ("vertices", "faces", "poses", "translation", "fps", "clip", "body", *REFINE_OPTIONS, *INNER_NPZ)
+        names = ("vertices", "faces", "poses", "translation", "fps", "clip", "body", *REFINE_OPTIONS, *INNER_NPZ,
+                 "rest_vertices")
         z = npz_members(data, names, settings)
         missing = [k for k in ("vertices", "faces") if k not in z] + ([] if "poses" in z or "clip" in z else ["poses"])
         if missing:
@@ -310,7 +311,7 @@ def refine_arguments(kind: str, data: bytes, settings: Settings, content_type: s
                   "poses": npz_numbers(z, "poses") if "poses" in z else None,
                   "translation": npz_numbers(z, "translation") if "translation" in z else None}
         return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), motion, npz_text(z, "body"),
-                npz_options(z), _npz_inner(z))
+                npz_options(z), _npz_inner(z), npz_numbers(z, "rest_vertices") if "rest_vertices" in z else None)
     doc = _document(data)
     inner = doc.get("inner")
     for pre, part in (("", doc), ("inner.", inner if isinstance(inner, dict) else {})):
@@ -319,9 +320,10 @@ def refine_arguments(kind: str, data: bytes, settings: Settings, content_type: s
         if isinstance(frames, list) and frames:
             _count(frames[0], settings.max_vertices, "vertices", f"{pre}vertices")
         _count(part.get("faces"), settings.max_faces, "faces", f"{pre}faces")
+    _count(doc.get("rest_vertices"), settings.max_vertices, "vertices", "rest_vertices")
     _precheck_motion(doc.get("motion"), settings)
     d = _model(RefineRequest, doc).model_dump()
-    return d["vertices"], d["faces"], d["motion"], d["body"], d["options"], d["inner"]
+    return d["vertices"], d["faces"], d["motion"], d["body"], d["options"], d["inner"], d["rest_vertices"]
 
 
 # ---- multipart forms carrying a motion file ------------------------------------------------------
@@ -409,9 +411,9 @@ def _animate_form(data: bytes, content_type: str, settings: Settings, engine: En
 
 
 def _refine_form(data: bytes, content_type: str, settings: Settings,
-                 ) -> tuple[Any, Any, dict, str | None, dict | None, dict | None]:
+                 ) -> tuple[Any, Any, dict, str | None, dict | None, dict | None, Any]:
     """Form fields: garment (an npz with vertices (T, N, 3) and faces (F, 3), optionally an inner layer:
-    inner_vertices (T, Ni, 3), inner_faces, thickness), motion_file (a BVH or npz file, resampled to fps,
+    inner_vertices (T, Ni, 3), inner_faces, thickness, or the rest shape rest_vertices (N, 3)), motion_file (a BVH or npz file, resampled to fps,
     default 30: it must give T frames), and optionally body, up and the refine options."""
     from drape.service.handlers import check_body
 
@@ -420,7 +422,8 @@ def _refine_form(data: bytes, content_type: str, settings: Settings,
     if garment is None:
         raise InvalidInput("a garment npz with vertices (T, N, 3) and faces (F, 3) is required", "garment")
     try:
-        z = decode_npz(garment.data, ("vertices", "faces", *INNER_NPZ), max_bytes=settings.max_decoded_bytes)
+        z = decode_npz(garment.data, ("vertices", "faces", *INNER_NPZ, "rest_vertices"),
+                       max_bytes=settings.max_decoded_bytes)
     except NpzTooLarge as exc:
         raise LimitExceeded(str(exc), "garment") from exc
     except ValueError as exc:
@@ -431,7 +434,7 @@ def _refine_form(data: bytes, content_type: str, settings: Settings,
     body = check_body(_text(parts, "body"))
     motion = _form_motion(parts, body, settings)
     return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), motion, body, _form_options(parts),
-            _npz_inner(z, "garment"))
+            _npz_inner(z, "garment"), npz_numbers(z, "rest_vertices") if "rest_vertices" in z else None)
 
 
 # ---- the garment routes (intrinsic space) --------------------------------------------------------

@@ -379,6 +379,7 @@ class RefinePlan:
     fps: float
     options: RefineSettings
     inner: InnerStream | None = None  # a garment under this one: the stream is pushed out of it too
+    rest: np.ndarray | None = None  # (N, 3) float64 m, the garment at rest: edges kept near their rest lengths
 
 
 def check_inner(inner: dict, frames: int, settings: Settings) -> InnerStream:
@@ -397,9 +398,10 @@ def check_inner(inner: dict, frames: int, settings: Settings) -> InnerStream:
 
 
 def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, body: str | None,
-                options: dict | None, max_posed: int | None, inner: dict | None = None) -> RefinePlan:
+                options: dict | None, max_posed: int | None, inner: dict | None = None,
+                rest_vertices: Any = None) -> RefinePlan:
     """Validate a refine request: the stream's shape, the faces, the motion (same frame count), the inner
-    layer if any (the same frames)."""
+    layer if any (the same frames), the rest shape if any (the stream's vertex count; not with an inner layer)."""
     v = _array(vertices, "vertices", np.float64, 3)
     if v.shape[0] < 1 or v.shape[2] != 3 or v.shape[1] < 3:
         raise InvalidInput(f"expected (T, N, 3) with T >= 1 and N >= 3, got {v.shape}", "vertices")
@@ -420,7 +422,16 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
         layer = check_inner(inner, len(v), settings)
         # the inner layer is refined too: its frames count against the same bound as the answer's
         check_answer_size(v.shape[0], v.shape[1] + layer.vertices.shape[1], max_posed, "inner.vertices")
-    return RefinePlan(v.astype(np.float32), f, held_body(check_body(body)), poses, trans, fps, opts, layer)
+    rest = None
+    if rest_vertices is not None:
+        if inner is not None:
+            raise InvalidInput("not with inner: the refinement between layers keeps no rest lengths", "rest_vertices")
+        rest = _array(rest_vertices, "rest_vertices", np.float64, 2)
+        if rest.shape != (v.shape[1], 3):
+            raise InvalidInput(f"expected ({v.shape[1]}, 3), the stream's vertices, got {rest.shape}", "rest_vertices")
+        check_finite_within(rest, 100.0, "coordinates beyond 100 m: the rest shape must be in metres",
+                            "rest_vertices")
+    return RefinePlan(v.astype(np.float32), f, held_body(check_body(body)), poses, trans, fps, opts, layer, rest)
 
 
 def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None = None) -> bytes:

@@ -153,6 +153,30 @@ def test_refine_npz_bad_options(http):
     assert post(eps=np.array(0.004), relief_iterations=np.array(2)).status_code == 200
 
 
+def test_refine_rest_shape_bad_inputs(http):
+    """/v1/refine's rest_vertices (JSON, npz): (N, 3) with the stream's N, finite, in metres, not with inner."""
+    frames = [V] * 2
+    body = {"vertices": frames, "faces": F, "motion": {"poses": [[0.0] * 72] * 2}}
+    assert http.post("/v1/refine", json={**body, "rest_vertices": V}).status_code == 200
+    problem(http.post("/v1/refine", json={**body, "rest_vertices": V[:-1]}), 422, "rest_vertices", f"({len(V)}, 3)")
+    problem(http.post("/v1/refine", json={**body, "rest_vertices": [[0, 0]] * len(V)}), 422, "rest_vertices")
+    problem(http.post("/v1/refine", json={**body, "rest_vertices": [[1e4, 0, 0]] * len(V)}), 422, "rest_vertices",
+            "metres")
+    problem(http.post("/v1/refine", json={**body, "rest_vertices": V, "inner": {"vertices": frames, "faces": F}}),
+            422, "rest_vertices", "inner")
+
+    def post(**arrays):
+        buf = io.BytesIO()
+        np.savez(buf, vertices=np.array(frames, np.float32), faces=np.array(F), poses=np.zeros((2, 72)), **arrays)
+        return http.post("/v1/refine", content=buf.getvalue(), headers={"content-type": "application/x-npz"})
+
+    assert post(rest_vertices=np.array(V, np.float64)).status_code == 200
+    bad = np.array(V, np.float64)
+    bad[0, 1] = np.nan
+    problem(post(rest_vertices=bad), 422, "rest_vertices", "NaN")
+    problem(post(rest_vertices=np.array(frames, np.float64)), 422, "rest_vertices")
+
+
 def test_exactly_one_outfit_and_one_motion_source(http):
     problem(http.post("/v1/outfits/animate", json={"motion": {"clip": "kick"}}), 422, "outfit")
     problem(animate(http, motion={"clip": "kick", "poses": [[0.0] * 72]}), 422, "motion")

@@ -1,6 +1,7 @@
 """The real client against a real server on loopback: formats agree, and match the library."""
 
 import asyncio
+import io
 
 import numpy as np
 import pytest
@@ -190,6 +191,48 @@ def test_refine_route_and_animate_refine(server_url, outfit):
     # the test service runs an untrained model, which penetrates heavily; the 0.1% bar on realistic
     # input is pinned in tests/geometry/test_refine.py and measured by bench/refine.py
     assert inside(raw) > 0.01 and inside(fixed) < 0.25 * inside(raw)
+
+
+def test_refine_with_the_rest_shape(server_url, outfit):
+    """client.refine with `rest_vertices` (the garment at rest): the service runs animate's edge-limit pass, equal to
+    the library's Refiner(rest=...) frame by frame (sync and async clients, npz and JSON), and unlike the relief
+    pass it runs without it."""
+    import httpx
+
+    from drape.geometry.lbs import pose_mesh
+    from drape.geometry.queries import nearest_vertex_weights
+    from drape.geometry.refine import FAR_K, BodySurface, Refiner, RefineReport
+
+    body = load_body("neutral")
+    clip = load_clip("dance_b")
+    frames = np.arange(0, clip.num_frames, 30)
+    poses, trans = clip.poses[frames], clip.trans[frames]
+    w = nearest_vertex_weights(outfit.vertices, body.vertices, body.weights)
+    garment = pose_mesh(outfit.vertices, w, body.joints, poses.astype(float), trans.astype(float)).astype(np.float32)
+    motion = {"poses": poses, "translation": trans, "fps": 30.0}
+    with drape.Client(server_url) as client:
+        served = client.refine(garment, outfit.faces, motion=motion, rest_vertices=outfit.vertices)
+        relief = client.refine(garment, outfit.faces, motion=motion)
+    posed = body.pose(poses.astype(float), trans.astype(float)).astype(np.float32).astype(np.float64)
+    refiner = Refiner(outfit.faces, len(outfit.vertices), rest=outfit.vertices)
+    surface = BodySurface(body.faces, len(body.vertices), far_k=FAR_K)
+    report = RefineReport()
+    ref = np.stack([refiner.refine_frame(g, b, surface, report) for g, b in zip(garment, posed, strict=True)])
+    assert any(report.relieved), "the input should need the edge-limit pass"
+    assert served.shape == garment.shape and np.abs(served - ref).max() < 1e-5
+    assert np.abs(relief - served).max() > 1e-3  # the rest shape reaches the service
+
+    async def run() -> np.ndarray:
+        async with drape.AsyncClient(server_url) as client:
+            return await client.refine(garment, outfit.faces, motion=motion, rest_vertices=outfit.vertices)
+
+    assert np.abs(asyncio.run(run()) - served).max() < 1e-6
+    doc = {"vertices": garment.tolist(), "faces": outfit.faces.tolist(),
+           "motion": {"poses": poses.reshape(len(poses), -1).tolist(), "translation": trans.tolist()},
+           "rest_vertices": outfit.vertices.tolist()}
+    r = httpx.post(f"{server_url}/v1/refine", json=doc, headers={"Accept": "application/x-npz"}, timeout=120)
+    assert r.status_code == 200, r.text
+    assert np.abs(np.load(io.BytesIO(r.content))["vertices"] - served).max() < 1e-5
 
 
 def test_refine_with_an_inner_layer(server_url):

@@ -341,7 +341,7 @@ refine_router = APIRouter(prefix="/v1", tags=["refine"])
                      f"npz: vertices (T, N, 3) metres, faces (F, 3), {MOTION_NPZ}; optional body, the options as "
                      "scalars: eps, "
                      "max_iterations, relief_iterations, and a garment under this one: inner_vertices (T, Ni, 3), "
-                     "inner_faces (Fi, 3), thickness (metres, scalar)"}},
+                     "inner_faces (Fi, 3), thickness (metres, scalar), or the garment at rest: rest_vertices (N, 3)"}},
     "multipart/form-data": REFINE_FORM}}})
 async def refine_stream(request: Request) -> Response:
     """Garment stream + faces + body motion -> the stream with body penetration removed (same formats as animate;
@@ -358,12 +358,14 @@ async def refine_stream(request: Request) -> Response:
     content_type = request.headers.get("content-type", "")
 
     def plan() -> FrameSource:
-        vertices, faces, motion, body, options, inner = decode.refine_arguments(kind, data, settings, content_type)
-        p = handlers.plan_refine(settings, vertices, faces, motion, body, options, max_posed(answer, settings), inner)
+        vertices, faces, motion, body, options, inner, rest = decode.refine_arguments(kind, data, settings,
+                                                                                     content_type)
+        p = handlers.plan_refine(settings, vertices, faces, motion, body, options, max_posed(answer, settings), inner,
+                                 rest)
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.refine_chunks(p.vertices, p.faces, p.body, p.poses, p.translation, p.options,
-                                        settings.stream_chunk_frames, inner=p.inner)
+                                        settings.stream_chunk_frames, inner=p.inner, rest=p.rest)
 
         return FrameSource(chunks, p.faces, len(p.vertices), p.vertices.shape[1], p.fps, "")
 
