@@ -224,26 +224,33 @@ def test_more_nearest_vertices_see_what_two_miss_in_the_body_overlap():
     assert disagree[8] <= disagree[2] / 4, disagree
 
 
+def points_under_the_arm_skin(shoulder: float, count: int, depth: tuple[float, float], seed: int):
+    """The neutral body with both arms lowered by `shoulder` rad against the torso, and `count` points `depth` (m)
+    under the skin of the upper arms -> (posed body (M, 3), its vertex normals, points (count, 3), inside by the
+    exact signed distance (count,))."""
+    from drape.geometry.queries import signed_distance_to_mesh
+    from drape.geometry.skeleton import JOINT_NAMES
+
+    poses = np.zeros((1, 24, 3))
+    left, right = JOINT_NAMES.index("left_shoulder"), JOINT_NAMES.index("right_shoulder")
+    poses[0, left, 2], poses[0, right, 2] = -shoulder, shoulder
+    body = BODY.pose(poses)[0].astype(np.float64)
+    arm = np.nonzero(BODY.weights[:, [left, right]].sum(1) > 0.5)[0]
+    rng = np.random.default_rng(seed)
+    normals = BodySurface(BODY.faces, len(body)).normals(body)
+    pick = rng.choice(arm, count)
+    pts = body[pick] - normals[pick] * rng.uniform(*depth, (count, 1))
+    return body, normals, pts, signed_distance_to_mesh(pts, body, BODY.faces) < 0
+
+
 def test_far_points_asked_again_over_more_vertices_are_read_inside_the_arm():
     """Points 1.6-4 cm under the upper arms' skin with the arms down against the torso: beyond `far` (1.5 cm)
     from every body vertex, the query reads the side from its 2 nearest body vertices' normals alone, and some
     inside the arm read outside; with `far_k=8` those are asked again over 8 (a triangle query where any of them
     faces away). Measured: 4 of 2,908 points inside misread by default, 0 with far_k=8, no point outside read
     inside either way (bench/refine_left_inside shows the same on the real tops at the armpit)."""
-    from drape.geometry.queries import signed_distance_to_mesh
-    from drape.geometry.skeleton import JOINT_NAMES
-
-    poses = np.zeros((1, 24, 3))
-    left, right = JOINT_NAMES.index("left_shoulder"), JOINT_NAMES.index("right_shoulder")
-    poses[0, left, 2], poses[0, right, 2] = -1.2, 1.2
-    body = BODY.pose(poses)[0].astype(np.float64)
-    arm = np.nonzero(BODY.weights[:, [left, right]].sum(1) > 0.5)[0]
-    rng = np.random.default_rng(0)
+    body, normals, pts, inside = points_under_the_arm_skin(1.2, 3000, (0.016, 0.04), seed=0)
     plain, asked = BodySurface(BODY.faces, len(body)), BodySurface(BODY.faces, len(body), far_k=8)
-    normals = plain.normals(body)
-    pick = rng.choice(arm, 3000)
-    pts = body[pick] - normals[pick] * rng.uniform(0.016, 0.04, (3000, 1))
-    inside = signed_distance_to_mesh(pts, body, BODY.faces) < 0
     read_plain, read_asked = plain.query(body, normals, pts)[0] < 0, asked.query(body, normals, pts)[0] < 0
     assert np.count_nonzero(inside & ~read_plain) >= 2  # the premise: the plain reading misses some
     assert np.count_nonzero(inside & ~read_asked) == 0
@@ -259,20 +266,8 @@ def test_points_the_faces_around_two_vertices_read_outside_are_asked_again_where
     user body and shirt on CMU 01_01 kept one such vertex 7-36 mm inside on 5 of 688 refined frames). With
     FAR_K a point read outside that one of its FAR_K nearest vertices' normals reads inside is asked again over
     the faces around those: no point inside misread (5 of 6,000 without), none outside newly read inside."""
-    from drape.geometry.queries import signed_distance_to_mesh
-    from drape.geometry.skeleton import JOINT_NAMES
-
-    poses = np.zeros((1, 24, 3))
-    left, right = JOINT_NAMES.index("left_shoulder"), JOINT_NAMES.index("right_shoulder")
-    poses[0, left, 2], poses[0, right, 2] = -1.3, 1.3
-    body = BODY.pose(poses)[0].astype(np.float64)
-    arm = np.nonzero(BODY.weights[:, [left, right]].sum(1) > 0.5)[0]
-    rng = np.random.default_rng(1)
+    body, normals, pts, inside = points_under_the_arm_skin(1.3, 6000, (0.005, 0.04), seed=1)
     plain, served = BodySurface(BODY.faces, len(body)), BodySurface(BODY.faces, len(body), far_k=FAR_K)
-    normals = plain.normals(body)
-    pick = rng.choice(arm, 6000)
-    pts = body[pick] - normals[pick] * rng.uniform(0.005, 0.04, (6000, 1))
-    inside = signed_distance_to_mesh(pts, body, BODY.faces) < 0
     read_plain, read_served = plain.query(body, normals, pts)[0] < 0, served.query(body, normals, pts)[0] < 0
     assert np.count_nonzero(inside & ~read_plain) >= 5  # the premise: the plain reading misses some
     assert np.count_nonzero(inside & ~read_served) == 0
