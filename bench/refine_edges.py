@@ -76,7 +76,8 @@ def cases(every: int, clips=None):  # noqa: ANN001, ANN201
 def setup(ap: argparse.ArgumentParser) -> tuple[argparse.Namespace, Engine, Body, BodySurface]:
     """`--far-k` added to the bench's arguments, parsed -> (args, the engine, the neutral body, its surface)."""
     ap.add_argument("--far-k", type=int, default=FAR_K,
-                    help="BodySurface(far_k=...): far points read outside are asked again over that many vertices "
+                    help="BodySurface(far_k=...): points read outside that one of that many nearest vertices reads "
+                         "inside are asked again over their faces "
                          f"(0: not; the refinement's surfaces: {FAR_K})")
     args = ap.parse_args()
     body = load_body("neutral")

@@ -71,7 +71,7 @@ STRETCH_ITERATIONS = 15  # rounds of the edge-limit pass
 VERIFY_K = 8  # nearest body vertices whose faces the last check looks at (0: no check)
 VERIFY_ROUNDS = 4  # rounds of the last check's projection
 VERIFY_WITHIN = 0.01  # metres: vertices the refinement's own query finds closer than this are checked
-FAR_K = 5  # the refinement's body surfaces: far points read outside are asked again over this many vertices
+FAR_K = 5  # body surfaces: a point read outside that one of this many nearest vertices reads inside is read again
 SNAP_MARGIN = 0.25  # the third round's second try: eps x this from the body (0.75 mm)
 SNAP_STRETCH = 2.0  # the last check's third round: no edge longer than this x the vertex's longest in the input
 
@@ -94,9 +94,10 @@ class Collider(Protocol):
 class BodySurface:
     """Closest points on one posed body: candidates are the faces around the k nearest body vertices.
 
-    far_k: a point farther than `far` from every body vertex that the normals of its k nearest call outside is
-    asked again over its far_k nearest (None: not). The refinement's surfaces use FAR_K (docs/refine.md); the served
-    rig's collision fit (drape.runtime.collision_fit) keeps None, as its model was chosen with.
+    far_k: a point read outside (far: by the normals of its k nearest; close: by the faces around them) that the
+    normal of one of its far_k nearest vertices reads inside is asked again over the faces around its far_k nearest
+    (None: not). The refinement's surfaces use FAR_K (docs/refine.md); the served rig's collision fit
+    (drape.runtime.collision_fit) keeps None, as its model was chosen with.
 
     body_faces' vertex->face incidence is built once per topology and reused for every frame.
     """
@@ -137,7 +138,7 @@ class BodySurface:
             return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
         tree = tree if tree is not None else body_tree(body)
         k = k or self.k
-        # far points are asked again over far_k nearest: one KD search serves both readings
+        # points are asked again over far_k nearest: one KD search serves both readings
         kk = max(k, self.far_k or 0)
         dist, near = tree.query(points, k=kk)
         # `take` rather than fancy indexing: it gathers rows several times faster
@@ -459,8 +460,9 @@ class Refiner:
         averaged and scaled by `stretch_omega`), then whatever went inside is put back out, as in the relief
         pass (its last closest point's tangent plane; closest point + eps every `stretch_query_every`
         rounds and in the last). The collisions win at the end: a vertex still inside after two more
-        projections goes back to its refined position. sd, closest, closest_normal: as in `_relieve` (sd
-        updated in place).
+        projections goes back to its refined position; then the moved ends of any edge the pass left over
+        SNAP_STRETCH x its rest length, that was not so before it nor in the input, go back to theirs too.
+        sd, closest, closest_normal: as in `_relieve` (sd updated in place).
         """
         assert self.rest_length is not None, "the edge-limit pass needs the rest shape"
         rest_length = self.rest_length
