@@ -94,6 +94,26 @@ def test_refine_takes_a_motion_file(http, outfit_id):
     problem(http.post("/v1/refine", files={"motion_file": ("m.bvh", cmu_bvh(61))}), 422, "garment")
 
 
+def test_refine_with_the_rest_shape_is_animates_refinement(http, outfit_id):
+    """A form whose garment npz carries rest_vertices (the outfit at rest) refines the unrefined stream into what
+    animate's own `refine: true` answers (it refines with the rigged outfit's rest shape); without it, the relief
+    pass gives something else."""
+    bvh = cmu_bvh(121)
+    raw = decode_npz(animate(http, bvh, outfit_id=outfit_id).content)
+    refined = decode_npz(animate(http, bvh, outfit_id=outfit_id, refine="true").content)["vertices"]
+    rest = generate_outfit("tshirt", vertices=600, seed=5).vertices.astype(np.float32)  # the fixture's outfit
+
+    def refine(**extra) -> np.ndarray:
+        garment = encode_npz({"vertices": raw["vertices"], "faces": raw["faces"], **extra})
+        r = http.post("/v1/refine", files={"garment": ("g.npz", garment), "motion_file": ("m.bvh", bvh)},
+                      headers={"accept": NPZ})
+        assert r.status_code == 200, r.text
+        return decode_npz(r.content)["vertices"]
+
+    assert np.abs(refine(rest_vertices=rest) - refined).max() < 1e-6
+    assert np.abs(refine() - refined).max() > 1e-4
+
+
 def _npz(**arrays) -> bytes:
     buf = io.BytesIO()
     np.savez(buf, **arrays)
