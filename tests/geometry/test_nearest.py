@@ -36,6 +36,29 @@ def test_no_points_and_float32_input() -> None:
     assert idx.tolist() == [[0]] and dist[0, 0] == pytest.approx(0.1)
 
 
+def test_fewer_vertices_than_neighbours_asked() -> None:
+    """A body of fewer vertices than k (a user body can be that small): every vertex, the farthest repeated,
+    never an index past the end (pykdtree's fill), so the refinement's gathers stay in range."""
+    tree = VertexTree(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]]))
+    dist, idx = tree.query(np.array([[0.1, 0.0, 0.0]]), k=5)
+    assert idx.tolist() == [[0, 1, 2, 2, 2]]
+    np.testing.assert_allclose(dist[0], [0.1, 0.9, np.hypot(0.1, 2.0), np.hypot(0.1, 2.0), np.hypot(0.1, 2.0)])
+
+
+def test_a_body_of_few_vertices_refines() -> None:
+    """The refinement's queries ask 5 and 8 nearest body vertices: a 4-vertex body (a tetrahedron around the
+    garment) is refined without an index error, the point inside put out."""
+    from drape.geometry.refine import FAR_K, BodySurface, Refiner, RefineReport
+
+    body = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    body_faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    garment = np.array([[0.2, 0.2, 0.2], [1.0, 1.0, 1.0], [1.2, 1.0, 1.0]])
+    surface = BodySurface(body_faces, 4, far_k=FAR_K)
+    out = Refiner(np.array([[0, 1, 2]]), 3).refine_frame(garment, body, surface, RefineReport())
+    sd = surface.query(body, surface.normals(body), out, k=8)[0]
+    assert np.all(sd >= 0), sd
+
+
 def test_one_thread_and_environment_kept() -> None:
     """A large query starts no OpenMP threads (the refinement pool's processes share the cores), and the
     caller's OMP_NUM_THREADS is what it was after the import."""
