@@ -661,8 +661,8 @@ class Client(_Base):
         relief_iterations: rounds of the stretch relief pass (0: none).
         inner: a garment worn under this one, (vertices (T, Ni, 3) m over the same frames, faces (Fi, 3)): the
         stream is also kept `thickness` (m, default 6 mm) + 1 mm outside it (outer-through-inner removed).
-        rest_vertices: the garment at rest (N, 3) m: edges are kept near their rest lengths (no edge made longer
-        than 2x its rest length), as animate keeps a rigged outfit's; not with inner.
+        rest_vertices: the garment at rest (N, 3) m: edges are kept near their rest lengths (pulled under 1.5x,
+        or their input length if longer), as animate keeps a rigged outfit's; not with inner.
         None: the service's default (its RefineOptions schema).
         """
         req = _refine_request(vertices, faces, motion, body, eps, max_iterations, relief_iterations, inner, thickness,

@@ -468,14 +468,14 @@ class Refiner:
         rest_length = self.rest_length
         e0, e1 = self.edges[:, 0], self.edges[:, 1]
 
-        def cap_of(edges: np.ndarray) -> np.ndarray:
-            a, b = e0[edges], e1[edges]
-            return np.maximum(self.stretch_ratio * rest_length[edges], np.linalg.norm(v0[a] - v0[b], axis=1))
+        def given(edges: np.ndarray) -> np.ndarray:  # the input's lengths of these edges
+            return np.linalg.norm(v0[e0[edges]] - v0[e1[edges]], axis=1)
 
         # an edge neither of whose ends the refinement moved keeps its input length: never over its cap
         moved = np.any(v != v0, axis=1)
         near = np.nonzero(moved[e0] | moved[e1])[0]
-        over = near[np.linalg.norm(v[e0[near]] - v[e1[near]], axis=1) > cap_of(near) * (1 + 1e-6)]
+        cap_near = np.maximum(self.stretch_ratio * rest_length[near], given(near))
+        over = near[np.linalg.norm(v[e0[near]] - v[e1[near]], axis=1) > cap_near * (1 + 1e-6)]
         if self.stretch_iterations == 0 or len(over) == 0:
             return v, 0
         free = np.zeros(self.n, dtype=bool)
@@ -483,7 +483,8 @@ class Refiner:
         for _ in range(self.rings):
             free |= (self.adjacency @ free.astype(np.float32)) > 0
         touching = np.nonzero(free[e0] | free[e1])[0]  # edges to held vertices pull too
-        ea, eb, cap = e0[touching], e1[touching], cap_of(touching)
+        ea, eb, length0 = e0[touching], e1[touching], given(touching)
+        cap = np.maximum(self.stretch_ratio * rest_length[touching], length0)
         verts = np.unique(np.concatenate([ea, eb]))
         a, b = np.searchsorted(verts, ea), np.searchsorted(verts, eb)
         m, k = len(verts), len(ea)
@@ -514,7 +515,7 @@ class Refiner:
         x[moving] = xm
         x0 = v[verts]
         limit = SNAP_STRETCH * rest_length[touching]
-        fine = (np.linalg.norm(x0[a] - x0[b], axis=1) <= limit) & (np.linalg.norm(v0[ea] - v0[eb], axis=1) <= limit)
+        fine = (np.linalg.norm(x0[a] - x0[b], axis=1) <= limit) & (length0 <= limit)
         slot = np.full(m, -1)
         slot[moving] = np.arange(len(moving))
         while True:

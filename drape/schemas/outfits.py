@@ -213,9 +213,9 @@ class RefineRequest(BaseModel):
                                      "of it (outer-through-inner removed)")
     rest_vertices: list[Vec3] | None = Field(None, min_length=3, description="(N, 3) the garment at rest, metres "
                                              "(the shape it was made in): with it, edges are kept near their rest "
-                                             "lengths as animate keeps a rigged outfit's (the edge-limit pass: no "
-                                             "edge made longer than 2x its rest length) instead of the relief pass; "
-                                             "not with inner")
+                                             "lengths as animate keeps a rigged outfit's (the edge-limit pass: each "
+                                             "edge pulled under 1.5x its rest length, or its input length if longer) "
+                                             "instead of the relief pass; not with inner")
 
 
 class AnimateResponse(BaseModel):

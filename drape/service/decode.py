@@ -413,8 +413,8 @@ def _animate_form(data: bytes, content_type: str, settings: Settings, engine: En
 def _refine_form(data: bytes, content_type: str, settings: Settings,
                  ) -> tuple[Any, Any, dict, str | None, dict | None, dict | None, Any]:
     """Form fields: garment (an npz with vertices (T, N, 3) and faces (F, 3), optionally an inner layer:
-    inner_vertices (T, Ni, 3), inner_faces, thickness, or the rest shape rest_vertices (N, 3)), motion_file (a BVH or npz file, resampled to fps,
-    default 30: it must give T frames), and optionally body, up and the refine options."""
+    inner_vertices (T, Ni, 3), inner_faces, thickness, or the rest shape rest_vertices (N, 3)), motion_file (a BVH or
+    npz file, resampled to fps, default 30: it must give T frames), and optionally body, up and the refine options."""
     from drape.service.handlers import check_body
 
     parts = _form(data, content_type, REFINE_FORM)
