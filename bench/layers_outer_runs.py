@@ -3,12 +3,15 @@
 Each run chooses its step on its own config's validation (drape.training.layers_outer.train); runs whose configs
 validate differently (other clips, other caps) are compared here on ONE config's: the validation sequences, the
 validation clips and the caps of `--config`. For each checkpoint folder: the network of its best.pt (built by the
-model config it was trained with, read from its last step file) measured by layers_outer.measure_all; DeePSD's
+model config it was trained with, read from its last step file) measured by layers_outer.measure_all; with
+`--shipped FOLDER`, an exported network (outer.onnx + rig.npz, as `drape.runtime.layers.OuterModel` serves it, e.g.
+the one a retraining would replace) measured by the same code; DeePSD's
 outer rig (as served without a network) is measured beside them by the same code. Lower score wins (RMSE mm
 against the simulation, plus layers_outer.PENALTY where a cap is exceeded). The held-out evaluation (`drape eval
 layers`) plays no part.
 
 Run: .venv/bin/python -m bench.layers_outer_runs --config drape/training/configs/X.json checkpoints/A checkpoints/B
+     [--shipped drape/assets/models/mgn_outer/<inner>_<outer>]
 (a few minutes on the 2-core machine; needs the pair's sequences under data/layers)
 """
 
@@ -18,9 +21,12 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from drape.models.layers import OuterConfig, OuterTransformer
+from drape.runtime.deepsd import pose_outfit
+from drape.runtime.layers import OuterModel, blend_windows, window_starts
 from drape.training import layers_outer
 from drape.training.config_file import read_config
 
@@ -38,6 +44,18 @@ def run_network(folder: Path, task: layers_outer.OuterTask) -> tuple[OuterTransf
     return model, int(best["step"])
 
 
+def pose_shipped(net: OuterModel, task: layers_outer.OuterTask, seq: layers_outer.Sequence) -> np.ndarray:
+    """An exported outer network posed along a prepared sequence as the runtime poses it (its ONNX graph on the
+    sequence's windows, blended; its own rig) -> (T, No, 3) m."""
+    starts, length = window_starts(len(seq.features), net.window)
+    keys = net.session.run(["outer_keys"], {
+        "motion": np.stack([seq.features[s:s + length] for s in starts]).astype(np.float32),
+        "thickness": np.full((len(starts), 1), seq.thickness, np.float32),
+        "inner_keys": np.stack([seq.inner_keys[s:s + length] for s in starts]).astype(np.float32)})[0]
+    return pose_outfit(net.vertices, net.rig, blend_windows(keys, starts, len(seq.features)), task.body.joints,
+                       seq.poses, seq.trans)
+
+
 def row(name: str, figures: dict) -> str:
     return (f"{name:44} {figures['score']:9.2f} {figures['rmse_mm']:8.2f} {figures['l_coll_pct']:7.2f} "
             f"{figures['h_coll_pct']:7.2f} {figures['clip_l_coll_pct']:7.2f} {figures['clip_h_coll_pct']:7.2f}")
@@ -46,7 +64,9 @@ def row(name: str, figures: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", required=True, help="the config whose validation split and caps judge")
-    parser.add_argument("runs", nargs="+", type=Path, help="checkpoint folders (best.pt, step_*.pt)")
+    parser.add_argument("runs", nargs="*", type=Path, help="checkpoint folders (best.pt, step_*.pt)")
+    parser.add_argument("--shipped", type=Path, action="append", default=[],
+                        help="an exported network's folder (outer.onnx, rig.npz, manifest.json); repeatable")
     args = parser.parse_args()
     cfg = read_config(args.config)
     task = layers_outer.OuterTask(cfg)
@@ -60,6 +80,12 @@ def main() -> None:
             model, step = run_network(folder, task)
             figures = layers_outer.measure_all(task, seqs, clips, lambda s, m=model: layers_outer.pose_outer(m, task, s))
             print(row(f"{folder.name} (step {step})", figures), flush=True)
+    for folder in args.shipped:
+        net = OuterModel(folder)
+        if net.inner_sha256 != task.inner_model.sha256:
+            raise SystemExit(f"{folder} was trained beside another inner network than the one served")
+        figures = layers_outer.measure_all(task, seqs, clips, lambda s, n=net: pose_shipped(n, task, s))
+        print(row(f"{folder.name} (exported)", figures), flush=True)
     print(row("DeePSD's outer rig", layers_outer.deepsd_validation(task, seqs, clips)))
 
 
