@@ -26,7 +26,7 @@ import torch
 
 from drape.models.layers import OuterConfig, OuterTransformer
 from drape.runtime.deepsd import pose_outfit
-from drape.runtime.layers import OuterModel, blend_windows, window_starts
+from drape.runtime.layers import OuterModel
 from drape.training import layers_outer
 from drape.training.config_file import read_config
 
@@ -47,13 +47,8 @@ def run_network(folder: Path, task: layers_outer.OuterTask) -> tuple[OuterTransf
 def pose_shipped(net: OuterModel, task: layers_outer.OuterTask, seq: layers_outer.Sequence) -> np.ndarray:
     """An exported outer network posed along a prepared sequence as the runtime poses it (its ONNX graph on the
     sequence's windows, blended; its own rig) -> (T, No, 3) m."""
-    starts, length = window_starts(len(seq.features), net.window)
-    keys = net.session.run(["outer_keys"], {
-        "motion": np.stack([seq.features[s:s + length] for s in starts]).astype(np.float32),
-        "thickness": np.full((len(starts), 1), seq.thickness, np.float32),
-        "inner_keys": np.stack([seq.inner_keys[s:s + length] for s in starts]).astype(np.float32)})[0]
-    return pose_outfit(net.vertices, net.rig, blend_windows(keys, starts, len(seq.features)), task.body.joints,
-                       seq.poses, seq.trans)
+    keys = net.keys_of_features(seq.features, seq.thickness, seq.inner_keys)
+    return pose_outfit(net.vertices, net.rig, keys, task.body.joints, seq.poses, seq.trans)
 
 
 def row(name: str, figures: dict) -> str:

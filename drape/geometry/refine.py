@@ -471,11 +471,13 @@ class Refiner:
         def given(edges: np.ndarray) -> np.ndarray:  # the input's lengths of these edges
             return np.linalg.norm(v0[e0[edges]] - v0[e1[edges]], axis=1)
 
+        def cap_of(edges: np.ndarray, length0: np.ndarray) -> np.ndarray:  # stretch_ratio x rest, or the input's
+            return np.maximum(self.stretch_ratio * rest_length[edges], length0)
+
         # an edge neither of whose ends the refinement moved keeps its input length: never over its cap
         moved = np.any(v != v0, axis=1)
         near = np.nonzero(moved[e0] | moved[e1])[0]
-        cap_near = np.maximum(self.stretch_ratio * rest_length[near], given(near))
-        over = near[np.linalg.norm(v[e0[near]] - v[e1[near]], axis=1) > cap_near * (1 + 1e-6)]
+        over = near[np.linalg.norm(v[e0[near]] - v[e1[near]], axis=1) > cap_of(near, given(near)) * (1 + 1e-6)]
         if self.stretch_iterations == 0 or len(over) == 0:
             return v, 0
         free = np.zeros(self.n, dtype=bool)
@@ -484,7 +486,7 @@ class Refiner:
             free |= (self.adjacency @ free.astype(np.float32)) > 0
         touching = np.nonzero(free[e0] | free[e1])[0]  # edges to held vertices pull too
         ea, eb, length0 = e0[touching], e1[touching], given(touching)
-        cap = np.maximum(self.stretch_ratio * rest_length[touching], length0)
+        cap = cap_of(touching, length0)
         verts = np.unique(np.concatenate([ea, eb]))
         a, b = np.searchsorted(verts, ea), np.searchsorted(verts, eb)
         m, k = len(verts), len(ea)

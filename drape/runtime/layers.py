@@ -115,14 +115,18 @@ class OuterModel:
     def pose_keys(self, poses: np.ndarray, trans: np.ndarray, fps: float, thickness: float, inner_keys: np.ndarray,
                   rest_joints: np.ndarray) -> np.ndarray:
         """poses (T, 24, 3) rad, trans (T, 3) m, thickness H_in m, inner_keys (T, Ki) (the inner network's) ->
-        (T, K) float32: the motion's windows run as one batch, blended (`blend_windows`)."""
+        (T, K) float32: `keys_of_features` of the motion's features."""
         from drape.geometry.character_space import motion_features
         from drape.geometry.skeleton import PARENTS
 
-        features = motion_features(poses, trans, rest_joints, PARENTS, fps)
+        return self.keys_of_features(motion_features(poses, trans, rest_joints, PARENTS, fps), thickness, inner_keys)
+
+    def keys_of_features(self, features: np.ndarray, thickness: float, inner_keys: np.ndarray) -> np.ndarray:
+        """features (T, 78) (`motion_features`), thickness H_in m, inner_keys (T, Ki) -> (T, K) float32: the
+        motion's windows run as one batch, blended (`blend_windows`)."""
         starts, length = window_starts(len(features), self.window)
         out = self.session.run(["outer_keys"], {
-            "motion": np.stack([features[s:s + length] for s in starts]),
+            "motion": np.stack([np.asarray(features, np.float32)[s:s + length] for s in starts]),
             "thickness": np.full((len(starts), 1), thickness, np.float32),
             "inner_keys": np.stack([np.asarray(inner_keys, np.float32)[s:s + length] for s in starts])})[0]
         return blend_windows(out, starts, len(features))
