@@ -13,6 +13,7 @@ from drape.runtime.layers import (
     load_inner_model,
     load_outer_model,
 )
+from drape.training import layers_inner, layers_outer
 from drape.training.layers_eval import CLIP, REAL
 
 
@@ -39,6 +40,20 @@ def test_the_served_model_is_the_one_that_measured_better_on_validation(name, ca
     template = catalog.template(name)  # the catalog checks the network's template against the served one
     assert template.model == ("mgn_inner" if better else "deepsd")
     assert {"steps", "seconds", "wall_seconds", "machine"} <= set(m["training"])
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_committed_config_is_the_one_the_shipped_inner_network_was_trained_with(name):
+    """`drape train mgn-inner --inner NAME` reads drape/training/configs/mgn_inner_NAME.json: it must be the
+    config in the manifest, or the one command no longer reproduces what ships."""
+    assert load_inner_model(name).manifest["config"] == layers_inner.load_config(name)
+
+
+@pytest.mark.parametrize("pair", SHIPPED_OUTER)
+def test_the_committed_config_is_the_one_the_shipped_outer_network_was_trained_with(pair):
+    """As above, for `drape train mgn-outer --outer OUTER` and drape/training/configs/mgn_outer_OUTER.json."""
+    inner, outer = pair.split("_")
+    assert load_outer_model(inner, outer).manifest["config"] == layers_outer.load_config(outer)
 
 
 @pytest.mark.parametrize("name", SHIPPED)
