@@ -1,6 +1,8 @@
 """The shipped (trained) DeePSD: manifest integrity, size, and consistency across topologies."""
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +11,7 @@ from scipy.spatial import cKDTree
 from drape.assets.body import load_body
 from drape.assets.outfits import generate_outfit
 from drape.runtime.deepsd import MODEL_DIR, DeePSDModel
+from drape.training.config_file import read_config
 
 pytestmark = pytest.mark.skipif(not (MODEL_DIR / "manifest.json").exists(), reason="no shipped model")
 
@@ -16,6 +19,17 @@ pytestmark = pytest.mark.skipif(not (MODEL_DIR / "manifest.json").exists(), reas
 @pytest.fixture(scope="module")
 def model():
     return DeePSDModel(MODEL_DIR)
+
+
+def test_the_makefile_s_config_is_the_one_the_shipped_model_was_trained_with():
+    """`make deepsd-model` trains from the Makefile's DEEPSD_CONFIG: it must be the manifest's config (less the
+    `_checkpoint` record the export adds), or the one command no longer reproduces what ships."""
+    root = Path(__file__).resolve().parents[2]
+    path = re.search(r"^DEEPSD_CONFIG \?= (\S+)$", (root / "Makefile").read_text(), re.M)
+    assert path, "the Makefile names no DEEPSD_CONFIG"
+    config = dict(json.loads((MODEL_DIR / "manifest.json").read_text())["training"]["config"])
+    config.pop("_checkpoint", None)
+    assert config == read_config(root / path.group(1))
 
 
 def test_manifest_is_trained_small_and_evaluated(model):
