@@ -124,11 +124,13 @@ class OuterModel:
     def keys_of_features(self, features: np.ndarray, thickness: float, inner_keys: np.ndarray) -> np.ndarray:
         """features (T, 78) (`motion_features`), thickness H_in m, inner_keys (T, Ki) -> (T, K) float32: the
         motion's windows run as one batch, blended (`blend_windows`)."""
+        # as float32 once, not once per window
+        features, inner_keys = np.asarray(features, np.float32), np.asarray(inner_keys, np.float32)
         starts, length = window_starts(len(features), self.window)
         out = self.session.run(["outer_keys"], {
-            "motion": np.stack([np.asarray(features, np.float32)[s:s + length] for s in starts]),
+            "motion": np.stack([features[s:s + length] for s in starts]),
             "thickness": np.full((len(starts), 1), thickness, np.float32),
-            "inner_keys": np.stack([np.asarray(inner_keys, np.float32)[s:s + length] for s in starts])})[0]
+            "inner_keys": np.stack([inner_keys[s:s + length] for s in starts])})[0]
         return blend_windows(out, starts, len(features))
 
 

@@ -6,9 +6,8 @@ import json
 import pytest
 
 from drape.runtime.intrinsic import INTRINSIC_DIR
-from drape.training.config_file import read_config
+from drape.training.intrinsic import load_config
 
-CONFIGS = INTRINSIC_DIR.parents[2] / "training" / "configs"
 SHIPPED = sorted(p.name for p in INTRINSIC_DIR.iterdir() if (p / "manifest.json").exists()) if INTRINSIC_DIR.exists() else []
 
 
@@ -17,4 +16,4 @@ def test_the_committed_config_is_the_one_the_shipped_network_was_trained_with(te
     """`drape train intrinsic --template T` reads drape/training/configs/intrinsic_T.json: it must be the
     manifest's config, or the one command no longer reproduces what ships."""
     manifest = json.loads((INTRINSIC_DIR / template / "manifest.json").read_text())
-    assert manifest["training"]["config"] == read_config(CONFIGS / f"intrinsic_{template}.json")
+    assert manifest["training"]["config"] == load_config(template)
