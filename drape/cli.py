@@ -449,7 +449,7 @@ def _eval_deepsd(args: argparse.Namespace) -> None:
     from drape.training.deepsd_eval import evaluate, format_table, write_results
 
     results = evaluate(args.config, args.model, ground_truth=args.ground_truth or None,
-                       real_mocap=args.real_mocap or None)
+                       real_mocap=args.real_mocap or None, external=args.external or None)
     print(format_table(results))
     if args.write:
         for path in write_results(results, args.model):
@@ -766,6 +766,9 @@ def build_parser() -> argparse.ArgumentParser:
     evd.add_argument("--write", action="store_true", help="store the table in the manifest and docs/")
     evd.add_argument("--real-mocap", default="../shared/data/mocap",
                      help="folder of real CMU BVH clips for the second table ('' to skip)")
+    evd.add_argument("--external", default="../shared/data/external",
+                     help="folder of garment meshes (*.obj) made for other bodies: fitted onto the neutral body and "
+                          "measured on the real clips ('' to skip)")
     evd.add_argument("--ground-truth", default=str(DEFAULT_GROUND_TRUTH),
                      help="a `drape sim dataset` directory; mean vertex error against its sequences when it exists")
     evd.set_defaults(func=_eval_deepsd)

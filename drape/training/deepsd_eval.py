@@ -66,6 +66,9 @@ REAL_CLIPS = ("02_01_walk", "05_02_dance", "06_02_sports")  # real CMU mocap, ne
 UNSEEN_BODY = "heavy"  # a body preset DeePSD never trained on (drape/assets/body_bake.py)
 UNSEEN_BODY_OUTFITS = ("tshirt", "trousers", "dress")
 REAL_MOCAP = Path("..") / "shared" / "data" / "mocap"
+# garments made outside the project for other bodies (ArcSim tops; provenance in that folder), fitted onto FITTED_BODY
+EXTERNAL_GARMENTS = Path("..") / "shared" / "data" / "external"
+FITTED_BODY = "neutral"
 METRICS = ("collision_nearest_vertex_pct", "collision_triangle_pct", "edge_error_mm", "bending")
 
 
@@ -81,11 +84,14 @@ def _real_motion(path: Path, body, cache: dict):  # noqa: ANN001, ANN202
 
 def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=print,
              ground_truth: str | Path | None = DEFAULT_GROUND_TRUTH,
-             real_mocap: str | Path | None = REAL_MOCAP) -> dict:
+             real_mocap: str | Path | None = REAL_MOCAP,
+             external: str | Path | None = EXTERNAL_GARMENTS) -> dict:
     """Evaluate and return {"rows": [...], "settings": {...}, "mean": ..., "mean_real": ..., "mean_unseen_body":
-    ...}; each row: outfit, body, method, set ("deepmimic": held-out outfits x the held-out embedded clips;
-    "cmu": the same outfits x real CMU mocap from `real_mocap`, skipped when the folder is absent;
-    "unseen_body": UNSEEN_BODY_OUTFITS made for the UNSEEN_BODY x the held-out embedded clips), metrics."""
+    ..., "mean_fitted": ...}; each row: outfit, body, method, set ("deepmimic": held-out outfits x the held-out
+    embedded clips; "cmu": the same outfits x real CMU mocap from `real_mocap`, skipped when the folder is absent;
+    "unseen_body": UNSEEN_BODY_OUTFITS made for the UNSEEN_BODY x the held-out embedded clips; "fitted_cmu": each
+    garment mesh (*.obj) of `external`, made for another body, fitted onto FITTED_BODY (drape.geometry.fitting, its
+    defaults) x the same real CMU clips, skipped when either folder is absent), metrics."""
     cfg = read_config(config_path)
     model = DeePSDModel(model_dir)
     real_dir = Path(real_mocap) if real_mocap else None
@@ -104,19 +110,16 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
             if not motions:
                 continue
             acc = _accumulate(pose, body, motions, cfg["eval_frames_per_clip"], verts, faces)
-            for m in METHODS:
-                rows.append({
-                    "outfit": spec.types, "body": spec.body, "vertices": int(len(verts)), "method": m,
-                    "set": group,
-                    "collision_nearest_vertex_pct": 100 * float(np.mean(acc[m]["inside_nv"])),
-                    "collision_triangle_pct": 100 * float(np.mean(acc[m]["inside_tri"])),
-                    "edge_error_mm": float(np.mean(acc[m]["edge"])),
-                    "bending": float(np.mean(acc[m]["bend"])),
-                    # closest-triangle inside % of each motion of the set, in order
-                    "clip_triangle_pct": [100 * float(x) for x in
-                                          np.reshape(acc[m]["inside_tri"], (len(motions), -1)).mean(1)],
-                })
+            rows += _rows(acc, spec.types, spec.body, len(verts), group, len(motions))
         log(f"{spec.types:18s} done")
+    fitted = sorted(Path(external).glob("*.obj")) if external and Path(external).is_dir() and real else []
+    for path in fitted:
+        body = load_body(FITTED_BODY)
+        verts, faces = fitted_garment(path, body)
+        acc = _accumulate(method_poser(model, verts, faces, body), body,
+                          [_real_motion(p, body, imported) for p in real], cfg["eval_frames_per_clip"], verts, faces)
+        rows += _rows(acc, path.stem, FITTED_BODY, len(verts), "fitted_cmu", len(real))
+        log(f"{path.stem:18s} done")
     gt = ground_truth_error(ground_truth, cfg["heldout_clips"], model) if ground_truth else None
 
     def means(group: str) -> dict:
@@ -128,12 +131,36 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
         "settings": {"heldout_clips": cfg["heldout_clips"], "frames_per_clip": cfg["eval_frames_per_clip"],
                      "outfits": [s.key for s in eval_specs(cfg)],
                      "real_clips": [p.stem for p in real], "unseen_body": UNSEEN_BODY,
-                     "unseen_body_outfits": [s.key for s in unseen]},
+                     "unseen_body_outfits": [s.key for s in unseen],
+                     "fitted_garments": [p.stem for p in fitted], "fitted_body": FITTED_BODY},
         "rows": rows,
         "mean": means("deepmimic"),
         **({"mean_real": means("cmu")} if real else {}),
         "mean_unseen_body": means("unseen_body"),
+        **({"mean_fitted": means("fitted_cmu")} if fitted else {}),
     }
+
+
+def fitted_garment(path: Path, body) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+    """A garment mesh file made for another body, fitted onto `body` -> vertices (N, 3) float32 m, faces (F, 3)."""
+    from drape.geometry.fitting import fit_garment
+    from drape.geometry.mesh_io import load_mesh
+
+    v, f = load_mesh(path)
+    return fit_garment(v, f, body).vertices, f
+
+
+def _rows(acc: dict, outfit: str, body: str, vertices: int, group: str, clips: int) -> list[dict]:
+    """One table row per method from `_accumulate`'s lists over `clips` motions of equal frame counts."""
+    return [{
+        "outfit": outfit, "body": body, "vertices": int(vertices), "method": m, "set": group,
+        "collision_nearest_vertex_pct": 100 * float(np.mean(acc[m]["inside_nv"])),
+        "collision_triangle_pct": 100 * float(np.mean(acc[m]["inside_tri"])),
+        "edge_error_mm": float(np.mean(acc[m]["edge"])),
+        "bending": float(np.mean(acc[m]["bend"])),
+        # closest-triangle inside % of each motion of the set, in order
+        "clip_triangle_pct": [100 * float(x) for x in np.reshape(acc[m]["inside_tri"], (clips, -1)).mean(1)],
+    } for m in METHODS]
 
 
 def _accumulate(pose, body, motions: list, frames_per_clip: int, verts: np.ndarray,  # noqa: ANN001
@@ -231,6 +258,12 @@ def format_table(results: dict) -> str:
                      "heavier and taller), on the held-out clips:\n")
         lines.append(head)
         table("unseen_body", results["mean_unseen_body"])
+    if results.get("mean_fitted"):
+        lines.append(f"\nGarments made outside the project for other bodies "
+                     f"({', '.join(results['settings']['fitted_garments'])}), fitted onto "
+                     f"`{results['settings']['fitted_body']}` (drape.geometry.fitting), on the same real CMU clips:\n")
+        lines.append(head)
+        table("fitted_cmu", results["mean_fitted"])
     gt = results.get("ground_truth")
     if gt:
         lines.append(f"\nMean vertex error (mm) against simulated sequences ({', '.join(gt['garments'])} on "

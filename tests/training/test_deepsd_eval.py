@@ -104,3 +104,28 @@ def test_real_cmu_clips_make_a_second_table(tmp_path, monkeypatch):
     assert results["settings"]["real_clips"] == list(REAL_CLIPS)
     assert set(results["mean_real"]) == set(METHODS)
     assert "real CMU mocap" in format_table(results)
+
+
+EXTERNAL = REAL.parent / "external"
+
+
+@pytest.mark.skipif(not (REAL.is_dir() and EXTERNAL.is_dir()), reason="../shared/data (real CMU clips, external "
+                    "garments) is not beside the repository")
+def test_external_garments_are_fitted_and_measured_on_the_real_clips(tmp_path, monkeypatch):
+    config_path, model = eval_setup(tmp_path, monkeypatch, ["skirt"], 400, 1)
+    external = tmp_path / "external"
+    external.mkdir()
+    garment = sorted(EXTERNAL.glob("*.obj"))[0]
+    (external / garment.name).write_bytes(garment.read_bytes())
+    results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=REAL, external=external)
+    fitted = [r for r in results["rows"] if r["set"] == "fitted_cmu"]
+    assert [r["method"] for r in fitted] == list(METHODS)
+    assert {r["outfit"] for r in fitted} == {garment.stem} and {r["body"] for r in fitted} == {"neutral"}
+    # the fitted mesh keeps the file's vertices (fitting moves them, it adds none)
+    assert fitted[0]["vertices"] == len(load_mesh(garment)[0])
+    assert all(len(r["clip_triangle_pct"]) == len(REAL_CLIPS) for r in fitted)
+    assert results["settings"]["fitted_garments"] == [garment.stem] and set(results["mean_fitted"]) == set(METHODS)
+    assert f"({garment.stem}), fitted onto `neutral`" in format_table(results)
+    # without the folder, no such set
+    none = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=REAL, external=None)
+    assert "mean_fitted" not in none and not any(r["set"] == "fitted_cmu" for r in none["rows"])
