@@ -17,7 +17,9 @@ input length)), each with the refinement's defaults (the last check over 8 neare
 1 cm, the surface's FAR_K) and without the last check (-chk); `before`: the relief pass without the check on a
 surface without FAR_K, what both routes ran before them.
 
-Run: .venv/bin/python -m bench.refine_edges [--every 6] [--far-k 0] (about 5 minutes on the 2-core machine)
+Run: .venv/bin/python -m bench.refine_edges [--every 6] [--far-k 0] [--stream-rest] (about 5 minutes on the 2-core
+machine; --stream-rest adds two variants with a rest guessed from the stream, for /v1/refine without a rest shape:
+docs/refine.md, last section)
 """
 
 from __future__ import annotations
@@ -91,6 +93,10 @@ def main() -> None:
     ap.add_argument("--clips", default=None,
                     help="comma-separated clips of ../shared/data/mocap instead of fairmotion 01_01 and REAL_CLIPS "
                          "(e.g. the validation clips 05_04_dance,06_01_walk,06_03_sports)")
+    ap.add_argument("--stream-rest", action="store_true",
+                    help="also the edge-limit pass with a rest guessed from the stream (no rest shape given): each "
+                         "edge's median length over the frames (`stream median`), or the frame closest to those "
+                         "medians (`stream frame`)")
     args, engine, body, surface = setup(ap)
     # what both routes ran before the last check and FAR_K were on: the relief pass, the plain surface
     plain = BodySurface(body.faces, len(body.vertices))
@@ -111,11 +117,18 @@ def main() -> None:
         for clip, poses, trans in clips:
             frames = np.concatenate(list(engine.pose_chunks(out, poses, trans))).astype(np.float64)
             bodies = body.pose(poses, trans).astype(np.float64)
-            before = np.linalg.norm(frames[:, edges[:, 0]] - frames[:, edges[:, 1]], axis=2) / rest_len
+            lengths = np.linalg.norm(frames[:, edges[:, 0]] - frames[:, edges[:, 1]], axis=2)  # (T, E) m
+            before = lengths / rest_len
+            clip_variants = dict(variants)
+            if args.stream_rest:  # no rest shape given: one guessed from the stream itself
+                median = np.median(lengths, axis=0)
+                k = int(np.argmin(np.abs(lengths - median).sum(axis=1)))
+                clip_variants["stream median"] = (Refiner(out.faces, len(rest), rest_length=median), surface)
+                clip_variants["stream frame"] = (Refiner(out.faces, len(rest), rest=frames[k]), surface)
             inside0 = [np.mean(signed_distance_to_mesh(f, b, body.faces) < 0) for f, b in zip(frames, bodies, strict=True)]
             print(f"{name[:24]:24s} {clip:14s} {len(rest):5d} {len(frames):4d} {'input':18s} "
                   f"{np.median(inside0):10.2%} {max(inside0):6.2%} {'':7s} {'':7s} {'':9s} {before.max():7.2f}x")
-            for label, (refiner, collider) in variants.items():
+            for label, (refiner, collider) in clip_variants.items():
                 t = time.perf_counter()
                 refined = np.stack([refiner.refine_frame(f, b, collider, RefineReport())
                                     for f, b in zip(frames, bodies, strict=True)])

@@ -223,7 +223,7 @@ class Refiner:
                  relief_query_every: int = 5, rest: np.ndarray | None = None, stretch_ratio: float = STRETCH_RATIO,
                  stretch_iterations: int = STRETCH_ITERATIONS, stretch_query_every: int = 5, stretch_omega: float = 1.5,
                  verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
-                 verify_stretch: float = np.inf):
+                 verify_stretch: float = np.inf, rest_length: np.ndarray | None = None):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
         self.eps, self.weight, self.mu, self.rings, self.max_iterations = eps, weight, mu, rings, max_iterations
@@ -237,12 +237,19 @@ class Refiner:
         self.system = (lap.T @ lap + mu * sp.identity(num_vertices)).tocsr()  # L^T L + mu I, fixed
         self.adjacency = adjacency_matrix(self.faces, num_vertices).tocsr()
         self.edges = unique_edges(self.faces)  # (E, 2)
-        self.rest_length = None  # (E,) the template's edge lengths, m, when `rest` is given
+        self.rest_length = None  # (E,) the template's edge lengths, m, when `rest` or `rest_length` is given
+        if rest is not None and rest_length is not None:
+            raise ValueError("give rest or rest_length, not both")
         if rest is not None:
             r = np.asarray(rest, dtype=np.float64)
             if r.shape != (num_vertices, 3):
                 raise ValueError(f"rest must be ({num_vertices}, 3), got {r.shape}")
             self.rest_length = np.linalg.norm(r[self.edges[:, 0]] - r[self.edges[:, 1]], axis=1)
+        elif rest_length is not None:  # (E,) m, in the order of unique_edges(faces)
+            self.rest_length = np.asarray(rest_length, dtype=np.float64)
+            if self.rest_length.shape != (len(self.edges),):
+                raise ValueError(f"rest_length must be ({len(self.edges)},), got {self.rest_length.shape}")
+        if self.rest_length is not None:
             a, b = self.edges[:, 0], self.edges[:, 1]
             # (N, N) each edge's rest length at both of its ends, for the last check
             self.rest_pairs = sp.csr_matrix((np.concatenate([self.rest_length, self.rest_length]),

@@ -307,6 +307,15 @@ def test_the_edge_limit_pass_keeps_edges_near_their_rest_length(penetrating):
     assert (edge_lengths(checked, edges) / rest)[before <= 2].max() <= 2.0
     with pytest.raises(ValueError, match="rest"):
         Refiner(o.faces, len(o.vertices), rest=o.vertices[:-1])
+    # the same pass from the rest lengths alone (edges in unique_edges' order): the same answer, bit for bit
+    r64 = o.vertices.astype(np.float64)
+    by_length, _ = run(Refiner(o.faces, len(o.vertices),
+                               rest_length=np.linalg.norm(r64[edges[:, 0]] - r64[edges[:, 1]], axis=1)))
+    np.testing.assert_array_equal(by_length, checked)
+    with pytest.raises(ValueError, match="rest_length"):
+        Refiner(o.faces, len(o.vertices), rest_length=rest[:-1])
+    with pytest.raises(ValueError, match="not both"):
+        Refiner(o.faces, len(o.vertices), rest=o.vertices, rest_length=rest)
 
 
 def test_body_surface_with_vertices_in_no_face():
