@@ -19,7 +19,7 @@ surface without FAR_K, what both routes ran before them.
 
 Run: .venv/bin/python -m bench.refine_edges [--every 6] [--far-k 0] [--stream-rest] (about 5 minutes on the 2-core
 machine; --stream-rest adds two variants with a rest guessed from the stream, for /v1/refine without a rest shape:
-docs/refine.md, last section)
+docs/refine.md, section "`/v1/refine` without a rest shape")
 """
 
 from __future__ import annotations
