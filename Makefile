@@ -61,7 +61,10 @@ sim-dataset: $(VENV)/.dev-installed
 # frames (run, spin and CMU 05_05_dance, 05_06_dance, 05_08_dance were tried: the quality gate rejected all
 # their sequences, the legs through the skirt by 8-9 cm);
 # ~0.4 s per frame per core, ~8 core-hours; resumable (rerun to continue), train items first, then held-out x held-out. WORKERS=1 leaves a core free.
+# INTRINSIC_SPLITS=test simulates only the 8 held-out x held-out sequences, all `drape eval intrinsic` reads (~6 min at
+# WORKERS=2); a later run without it adds the rest.
 INTRINSIC_DIR ?= data/intrinsic/skirt
+INTRINSIC_SPLITS ?=
 WORKERS ?= 1
 MOCAP ?= ../shared/data/mocap
 # real CMU clips trained on (never the long held-out 05_12, 05_18, nor DeePSD's held-out real clips)
@@ -78,7 +81,8 @@ intrinsic-data: $(VENV)/.dev-installed
 		$(BIN)/drape motions import $(MOCAP)/$$c.bvh --fps 30 --out $(INTRINSIC_DIR)/motions/cmu_$$c.npz; done
 	cd $(INTRINSIC_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \
 		--motions motions/proc1.npz,motions/proc2.npz,motions/proc3.npz,motions/proc4.npz,motions/proc5.npz,dance_b,$(INTRINSIC_CMU_MOTIONS),walk,dance_a \
-		--frames 120 --holdout-params 4 --holdout-motions 2 --workers $(WORKERS) --out .
+		--frames 120 --holdout-params 4 --holdout-motions 2 $(if $(INTRINSIC_SPLITS),--splits $(INTRINSIC_SPLITS)) \
+		--workers $(WORKERS) --out .
 
 # long held-out sequences of the same template for `drape eval intrinsic`'s keyframe-ratio table: the same
 # 44 parameter sets (--seed 21), only the held-out ones (--splits test), along two real CMU clips of
@@ -127,6 +131,8 @@ intrinsic-data-motions: $(VENV)/.dev-installed
 # for the 208 sequences of the training and test splits (the only ones training and `drape eval intrinsic` read) at
 # WORKERS=2; resumable (rerun to continue), train items first.
 INTRINSIC_LONG_SKIRT_DIR ?= data/intrinsic/long_skirt
+# test: only the 8 held-out x held-out sequences `drape eval intrinsic --template long_skirt` reads
+INTRINSIC_LONG_SKIRT_SPLITS ?= train,test
 intrinsic-data-long-skirt: $(VENV)/.dev-installed
 	mkdir -p $(INTRINSIC_LONG_SKIRT_DIR)/motions
 	test -f $(INTRINSIC_LONG_SKIRT_DIR)/long_skirt.obj || $(BIN)/drape outfits generate --type long_skirt \
@@ -139,7 +145,8 @@ intrinsic-data-long-skirt: $(VENV)/.dev-installed
 		--out $(INTRINSIC_LONG_SKIRT_DIR)/motions/cmu_$$c.npz || exit 1; done
 	cd $(INTRINSIC_LONG_SKIRT_DIR) && ../../../$(BIN)/drape sim dataset --garment long_skirt.obj --params 44 \
 		--seed 21 --motions motions/proc1.npz,motions/proc2.npz,dance_b,motions/cmu_05_01_walk.npz,motions/cmu_06_01_walk.npz,walk,dance_a \
-		--frames 120 --holdout-params 4 --holdout-motions 2 --splits train,test --substeps 8 --workers $(WORKERS) --out .
+		--frames 120 --holdout-params 4 --holdout-motions 2 --splits $(INTRINSIC_LONG_SKIRT_SPLITS) --substeps 8 \
+		--workers $(WORKERS) --out .
 
 # the long skirt's keyframe-ratio set (`drape eval intrinsic --template long_skirt` reads
 # data/intrinsic/long_skirt_long by default), as intrinsic-data-long for the skirt: its 4 held-out parameter sets
