@@ -113,8 +113,8 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
             rows += _rows(acc, spec.types, spec.body, len(verts), group, len(motions))
         log(f"{spec.types:18s} done")
     fitted = sorted(Path(external).glob("*.obj")) if external and Path(external).is_dir() and real else []
+    body = load_body(FITTED_BODY)
     for path in fitted:
-        body = load_body(FITTED_BODY)
         verts, faces = fitted_garment(path, body)
         acc = _accumulate(method_poser(model, verts, faces, body), body,
                           [_real_motion(p, body, imported) for p in real], cfg["eval_frames_per_clip"], verts, faces)

@@ -98,9 +98,11 @@ REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "mocap"
 @pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/mocap (real CMU clips) is not beside the repository")
 def test_real_cmu_clips_make_a_second_table(tmp_path, monkeypatch):
     config_path, model = eval_setup(tmp_path, monkeypatch, ["skirt"], 400, 2)
-    results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=REAL)
+    results = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=REAL, external=None)
     groups = [r["set"] for r in results["rows"]]
     assert groups.count("deepmimic") == groups.count("cmu") == len(METHODS)
+    # without a folder of external garments, no fitted set
+    assert "mean_fitted" not in results and "fitted_cmu" not in groups
     assert results["settings"]["real_clips"] == list(REAL_CLIPS)
     assert set(results["mean_real"]) == set(METHODS)
     assert "real CMU mocap" in format_table(results)
@@ -126,6 +128,3 @@ def test_external_garments_are_fitted_and_measured_on_the_real_clips(tmp_path, m
     assert all(len(r["clip_triangle_pct"]) == len(REAL_CLIPS) for r in fitted)
     assert results["settings"]["fitted_garments"] == [garment.stem] and set(results["mean_fitted"]) == set(METHODS)
     assert f"({garment.stem}), fitted onto `neutral`" in format_table(results)
-    # without the folder, no such set
-    none = evaluate(config_path, model, log=lambda *_: None, ground_truth=None, real_mocap=REAL, external=None)
-    assert "mean_fitted" not in none and not any(r["set"] == "fitted_cmu" for r in none["rows"])
