@@ -68,6 +68,17 @@ def _import_deepmimic(args: argparse.Namespace) -> None:
     (out / "ATTRIBUTION.md").write_text(deepmimic.ATTRIBUTION + "\n")
 
 
+def _index_list(text: str) -> list[int]:
+    """An argparse type: a comma list of indices >= 0, e.g. "36,37,38,39"."""
+    try:
+        values = [int(t) for t in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a comma list of integers, got {text!r}") from None
+    if any(v < 0 for v in values):
+        raise argparse.ArgumentTypeError(f"indices must be >= 0, got {text!r}")
+    return values
+
+
 def _int_in(low: int, high: int | None = None):  # noqa: ANN202 - an argparse type
     """An argparse type: an integer in [low, high] (high None: no upper bound), else argparse's one-line error
     naming the option (exit 2) before any work."""
@@ -616,6 +627,7 @@ def _sim_dataset(args: argparse.Namespace) -> None:
         args.out, garments, params, motions, args.frames, body=args.body,
         holdout_params=args.holdout_params, holdout_motions=args.holdout_motions, workers=args.workers,
         ray_address=args.ray, only_splits=tuple(args.splits.split(",")) if args.splits else None,
+        only_params=args.only_params,
     )
     summ = manifest["summary"]
     print(f"{args.out}: {summ['items']} sequences accepted, {len(manifest['rejected'])} rejected, "
@@ -818,6 +830,9 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--holdout-params", type=int, default=2)
     sd.add_argument("--holdout-motions", type=int, default=1)
     sd.add_argument("--splits", help="simulate only these splits, comma list of train,test,test_params,test_motions")
+    sd.add_argument("--only-params", metavar="I,J,...", type=_index_list,
+                    help="simulate only these parameter-set indices (0-based), comma list, e.g. a training "
+                         "config's validation sets")
     sd.add_argument("--substeps", type=int, default=None,
                     help="simulation steps per motion frame for every parameter set (default: the sets' own, 4); "
                          "a long skirt needs 8 (docs/sim.md)")

@@ -267,6 +267,7 @@ def build_dataset(
     ray_address: str | None = None,
     progress: bool = True,
     only_splits: tuple[str, ...] | None = None,
+    only_params: Sequence[int] | None = None,
 ) -> dict:
     """Simulate every (garment, parameter set, motion) not yet finished under `out`; return the manifest.
 
@@ -274,7 +275,8 @@ def build_dataset(
     (inner vertices, inner faces, outer vertices, outer faces) with `LayerParams` (the default gate is then a
     `LayerGate`). only_splits: simulate only the items of these splits ("train", "test", "test_params",
     "test_motions"), e.g. ("test",) for a set of long held-out sequences that shares the parameter sampler
-    (same --params and --seed) with a dataset.
+    (same --params and --seed) with a dataset. only_params: simulate only the items of these parameter-set indices
+    (e.g. a training config's validation sets, to measure a model on them before the rest is simulated).
     """
     layered = _check_layered(garments, params)
     out = Path(out)
@@ -296,6 +298,11 @@ def build_dataset(
     grid = items  # the manifest lists every finished item of the whole grid, whichever splits this run simulates
     if only_splits is not None:
         items = [it for it in items if split_of(it.params_index, it.motion.name, s) in only_splits]
+    if only_params is not None:
+        unknown = sorted(set(only_params) - set(range(len(params))))
+        if unknown:
+            raise ValueError(f"only_params {unknown} are not among the {len(params)} parameter sets")
+        items = [it for it in items if it.params_index in set(only_params)]
     by_key = {it.key: it for it in items}
 
     def finished(it: Item) -> bool:

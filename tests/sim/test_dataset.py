@@ -141,6 +141,16 @@ def test_only_splits_simulates_just_those_items(tmp_path):
     assert sorted([e["split"] for e in m["items"]] + [r["split"] for r in m["rejected"]]) == ["test", "train"]
 
 
+def test_only_params_simulates_just_those_sets(tmp_path):
+    m = _build(tmp_path, workers=1, only_params=[1])
+    assert m["last_run"]["simulated"] == 2  # parameter set 1 x 2 motions, every split
+    assert {e["params"] for e in m["items"]} | {r["params"] for r in m["rejected"]} == {1}
+    # the rest of the grid later, into the same folder
+    assert _build(tmp_path, workers=1)["last_run"]["simulated"] == 2
+    with pytest.raises(ValueError, match=r"only_params \[2\] are not among the 2 parameter sets"):
+        _build(tmp_path, workers=1, only_params=[2])
+
+
 def _layer_build(out, **kw):
     from drape.sim.layers import split_outfit
     from drape.sim.params import sample_layer_params
