@@ -333,11 +333,17 @@ def _train_intrinsic(args: argparse.Namespace) -> None:
     import json
 
     from drape.training.intrinsic import export_trained, load_config, train
+    from drape.training.intrinsic_shrink import calibrate
 
-    model, summary = train(load_config(args.template, args.config), args.checkpoints)
-    print(json.dumps({k: v for k, v in summary.items() if k not in ("config", "latent_mean", "latent_std")}, indent=2))
-    for path in export_trained(model, summary, args.out or ASSETS / "models" / "intrinsic" / args.template):
-        print(path)
+    config = load_config(args.template, args.config)
+    out = args.out or ASSETS / "models" / "intrinsic" / args.template
+    if not args.calibrate_only:
+        model, summary = train(config, args.checkpoints)
+        print(json.dumps({k: v for k, v in summary.items() if k not in ("config", "latent_mean", "latent_std")},
+                         indent=2))
+        for path in export_trained(model, summary, out):
+            print(path)
+    calibrate(out, config)
 
 
 def _train_mgn_inner(args: argparse.Namespace) -> None:
@@ -733,6 +739,9 @@ def build_parser() -> argparse.ArgumentParser:
     ti.add_argument("--config", help="another config file")
     ti.add_argument("--checkpoints", help="default checkpoints/intrinsic/<template>")
     ti.add_argument("--out", help="where the ONNX model goes (default drape/assets/models/intrinsic/<template>)")
+    ti.add_argument("--calibrate-only", action="store_true",
+                    help="do not train: only measure the exported model's keyframe_shrink on the config's validation "
+                         "sets and write it into its manifest (the last step of training)")
     ti.set_defaults(func=_train_intrinsic)
     tm = t.add_parser("mgn-inner", help="MGN's inner-layer network of one served inner template, by physics "
                       "(resumes from checkpoints; exported with DeePSD's rig measured on the same validation split)")

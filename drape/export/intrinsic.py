@@ -31,7 +31,7 @@ from drape.models.intrinsic import (
     ShapeEncodeGraph,
 )
 
-VERSION = "0.3.0"
+VERSION = "0.3.1"  # 0.3.1: keyframe_shrink (drape.training.intrinsic_shrink) on 0.3.0's networks
 
 
 def export_intrinsic(model: IntrinsicSpace, out: str | Path, *, template: str = "template",

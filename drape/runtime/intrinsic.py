@@ -177,6 +177,12 @@ class IntrinsicGarment:
         self.latent_size = int(cfg.get("latent", len(self.latent_mean)))
         if self.latent_mean.shape != (self.latent_size,) or self.latent_std.shape != (self.latent_size,):
             raise ValueError(f"{self.path}: latent_mean / latent_std are not ({self.latent_size},)")
+        # (Z,) in [0, 1]: how far each keyframe latent stays from latent_mean (drape.training.intrinsic_shrink);
+        # a manifest without it keeps the encoder's latents
+        self.keyframe_shrink = np.asarray(m.get("keyframe_shrink", np.ones(self.latent_size)), dtype=np.float64)
+        if self.keyframe_shrink.shape != (self.latent_size,) or not np.all(
+                (self.keyframe_shrink >= 0) & (self.keyframe_shrink <= 1)):
+            raise ValueError(f"{self.path}: keyframe_shrink is not ({self.latent_size},) in [0, 1]")
         if self.vertices.ndim != 2 or self.vertices.shape[1] != 3 or \
                 int(cfg.get("num_vertices", len(self.vertices))) != len(self.vertices):
             raise ValueError(f"{self.path}: template vertices {self.vertices.shape} do not match the model")
@@ -220,7 +226,9 @@ class IntrinsicGarment:
 
     def encode_at(self, vertices: np.ndarray, frames: Sequence[int], motion: MotionFrames) -> np.ndarray:
         """Keyframe shapes vertices (K, N, 3) m, world space at their frames (K,) of `motion` -> latents (K, Z)
-        float32 (one ONNX Runtime call); each frame's window uses the motion up to that frame only."""
+        float32 (one ONNX Runtime call); each frame's window uses the motion up to that frame only. Each latent is
+        the encoder's pulled toward the training mean: latent_mean + keyframe_shrink * (encoded - latent_mean)
+        (the best guess of the garment's own latent from one frame; drape.training.intrinsic_shrink)."""
         v = np.asarray(vertices, dtype=np.float64)
         idx = np.asarray(frames, dtype=np.int64).reshape(-1)
         if v.ndim != 3 or v.shape[1:] != (self.num_vertices, 3) or len(v) != len(idx):
@@ -231,12 +239,16 @@ class IntrinsicGarment:
             return np.zeros((0, self.latent_size), np.float32)
         windows = np.concatenate([motion.windows(int(f), int(f) + 1, self.window) for f in idx])
         local = character_space_numpy(v, motion.root_position[idx], motion.root_rotation[idx]).astype(np.float32)
-        return self._encode_local(local, windows)
+        z = self._encode_local(local, windows)
+        if np.all(self.keyframe_shrink == 1):
+            return z
+        return (self.latent_mean + self.keyframe_shrink * (z.astype(np.float64) - self.latent_mean)).astype(np.float32)
 
     def encode_frames(self, vertices: np.ndarray, poses: np.ndarray, trans: np.ndarray,
                       chunk: int = DECODE_BLOCK) -> np.ndarray:
         """Every frame of a garment sequence encoded: vertices (T, N, 3) m world space, poses (T, 24, 3) rad, trans
-        (T, 3) m -> latents (T, Z) float32, `chunk` frames per ONNX Runtime call."""
+        (T, 3) m -> latents (T, Z) float32, `chunk` frames per ONNX Runtime call: the encoder's own latents (no
+        keyframe_shrink; what the invariance statistics and the shrink's calibration measure)."""
         v = np.asarray(vertices, dtype=np.float64)
         if v.ndim != 3 or v.shape[1:] != (self.num_vertices, 3) or len(v) != len(poses):
             raise ValueError(f"expected ({len(poses)}, {self.num_vertices}, 3) vertices, got {v.shape}")

@@ -1,0 +1,60 @@
+"""Keyframe latents pulled toward the training mean: the shrink factors against an independent formulation (the
+factor that minimises the squared error of a set's mean guessed from one frame, on draws with known variances), and
+the served encoder applying the manifest's factors."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from drape.runtime.intrinsic import IntrinsicGarment
+from drape.training.intrinsic_shrink import shrink_factors
+from tests.intrinsic_model import intrinsic_model
+
+
+def test_shrink_factors_are_the_least_squares_guess_of_a_set_s_mean_from_one_frame():
+    rng = np.random.default_rng(3)
+    Z, sets, frames = 6, 400, 300
+    between = np.array([1.0, 0.5, 0.1, 2.0, 0.01, 1.0])
+    within = np.array([1.0, 2.0, 0.1, 0.5, 1.0, 0.0001])
+    means = rng.normal(0.0, np.sqrt(between), (sets, Z))
+    latents = means[:, None] + rng.normal(0.0, np.sqrt(within), (sets, frames, Z))
+    s, w = shrink_factors(between, list(latents))
+    assert np.allclose(w, within, rtol=0.03)
+    assert np.allclose(s, between / (between + within), rtol=0.03)
+    # independently: the factor a minimising mean((a z - mu)^2) over every frame (training mean 0) by least squares
+    a = (latents * means[:, None]).sum(axis=(0, 1)) / (latents**2).sum(axis=(0, 1))
+    assert np.allclose(s, a, atol=0.02)
+    # and it beats the encoder's latent alone (a = 1) and the mean alone (a = 0) on every dimension
+    err = {k: ((k * latents - means[:, None]) ** 2).mean(axis=(0, 1)) for k in (0.0, 1.0)}
+    mine = ((s * latents - means[:, None]) ** 2).mean(axis=(0, 1))
+    assert np.all(mine <= err[0.0] + 1e-9) and np.all(mine <= err[1.0] + 1e-9)
+    with pytest.raises(ValueError, match="no parameter set"):
+        shrink_factors(between, [])
+
+
+def test_the_encoder_pulls_keyframe_latents_by_the_manifest_s_factors(tmp_path):
+    tg = intrinsic_model()
+    raw = IntrinsicGarment(tg.path)
+    assert np.all(raw.keyframe_shrink == 1)  # a manifest without the field keeps the encoder's latents
+    shutil.copytree(tg.path, tmp_path / "m")
+    path = tmp_path / "m" / "manifest.json"
+    manifest = json.loads(path.read_text())
+    factors = np.linspace(0.0, 1.0, raw.latent_size)
+    path.write_text(json.dumps(manifest | {"keyframe_shrink": factors.tolist()}))
+    pulled = IntrinsicGarment(tmp_path / "m")
+    poses = np.zeros((12, 24, 3))
+    poses[:, 16, 2] = np.linspace(0.0, 0.8, 12)
+    trans = np.zeros((12, 3))
+    shape = raw.decode(np.tile(raw.latent_mean.astype(np.float32), (12, 1)) + 0.3, poses, trans)[9]
+    z_raw, z = raw.encode(shape, poses, trans, 9), pulled.encode(shape, poses, trans, 9)
+    assert np.allclose(z, raw.latent_mean + factors * (z_raw - raw.latent_mean), atol=1e-6)
+    assert abs(z[0] - raw.latent_mean[0]) < 1e-6 and abs(z[-1] - z_raw[-1]) < 1e-6
+    # every frame's latents (the invariance statistics) stay the encoder's own
+    seq = raw.decode(np.tile(z_raw, (12, 1)), poses, trans)
+    assert np.array_equal(pulled.encode_frames(seq, poses, trans), raw.encode_frames(seq, poses, trans))
+    for bad in (factors[:-1], factors + 0.5):
+        path.write_text(json.dumps(manifest | {"keyframe_shrink": bad.tolist()}))
+        with pytest.raises(ValueError, match="keyframe_shrink"):
+            IntrinsicGarment(tmp_path / "m")
