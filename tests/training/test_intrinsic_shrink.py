@@ -58,3 +58,47 @@ def test_the_encoder_pulls_keyframe_latents_by_the_manifest_s_factors(tmp_path):
         path.write_text(json.dumps(manifest | {"keyframe_shrink": bad.tolist()}))
         with pytest.raises(ValueError, match="keyframe_shrink"):
             IntrinsicGarment(tmp_path / "m")
+
+
+def test_calibrate_writes_the_factors_of_the_config_s_validation_sets_into_the_manifest(tmp_path):
+    """`drape train intrinsic`'s last step on a model folder: the factors from the last `val_params` training sets'
+    sequences (every motion), an extra dataset folder not simulated here skipped, the source and version recorded."""
+    from drape.assets.motion import load_clip
+    from drape.export.intrinsic import VERSION
+    from drape.sim.dataset import save_sequence, split_of, splits
+    from drape.sim.params import sample_params
+    from drape.training.intrinsic_shrink import calibrate
+
+    tg = intrinsic_model()
+    shutil.copytree(tg.path, tmp_path / "model")
+    g = IntrinsicGarment(tmp_path / "model")
+    data = tmp_path / "data"
+    (data / "items").mkdir(parents=True)
+    motions, params = ["walk", "dance_a", "kick"], sample_params(4, seed=1)
+    s = splits(4, motions, 1, 1)  # training sets 0..2, motions walk, dance_a
+    rng = np.random.default_rng(0)
+    items = []
+    for i, p in enumerate(params):
+        z = g.latent_mean + g.latent_std * rng.standard_normal(g.latent_size)
+        for m in motions:
+            clip = load_clip(m)
+            poses, trans = clip.poses[:20].astype(np.float64), clip.trans[:20].astype(np.float64)
+            world = g.decode(np.tile(z, (20, 1)).astype(np.float32), poses, trans)
+            key = f"{tg.path.name}__p{i:02d}__{m}"
+            save_sequence(data / "items" / f"{key}.npz", vertices=world, faces=g.faces, poses=poses, trans=trans,
+                          fps=30.0, params=p, stats={}, garment=tg.path.name, body="neutral", motion=m)
+            items.append({"key": key, "file": f"items/{key}.npz", "params": i, "motion": m,
+                          "split": split_of(i, m, s)})
+    (data / "manifest.json").write_text(json.dumps({"items": items, "splits": s}))
+    config = {"dataset": str(data), "extra_datasets": [str(tmp_path / "not simulated")], "val_params": 2}
+    fields = calibrate(tmp_path / "model", config, log=lambda _: None)
+    source = fields["keyframe_shrink_source"]
+    assert source["parameter_sets"] == [1, 2] and source["sequences"] == 4 and source["datasets"] == [str(data)]
+    per_set = []
+    for i in (1, 2):
+        seqs = [np.load(data / "items" / f"{tg.path.name}__p{i:02d}__{m}.npz") for m in ("walk", "dance_a")]
+        per_set.append(np.concatenate([g.encode_frames(q["vertices"], q["poses"], q["trans"]) for q in seqs]))
+    expected, _ = shrink_factors(g.latent_std**2, per_set)
+    assert np.allclose(fields["keyframe_shrink"], expected, atol=1e-6)
+    again = IntrinsicGarment(tmp_path / "model")
+    assert again.version == VERSION and np.allclose(again.keyframe_shrink, expected, atol=1e-6)
