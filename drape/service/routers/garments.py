@@ -134,7 +134,8 @@ def get_garment(request: Request, name: str = NAME) -> Response:
                                 "vertices, frame"))
 async def encode_keyframe(request: Request, name: str = NAME) -> Response:
     """A keyframe shape -> its latent: vertices (N, 3) m, world space at `frame` of the motion (the frames up to
-    it give the motion window) -> latent (Z,). JSON or npz (a `latent` member) by Accept."""
+    it give the motion window) -> latent (Z,): the encoder's latent pulled toward the training mean by the model's
+    `keyframe_shrink` (the same latent animate gives a shape keyframe). JSON or npz (a `latent` member) by Accept."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ])
     post = await _read_post(request, name)
 
