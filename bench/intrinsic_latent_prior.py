@@ -73,14 +73,14 @@ def fit_latent(garment: IntrinsicGarment, shape: np.ndarray, frame: int, motion:
     return z.astype(np.float32)
 
 
-def _validation(config: dict, root: Path) -> list[dict]:
-    """The config's validation sequences in its main dataset: the last `val_params` of the sampler's training
-    parameter sets (the dataset manifest's `splits.train_params`: 36..39 of 0..39 for the skirt, as 0.3.0's
-    manifest lists them) on every motion, and the `val_motions` on every parameter set; those simulated so far."""
+def _validation(config: dict, root: Path, trained: dict | None) -> tuple[list[dict], set[tuple[int, str]]]:
+    """The config's validation sequences in its main dataset `root` (those simulated so far), and the (set, motion)
+    of those of the held-out sets: the sets the model's training held out whole (`validation_sequences`: 36..39 for
+    both templates) on every motion, and the `val_motions` on every parameter set."""
+    held = {(it["params"], it["motion"]) for r, it in validation_sequences(config, trained) if r == root}
     m = json.loads((root / "manifest.json").read_text())
-    held = set(m["splits"]["train_params"][-config["val_params"]:])
     return [it for it in m["items"] if it["split"] == "train"
-            and (it["params"] in held or it["motion"] in config.get("val_motions", ()))]
+            and ((it["params"], it["motion"]) in held or it["motion"] in config.get("val_motions", ()))], held
 
 
 def main() -> None:
@@ -94,7 +94,7 @@ def main() -> None:
     config = read_config(args.config)
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
     root = Path(config["dataset"])
-    items = _validation(config, root)
+    items, held = _validation(config, root, garment.manifest.get("training"))
     seqs = {(it["params"], it["motion"]): _load(root, it) for it in items}
     motions = {k: garment.motion_frames(s["poses"], s["trans"]) for k, s in seqs.items()}
     shrinks = [float(a) for a in args.shrink.split(",") if a]
@@ -105,7 +105,7 @@ def main() -> None:
     # per latent dimension, between / (between + within), within over the frames of each held-out set's sequences
     per_set: dict[int, list[np.ndarray]] = {}
     for (p_, m_), s in seqs.items():
-        if (p_, m_) in {(it["params"], it["motion"]) for _, it in validation_sequences(config)}:
+        if (p_, m_) in held:
             per_set.setdefault(p_, []).append(garment.encode_frames(s["vertices"], s["poses"], s["trans"]))
     eb, within = shrink_factors(garment.latent_std**2, [np.concatenate(z) for z in per_set.values()])
     print(f"empirical-Bayes shrink per dimension (sets {sorted(per_set)}): mean {eb.mean():.3f}, range "

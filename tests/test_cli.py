@@ -224,6 +224,10 @@ def test_sim_option_files_and_ranges_are_refused_in_one_line(tmp_path, capsys):
     (["sim", "dataset", "--garment", "g.obj", "--motions", "walk", "--out", "d", "--workers", "0"],
      "--workers: must be >= 1, got 0"),
     (["sim", "sweep", "--workers", "-1", "--out", "d"], "--workers: must be >= 1, got -1"),
+    (["sim", "dataset", "--garment", "g.obj", "--motions", "walk", "--out", "d", "--only-params", "36,x"],
+     "--only-params: expected a comma list of integers, got '36,x'"),
+    (["sim", "dataset", "--garment", "g.obj", "--motions", "walk", "--out", "d", "--only-params", "-1"],
+     "--only-params: indices must be >= 0, got '-1'"),
     (["render", "--smooth", "-1", "--out", "r.png"], "--smooth: must be >= 0, got -1"),
 ])
 def test_counts_out_of_range_are_refused_before_any_work(args, said, tmp_path, monkeypatch, capsys):

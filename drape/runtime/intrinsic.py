@@ -147,7 +147,8 @@ class IntrinsicGarment:
 
     Attributes: name (the template's), body (the body preset it was trained on), vertices (N, 3) float32 m
     (rest pose on the body), faces (F, 3) int32, window (W past frames in a motion window), fps, version,
-    latent_size (Z), latent_mean / latent_std (Z,) float64, manifest (the whole manifest.json).
+    latent_size (Z), latent_mean / latent_std (Z,) float64, keyframe_shrink (Z,) float64 in [0, 1] (how far a keyframe
+    latent stays from latent_mean; all ones where the manifest has none), manifest (the whole manifest.json).
     """
 
     def __init__(self, model_dir: str | Path, threads: int = 2):
@@ -261,7 +262,7 @@ class IntrinsicGarment:
         return np.concatenate(out)
 
     def encode(self, vertices_world: np.ndarray, poses: np.ndarray, trans: np.ndarray, frame: int) -> np.ndarray:
-        """A keyframe shape -> its latent (Z,) float32.
+        """A keyframe shape -> its latent (Z,) float32 (`encode_at`'s: pulled toward the mean by keyframe_shrink).
 
         vertices_world (N, 3) m: the garment at `frame`, world space; poses (T, 24, 3) rad and trans (T, 3) m:
         the motion (only frames 0..frame matter); frame: 0-based index, 0 <= frame < T.

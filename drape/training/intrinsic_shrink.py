@@ -7,9 +7,9 @@ mean, and the sets' means scatter around the training mean (`between`: the manif
 (normal priors) is mean + s (z - mean) with s = between / (between + within) per dimension: the manifest's
 `keyframe_shrink`, which `drape.runtime.intrinsic.IntrinsicGarment.encode_at` applies to every keyframe latent.
 
-`within` is measured with the exported model (ONNX Runtime) on the config's validation split: its last
-`val_params` training parameter sets, each on every training motion simulated (the sets trained on none of their
-frames, so the scatter is what an unseen garment's keyframes show). Chosen on that split against the encoder's
+`within` is measured with the exported model (ONNX Runtime) on the validation parameter sets its training held out
+whole (`validation_sequences`), each on every training motion simulated: the sets trained on none of their frames,
+so the scatter is what an unseen garment's keyframes show. Chosen on that split against the encoder's
 latent alone and fixed shrink factors (bench/intrinsic_latent_prior.py; docs/intrinsic.md).
 """
 
@@ -25,7 +25,7 @@ from drape.training.intrinsic import training_datasets
 
 def shrink_factors(between_var: np.ndarray, per_set_latents: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """between_var (Z,): variance of the parameter sets' mean latents; per_set_latents: one (T_i, Z) array of
-    latents per parameter set (its frames, pooled over its motions) -> (shrink (Z,) in (0, 1], within (Z,): the
+    latents per parameter set (its frames, pooled over its motions) -> (shrink (Z,) in [0, 1], within (Z,): the
     mean over sets of each set's variance over its frames)."""
     if not per_set_latents:
         raise ValueError("no parameter set to measure the within-set variance on")
@@ -34,18 +34,23 @@ def shrink_factors(between_var: np.ndarray, per_set_latents: list[np.ndarray]) -
     return between / np.maximum(between + within, 1e-30), within
 
 
-def validation_sequences(config: dict) -> list[tuple[Path, dict]]:
-    """(dataset folder, manifest item) of every simulated sequence of the config's last `val_params` training
-    parameter sets (the dataset manifest's `splits.train_params`), in each of the config's dataset folders that
-    exists (a folder not simulated on this machine is skipped; the manifest records which were read)."""
-    out = []
+def validation_sequences(config: dict, trained: dict | None = None) -> list[tuple[Path, dict]]:
+    """(dataset folder, manifest item) of every simulated training-split sequence of the validation parameter sets, in
+    each of the config's dataset folders that exists (a folder not simulated on this machine is skipped; the manifest
+    records which were read). trained: the model manifest's `training` record; its sets are those of its
+    `val_sequences` that no `train_sequences` holds (the sets training held out whole). Without one, training's
+    rule: the last `val_params` training parameter sets present (`drape.training.intrinsic.validation_masks`)."""
+    items = []
     for root in map(Path, training_datasets(config)):
-        if not (root / "manifest.json").exists():
-            continue
-        m = json.loads((root / "manifest.json").read_text())
-        held = set(m["splits"]["train_params"][-config["val_params"]:])
-        out += [(root, it) for it in m["items"] if it["split"] == "train" and it["params"] in held]
-    return out
+        if (root / "manifest.json").exists():
+            m = json.loads((root / "manifest.json").read_text())
+            items += [(root, it) for it in m["items"] if it["split"] == "train"]
+    if trained and "train_sequences" in trained and "val_sequences" in trained:
+        seen = {int(p) for sets in trained["train_sequences"].values() for p in sets}
+        held = {int(p) for sets in trained["val_sequences"].values() for p in sets} - seen
+    else:
+        held = set(sorted({int(it["params"]) for _, it in items})[-config["val_params"]:])
+    return [(root, it) for root, it in items if it["params"] in held]
 
 
 def calibrate(model_dir: str | Path, config: dict, log=print) -> dict:  # noqa: ANN001
@@ -57,7 +62,13 @@ def calibrate(model_dir: str | Path, config: dict, log=print) -> dict:  # noqa: 
     from drape.training.intrinsic_eval import _load
 
     garment = IntrinsicGarment(model_dir)
-    seqs = validation_sequences(config)
+    trained = garment.manifest.get("training") or {}
+    was = trained.get("config") or {}
+    for key in ("dataset", "val_params"):
+        if key in was and was[key] != config.get(key):
+            raise ValueError(f"{model_dir} was trained with {key} {was[key]!r}, the config given has "
+                             f"{config.get(key)!r}: calibrate with the config it was trained with")
+    seqs = validation_sequences(config, trained)
     per_set: dict[int, list[np.ndarray]] = {}
     for root, it in seqs:
         s = _load(root, it)

@@ -90,7 +90,10 @@ def test_calibrate_writes_the_factors_of_the_config_s_validation_sets_into_the_m
             items.append({"key": key, "file": f"items/{key}.npz", "params": i, "motion": m,
                           "split": split_of(i, m, s)})
     (data / "manifest.json").write_text(json.dumps({"items": items, "splits": s}))
+    path = tmp_path / "model" / "manifest.json"
+    path.write_text(json.dumps(json.loads(path.read_text()) | {"version": "0.0.1"}))  # an earlier version
     config = {"dataset": str(data), "extra_datasets": [str(tmp_path / "not simulated")], "val_params": 2}
+    # no training record in the manifest (this model was not trained): training's rule, the last 2 sets present
     fields = calibrate(tmp_path / "model", config, log=lambda _: None)
     source = fields["keyframe_shrink_source"]
     assert source["parameter_sets"] == [1, 2] and source["sequences"] == 4 and source["datasets"] == [str(data)]
@@ -102,3 +105,21 @@ def test_calibrate_writes_the_factors_of_the_config_s_validation_sets_into_the_m
     assert np.allclose(fields["keyframe_shrink"], expected, atol=1e-6)
     again = IntrinsicGarment(tmp_path / "model")
     assert again.version == VERSION and np.allclose(again.keyframe_shrink, expected, atol=1e-6)
+    # with the training record, the sets it held out whole (in val_sequences, in no train_sequences), whatever
+    # val_params says; a config other than the one it was trained with is refused
+    record = {"config": {"dataset": str(data), "val_params": 2},
+              "train_sequences": {"walk": [0, 1], "dance_a": [0]}, "val_sequences": {"walk": [2], "dance_a": [1, 2]}}
+    path.write_text(json.dumps(json.loads(path.read_text()) | {"training": record}))
+    assert calibrate(tmp_path / "model", config, log=lambda _: None)["keyframe_shrink_source"]["parameter_sets"] == [2]
+    with pytest.raises(ValueError, match="trained with val_params 2, the config given has 1"):
+        calibrate(tmp_path / "model", config | {"val_params": 1}, log=lambda _: None)
+
+
+def test_the_cli_calibrates_an_exported_model_without_training(tmp_path, monkeypatch):
+    from drape import cli
+
+    called = []
+    monkeypatch.setattr("drape.training.intrinsic_shrink.calibrate", lambda out, config: called.append((out, config)))
+    monkeypatch.setattr("drape.training.intrinsic.train", lambda *a, **k: pytest.fail("--calibrate-only trained"))
+    cli.main(["train", "intrinsic", "--template", "skirt", "--calibrate-only", "--out", str(tmp_path)])
+    assert called and str(called[0][0]) == str(tmp_path) and called[0][1]["template"] == "skirt"
