@@ -9,6 +9,7 @@ latent less of that:
 - `shrink eb`: the same with a per latent dimension from the variances (empirical Bayes,
   drape.training.intrinsic_shrink: what `drape train intrinsic` now writes as the manifest's keyframe_shrink):
   between parameter sets (the manifest's latent_std) over between + within a set (the held-out sets' frames);
+  with --calibrate-on, within from those sets only, and the scores on the validation sequences of the others;
 - `fit l`: the latent that best decodes to the keyframe itself at its frame under a Gaussian prior (the
   training latents' mean and std), by Gauss-Newton from the encoder's latent (`fit_latent` below): it
   minimises mean squared vertex error / (1 cm)^2 + l * mean((z - mean) / std)^2.
@@ -90,6 +91,8 @@ def main() -> None:
     p.add_argument("--shrink", default="0,0.25,0.5,0.75,1")
     p.add_argument("--fit", default="1,10")
     p.add_argument("--pairs", type=int, default=120, help="at most this many re-targeting pairs (seeded sample)")
+    p.add_argument("--calibrate-on", default="", help="held-out sets (comma list) the per-dimension factors are "
+                   "measured on; the sequences of those sets are then left out of the scores (out-of-sample check)")
     args = p.parse_args()
     config = read_config(args.config)
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
@@ -99,13 +102,14 @@ def main() -> None:
     motions = {k: garment.motion_frames(s["poses"], s["trans"]) for k, s in seqs.items()}
     shrinks = [float(a) for a in args.shrink.split(",") if a]
     fits = [float(lam) for lam in args.fit.split(",") if lam]
+    calib_sets = {int(x) for x in args.calibrate_on.split(",") if x}
     mean = garment.latent_mean
     garment.keyframe_shrink = np.ones(garment.latent_size)  # the encoder's own latents; each method shrinks them
     # empirical Bayes (drape.training.intrinsic_shrink, what `drape train intrinsic` writes as keyframe_shrink):
     # per latent dimension, between / (between + within), within over the frames of each held-out set's sequences
     per_set: dict[int, list[np.ndarray]] = {}
     for (p_, m_), s in seqs.items():
-        if (p_, m_) in held:
+        if (p_, m_) in held and (not calib_sets or p_ in calib_sets):
             per_set.setdefault(p_, []).append(garment.encode_frames(s["vertices"], s["poses"], s["trans"]))
     eb, within = shrink_factors(garment.latent_std**2, [np.concatenate(z) for z in per_set.values()])
     print(f"empirical-Bayes shrink per dimension (sets {sorted(per_set)}): mean {eb.mean():.3f}, range "
@@ -123,7 +127,8 @@ def main() -> None:
                                             for f, z in zip(frames, z0, strict=True)])
         return out
 
-    held_params = sorted({p for p, m in seqs if sum(1 for q, _ in seqs if q == p) > 1})
+    scored = {k: v for k, v in seqs.items() if k[0] not in calib_sets}
+    held_params = sorted({p for p, m in scored if sum(1 for q, _ in scored if q == p) > 1})
     pairs = [(a, b) for a in sorted(seqs) for b in sorted(seqs) if a[0] == b[0] and a != b and a[0] in held_params]
     rng = np.random.default_rng(0)
     if len(pairs) > args.pairs:
@@ -140,7 +145,7 @@ def main() -> None:
             pred = garment.decode_motion(np.repeat(cache[a][m], T2, axis=0), motions[b])
             rt[m].append(mean_vertex_error_mm(pred, seqs[b]["vertices"]))
     kf: dict[str, list[float]] = {f"{m}{s}": [] for m in methods for s in ("", ", matched")}
-    for key, seq in sorted(seqs.items()):
+    for key, seq in sorted(scored.items()):
         T = len(seq["vertices"])
         a, b = T - WINDOW, T - 1
         between = slice(a + 1, b)
@@ -152,8 +157,8 @@ def main() -> None:
                                               seq["vertices"][between]))
             kf[f"{m}, matched"].append(mean_vertex_error_mm(
                 garment.decode_motion(z, motions[key], residual=residual)[between], seq["vertices"][between]))
-    print(f"model {garment.path} ({garment.version}); {len(seqs)} validation sequences of {root} "
-          f"(sets {sorted({p for p, _ in seqs})[:3]}..., motions {sorted({m for _, m in seqs})}); "
+    print(f"model {garment.path} ({garment.version}); {len(scored)} validation sequences of {root} scored "
+          f"(sets {sorted({p for p, _ in scored})[:3]}..., motions {sorted({m for _, m in scored})}); "
           f"{len(pairs)} re-targeting pairs over sets {held_params}; {time.perf_counter() - t0:.0f} s")
     print("| latent | re-targeting (mm) | two keyframes (mm) | two keyframes, matched (mm) |")
     print("|---|---|---|---|")
