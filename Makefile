@@ -62,9 +62,12 @@ sim-dataset: $(VENV)/.dev-installed
 # their sequences, the legs through the skirt by 8-9 cm);
 # ~0.4 s per frame per core, ~8 core-hours; resumable (rerun to continue), train items first, then held-out x held-out. WORKERS=1 leaves a core free.
 # INTRINSIC_SPLITS=test simulates only the 8 held-out x held-out sequences, all `drape eval intrinsic` reads (~6 min at
-# WORKERS=2); a later run without it adds the rest.
+# WORKERS=2); a later run without it adds the rest. INTRINSIC_ONLY_PARAMS=36,37,38,39 (with INTRINSIC_SPLITS=train)
+# simulates only the config's validation sets, what the keyframe shrink is calibrated on (here and in
+# intrinsic-data-long-skirt; docs/intrinsic.md "Data").
 INTRINSIC_DIR ?= data/intrinsic/skirt
 INTRINSIC_SPLITS ?=
+INTRINSIC_ONLY_PARAMS ?=
 WORKERS ?= 1
 MOCAP ?= ../shared/data/mocap
 # real CMU clips trained on (never the long held-out 05_12, 05_18, nor DeePSD's held-out real clips)
@@ -82,7 +85,7 @@ intrinsic-data: $(VENV)/.dev-installed
 	cd $(INTRINSIC_DIR) && ../../../$(BIN)/drape sim dataset --garment skirt.obj --params 44 --seed 21 \
 		--motions motions/proc1.npz,motions/proc2.npz,motions/proc3.npz,motions/proc4.npz,motions/proc5.npz,dance_b,$(INTRINSIC_CMU_MOTIONS),walk,dance_a \
 		--frames 120 --holdout-params 4 --holdout-motions 2 $(if $(INTRINSIC_SPLITS),--splits $(INTRINSIC_SPLITS)) \
-		--workers $(WORKERS) --out .
+		$(if $(INTRINSIC_ONLY_PARAMS),--only-params $(INTRINSIC_ONLY_PARAMS)) --workers $(WORKERS) --out .
 
 # long held-out sequences of the same template for `drape eval intrinsic`'s keyframe-ratio table: the same
 # 44 parameter sets (--seed 21), only the held-out ones (--splits test), along two real CMU clips of
@@ -146,7 +149,7 @@ intrinsic-data-long-skirt: $(VENV)/.dev-installed
 	cd $(INTRINSIC_LONG_SKIRT_DIR) && ../../../$(BIN)/drape sim dataset --garment long_skirt.obj --params 44 \
 		--seed 21 --motions motions/proc1.npz,motions/proc2.npz,dance_b,motions/cmu_05_01_walk.npz,motions/cmu_06_01_walk.npz,walk,dance_a \
 		--frames 120 --holdout-params 4 --holdout-motions 2 --splits $(INTRINSIC_LONG_SKIRT_SPLITS) --substeps 8 \
-		--workers $(WORKERS) --out .
+		$(if $(INTRINSIC_ONLY_PARAMS),--only-params $(INTRINSIC_ONLY_PARAMS)) --workers $(WORKERS) --out .
 
 # the long skirt's keyframe-ratio set (`drape eval intrinsic --template long_skirt` reads
 # data/intrinsic/long_skirt_long by default), as intrinsic-data-long for the skirt: its 4 held-out parameter sets
