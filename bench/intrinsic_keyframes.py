@@ -21,7 +21,7 @@ from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
 from drape.training.config_file import read_config
 from drape.training.intrinsic import training_datasets, validation_masks
 from drape.training.intrinsic_data import load_frames
-from drape.training.intrinsic_eval import _load, keyframe_errors
+from drape.training.intrinsic_eval import keyframe_errors, load_sequence
 
 COUNTS = (2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 30, 40)
 NO_FADE_S = 1e9
@@ -50,7 +50,7 @@ def main() -> None:
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
     fades = {f: (NO_FADE_S if f == "none" else float(f)) for f in args.fades.split(",")}
     items = validation_items(config, garment.window)
-    rows = [keyframe_errors(garment, _load(root, it), COUNTS,
+    rows = [keyframe_errors(garment, load_sequence(root, it), COUNTS,
                             {f"matched, fade {k}": f for k, f in fades.items()}) for root, it in items]
     methods = list(rows[0])
     print(f"model {garment.path} ({garment.version}), {len(items)} validation sequences of {args.config}; "

@@ -40,8 +40,8 @@ from drape.geometry.character_space import character_space_numpy
 from drape.geometry.metrics import mean_vertex_error_mm
 from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment, MotionFrames
 from drape.training.config_file import read_config
-from drape.training.intrinsic_eval import WINDOW, _load
-from drape.training.intrinsic_shrink import shrink_factors, validation_sequences
+from drape.training.intrinsic_eval import WINDOW, load_sequence
+from drape.training.intrinsic_shrink import set_latents, shrink_factors, validation_sequences
 
 FIT_SCALE = 0.01  # m: the vertex error that weighs as much as one prior standard deviation at l = 1
 
@@ -98,7 +98,7 @@ def main() -> None:
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
     root = Path(config["dataset"])
     items, held = _validation(config, root, garment.manifest.get("training"))
-    seqs = {(it["params"], it["motion"]): _load(root, it) for it in items}
+    seqs = {(it["params"], it["motion"]): load_sequence(root, it) for it in items}
     motions = {k: garment.motion_frames(s["poses"], s["trans"]) for k, s in seqs.items()}
     shrinks = [float(a) for a in args.shrink.split(",") if a]
     fits = [float(lam) for lam in args.fit.split(",") if lam]
@@ -107,11 +107,9 @@ def main() -> None:
     garment.keyframe_shrink = np.ones(garment.latent_size)  # the encoder's own latents; each method shrinks them
     # empirical Bayes (drape.training.intrinsic_shrink, what `drape train intrinsic` writes as keyframe_shrink):
     # per latent dimension, between / (between + within), within over the frames of each held-out set's sequences
-    per_set: dict[int, list[np.ndarray]] = {}
-    for (p_, m_), s in seqs.items():
-        if (p_, m_) in held and (not calib_sets or p_ in calib_sets):
-            per_set.setdefault(p_, []).append(garment.encode_frames(s["vertices"], s["poses"], s["trans"]))
-    eb, within = shrink_factors(garment.latent_std**2, [np.concatenate(z) for z in per_set.values()])
+    per_set = set_latents(garment, ((p_, s) for (p_, m_), s in seqs.items()
+                                    if (p_, m_) in held and (not calib_sets or p_ in calib_sets)))
+    eb, within = shrink_factors(garment.latent_std**2, list(per_set.values()))
     print(f"empirical-Bayes shrink per dimension (sets {sorted(per_set)}): mean {eb.mean():.3f}, range "
           f"{eb.min():.3f}..{eb.max():.3f}; within / between variance {within.mean() / np.mean(garment.latent_std**2):.2f}")
     methods = [f"shrink {a:g}" for a in shrinks] + ["shrink eb"] + [f"fit {lam:g}" for lam in fits]

@@ -55,7 +55,9 @@ def _test_items(dataset: Path, template: str) -> list[dict]:
     return items
 
 
-def _load(dataset: Path, item: dict) -> dict:
+def load_sequence(dataset: Path, item: dict) -> dict:
+    """A `drape sim dataset` item's sequence -> {"vertices" (T, N, 3) m world space, "poses" rad (as stored), "trans"
+    (T, 3) m, all float64; "fps"}."""
     with np.load(dataset / item["file"], allow_pickle=False) as z:
         return {"vertices": z["vertices"].astype(np.float64), "poses": z["poses"].astype(np.float64),
                 "trans": z["trans"].astype(np.float64), "fps": float(z["fps"])}
@@ -169,7 +171,7 @@ def evaluate(dataset: str | Path, template: str, model_dir: str | Path | None = 
     dataset = Path(dataset)
     garment = IntrinsicGarment(Path(model_dir) if model_dir else INTRINSIC_DIR / template)
     items = _test_items(dataset, template)
-    seqs = {(it["params"], it["motion"]): _load(dataset, it) for it in items}
+    seqs = {(it["params"], it["motion"]): load_sequence(dataset, it) for it in items}
     body = load_body(garment.body)
     deepsd = _deepsd_poser(garment, Path(deepsd_dir) if deepsd_dir else None)
     mean_latent = np.asarray(garment.latent_mean, np.float32)
@@ -225,7 +227,7 @@ def evaluate(dataset: str | Path, template: str, model_dir: str | Path | None = 
         rows = []
         for it in _test_items(Path(long_dataset), template):
             r = {"params": it["params"], "motion": it["motion"],
-                 **keyframe_ratio(garment, _load(Path(long_dataset), it))}
+                 **keyframe_ratio(garment, load_sequence(Path(long_dataset), it))}
             rows.append(r)
             log(f"keyframe ratio p{it['params']:02d} {it['motion']}: drape {r['drape_keyframes']}, "
                 f"matched {r['drape_matched_keyframes']}, vertex interpolation {r['vertex_interp_keyframes']} of {r['frames']} frames")

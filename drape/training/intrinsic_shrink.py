@@ -34,6 +34,15 @@ def shrink_factors(between_var: np.ndarray, per_set_latents: list[np.ndarray]) -
     return between / np.maximum(between + within, 1e-30), within
 
 
+def set_latents(garment, sequences) -> dict[int, np.ndarray]:  # noqa: ANN001
+    """The encoder's own latents (`IntrinsicGarment.encode_frames`) of every frame of `sequences`, an iterable of
+    (parameter set, sequence {"vertices", "poses", "trans"}), pooled per parameter set -> {set: (frames, Z)}."""
+    per_set: dict[int, list[np.ndarray]] = {}
+    for p, s in sequences:
+        per_set.setdefault(int(p), []).append(garment.encode_frames(s["vertices"], s["poses"], s["trans"]))
+    return {p: np.concatenate(z) for p, z in per_set.items()}
+
+
 def validation_sequences(config: dict, trained: dict | None = None) -> list[tuple[Path, dict]]:
     """(dataset folder, manifest item) of every simulated training-split sequence of the validation parameter sets, in
     each of the config's dataset folders that exists (a folder not simulated on this machine is skipped; the manifest
@@ -59,7 +68,7 @@ def calibrate(model_dir: str | Path, config: dict, log=print) -> dict:  # noqa: 
     the first with the shrink: the same networks as 0.3.0) -> the fields written."""
     from drape.export.intrinsic import VERSION
     from drape.runtime.intrinsic import IntrinsicGarment
-    from drape.training.intrinsic_eval import _load
+    from drape.training.intrinsic_eval import load_sequence
 
     garment = IntrinsicGarment(model_dir)
     trained = garment.manifest.get("training") or {}
@@ -69,12 +78,9 @@ def calibrate(model_dir: str | Path, config: dict, log=print) -> dict:  # noqa: 
             raise ValueError(f"{model_dir} was trained with {key} {was[key]!r}, the config given has "
                              f"{config.get(key)!r}: calibrate with the config it was trained with")
     seqs = validation_sequences(config, trained)
-    per_set: dict[int, list[np.ndarray]] = {}
-    for root, it in seqs:
-        s = _load(root, it)
-        per_set.setdefault(int(it["params"]), []).append(garment.encode_frames(s["vertices"], s["poses"], s["trans"]))
+    per_set = set_latents(garment, ((it["params"], load_sequence(root, it)) for root, it in seqs))
     between = garment.latent_std**2
-    shrink, within = shrink_factors(between, [np.concatenate(z) for z in per_set.values()])
+    shrink, within = shrink_factors(between, list(per_set.values()))
     fields = {"version": VERSION, "keyframe_shrink": [round(float(x), 6) for x in shrink],
               "keyframe_shrink_source": {
                   "datasets": sorted({str(root) for root, _ in seqs}), "sequences": len(seqs),
