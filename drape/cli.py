@@ -131,7 +131,7 @@ def _motions_import(args: argparse.Namespace) -> None:
     try:
         data = src.read_bytes()
         imported = import_motion(data, load_body(args.body), fps=args.fps, up=args.up, floor=not args.no_floor,
-                                 name=src.stem)
+                                 flips=not args.keep_flips, name=src.stem)
     except OSError as exc:
         raise SystemExit(f"drape: error: {src}: {exc.strerror or exc}") from exc
     except MotionFileError as exc:
@@ -704,6 +704,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--up", choices=["y", "z"], default=None,
                    help="the file's up axis (default: detected; AMASS is Z-up, CMU BVH Y-up)")
     i.add_argument("--no-floor", action="store_true", help="keep the file's heights (no floor step)")
+    i.add_argument("--keep-flips", action="store_true", help="keep rotation flips (a joint jumping by up to half a "
+                   "turn for a few frames and back: capture errors in real CMU files) instead of slerping over them")
     i.add_argument("--out", required=True)
     i.set_defaults(func=_motions_import)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +22,9 @@ from drape.geometry.rotations import (
     quaternion_to_axis_angle,
 )
 from drape.geometry.skeleton import NUM_JOINTS, as_pose_array
+
+if TYPE_CHECKING:
+    from drape.assets.motion_flips import Flip
 
 MOTIONS_DIR = Path(__file__).parent / "motions"
 # bounds on a motion's values, for files and requests alike: far beyond any real motion, far below where posing
@@ -266,6 +270,7 @@ class ImportedMotion:
     up_reason: str
     dropped_tpose: bool
     floor: FloorFix | None
+    flips: tuple[Flip, ...] = ()  # rotation flips repaired (source frames), drape.assets.motion_flips
 
     def summary(self) -> str:
         m = self.motion
@@ -273,6 +278,9 @@ class ImportedMotion:
                  f"{self.up.upper()}-up ({self.up_reason})"]
         if self.dropped_tpose:
             lines.append("dropped frame 0: the T-pose frame the CMU BVH conversion adds")
+        if self.flips:
+            lines.append(f"repaired {len(self.flips)} rotation flip(s), source frames slerped across: "
+                         + "; ".join(f.describe() for f in self.flips))
         if m.fps != self.source_fps:
             lines.append(f"resampled to {m.fps:g} fps (slerp): {m.num_frames} frames")
         if self.floor is not None:
@@ -293,11 +301,12 @@ def sniff_motion_file(data: bytes) -> str:
 
 
 def import_motion(data: bytes, body: Body, *, fps: float | None = None, up: str | None = None,
-                  floor: bool = True, name: str = "", max_frames: int | None = None,
+                  floor: bool = True, flips: bool = True, name: str = "", max_frames: int | None = None,
                   max_source_frames: int | None = None, max_decoded_bytes: int | None = None) -> ImportedMotion:
     """A motion file's bytes (CMU-named BVH, or an npz: drape's clip, AMASS, SMPL-family poses) -> a clip
     on `body`: retargeted (BVH) or converted (npz), turned Y-up (`up`: "y", "z", None = detect), the
-    added T-pose frame of raw CMU BVH dropped, resampled to `fps` (None: the file's), put on the floor.
+    added T-pose frame of raw CMU BVH dropped, rotation flips repaired (`flips`; drape.assets.motion_flips),
+    resampled to `fps` (None: the file's), put on the floor.
 
     Limits (None: none): max_source_frames bounds the file's frames before its numbers are worked on,
     max_frames the frames after resampling (MotionTooLong), max_decoded_bytes an npz's arrays.
@@ -310,8 +319,11 @@ def import_motion(data: bytes, body: Body, *, fps: float | None = None, up: str 
     data = data.removeprefix(b"\xef\xbb\xbf")  # a UTF-8 byte order mark (Windows editors write one)
     kind = sniff_motion_file(data)
     if kind == "bvh":
-        return _import_bvh(data, body, fps, up, floor, name, max_frames, max_source_frames)
-    return _import_npz(data, body, fps, up, floor, name, max_frames, max_source_frames, max_decoded_bytes)
+        imported = _import_bvh(data, body, fps, up, floor, flips, name, max_frames, max_source_frames)
+    else:
+        imported = _import_npz(data, body, fps, up, floor, flips, name, max_frames, max_source_frames,
+                               max_decoded_bytes)
+    return imported
 
 
 def _check_frames(n: int, limit: int | None, what: str) -> None:
@@ -319,14 +331,18 @@ def _check_frames(n: int, limit: int | None, what: str) -> None:
         raise MotionTooLong(f"{n} frames {what} exceed the limit of {limit}")
 
 
-def _finish(motion: Motion, body: Body, fps: float | None, floor: bool) -> tuple[Motion, FloorFix | None]:
+def _finish(motion: Motion, body: Body, fps: float | None, floor: bool,
+            flips: bool) -> tuple[Motion, FloorFix | None, tuple[Flip, ...]]:
+    from drape.assets.motion_flips import repair_flips
+
+    motion, found = repair_flips(motion) if flips else (motion, [])
     if fps is not None and fps != motion.fps:
         motion = resample(motion, fps)
     fix = put_on_floor(motion, body) if floor else None
-    return (fix.motion if fix is not None else motion), fix
+    return (fix.motion if fix is not None else motion), fix, tuple(found)
 
 
-def _import_bvh(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, name: str,
+def _import_bvh(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, flips: bool, name: str,
                 max_frames: int | None, max_source_frames: int | None) -> ImportedMotion:
     from dataclasses import replace
 
@@ -348,12 +364,12 @@ def _import_bvh(data: bytes, body: Body, fps: float | None, up: str | None, floo
         raise MotionTooLong(str(exc)) from exc
     except bvh.BvhError as exc:
         raise MotionFileError(str(exc)) from exc
-    out, fix = _finish(motion, body, fps, floor)
+    out, fix, found = _finish(motion, body, fps, floor, flips)
     return ImportedMotion(out, "bvh", f"CMU-named BVH, {len(clip.names)} joints", header.num_frames, clip.fps,
-                          chosen, why, dropped, fix)
+                          chosen, why, dropped, fix, found)
 
 
-def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, name: str,
+def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, flips: bool, name: str,
                 max_frames: int | None, max_source_frames: int | None,
                 max_decoded_bytes: int | None) -> ImportedMotion:
     from drape.assets import amass
@@ -386,6 +402,6 @@ def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floo
     if chosen == "z":
         poses, trans = amass.z_up_to_y_up(poses, trans, body.joints[0])
     motion = Motion(poses, trans, src_fps, name)
-    out, fix = _finish(motion, body, fps, floor)
+    out, fix, found = _finish(motion, body, fps, floor, flips)
     layout = clip.layout + ("" if clip.fps is not None else f", no frame rate in the file: {src_fps:g} fps assumed")
-    return ImportedMotion(out, "npz", layout, T, src_fps, chosen, why, False, fix)
+    return ImportedMotion(out, "npz", layout, T, src_fps, chosen, why, False, fix, found)

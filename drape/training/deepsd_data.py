@@ -147,7 +147,10 @@ class TrainOutfit:
 
 def mocap_motion(directory: str | Path, name: str, fps: float, body: str = "neutral") -> tuple[np.ndarray, np.ndarray]:
     """The real clip `directory/name.bvh` imported onto the `body` preset at `fps` (drape.assets.motion.import_motion:
-    on the floor) -> (poses (T, 24, 3) rad, trans (T, 3) m) float32; cached under data/deepsd/mocap/ (git-ignored)."""
+    on the floor) -> (poses (T, 24, 3) rad, trans (T, 3) m) float32; cached under data/deepsd/mocap/ (git-ignored).
+
+    Rotation flips are kept (`flips=False`): the shipped DeePSD and MGN models were trained on these clips as
+    imported before the importer repaired flips (2026-11-30), and their configs re-create that data."""
     from drape.assets.motion import import_motion
 
     cache = CACHE.parent / "mocap" / f"{name}_{body}_{fps:g}.npz"
@@ -155,7 +158,7 @@ def mocap_motion(directory: str | Path, name: str, fps: float, body: str = "neut
         path = Path(directory) / f"{name}.bvh"
         if not path.exists():
             raise FileNotFoundError(f"the config's mocap clip {path} is missing (../shared/data/mocap holds them)")
-        motion = import_motion(path.read_bytes(), load_body(body), fps=fps, name=name).motion
+        motion = import_motion(path.read_bytes(), load_body(body), fps=fps, flips=False, name=name).motion
         cache.parent.mkdir(parents=True, exist_ok=True)
         np.savez(cache, poses=motion.poses, trans=motion.trans)
     with np.load(cache, allow_pickle=False) as z:
