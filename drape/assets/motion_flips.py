@@ -1,11 +1,12 @@
 """Rotation flips in motion capture: a joint turns by a large angle in one frame and turns back soon after.
 
 Real CMU files have them. In `05_10_dance.bvh` (120 fps) the right thigh's rotation jumps by about half a turn
-between source frames 244 and 245 and jumps back between 252 and 253. The knee joint's position moves about 30 cm
+between source frames 243 and 244 and jumps back between 252 and 253. The knee joint's position moves about 30 cm
 in 1/120 s while the foot stays where it was: the capture solver swung the leg about the hip-ankle line for 9
-frames. Of the 37 CMU clips in `../shared/data/mocap`, 15 hold such jumps (turns over 1 rad in one 1/120 s frame,
-up to 3.14 rad). The clean ones turn at most 0.78 rad in a frame. A cloth simulator driven by a flipped leg
-teleports the leg through the garment (`.venv/bin/python -m bench.motion_flips`; docs/motion_import.md).
+frames. Of the 37 CMU clips in `../shared/data/mocap`, 16 hold jumps (turns over 1 rad in one 1/120 s frame,
+up to 3.14 rad), 14 of them flips that turn back. The others turn at most 0.78 rad in a frame. A cloth simulator
+driven by a flipped leg teleports the leg through the garment (`.venv/bin/python -m bench.motion_flips`;
+docs/motion_import.md, docs/sim.md).
 
 `find_flips` finds such jumps that turn back, per joint. `repair_flips` replaces the frames between a jump and its
 return, for every joint at once, by slerp between the last frame before and the first frame after. Joints that
@@ -25,7 +26,7 @@ from drape.geometry.rotations import axis_angle_to_quaternion, quaternion_to_axi
 from drape.geometry.skeleton import JOINT_NAMES
 
 # a jump is a frame-to-frame turn of at least FLIP_RAD radians that is also faster than FLIP_RAD_PER_S: at 120 fps
-# the 22 clean CMU clips turn at most 0.78 rad a frame (94 rad/s) and the flips 1.06-3.14 rad; at 30 fps a fast,
+# the 21 CMU clips without jumps turn at most 0.78 rad a frame (94 rad/s), the jumps 1.06-3.14 rad; at 30 fps a fast,
 # real turn of a rad a frame (30 rad/s) is not a jump
 FLIP_RAD = 1.0
 FLIP_RAD_PER_S = 60.0

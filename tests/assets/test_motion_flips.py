@@ -92,7 +92,7 @@ def test_import_repairs_by_default_and_keeps_the_file_with_flips_false():
 
 @pytest.mark.skipif(not (MOCAP / "05_10_dance.bvh").exists(), reason=f"the real CMU clips are not at {MOCAP}")
 def test_the_real_clip_with_a_knee_swing_flip():
-    """05_10_dance.bvh: the right thigh turns 3.14 rad between source frames 244 and 245 and back between 252 and
+    """05_10_dance.bvh: the right thigh turns 3.14 rad between source frames 243 and 244 and back between 252 and
     253 (the knee moves ~30 cm in 1/120 s, the foot stays). Imported, the flip is one span and no joint turns more
     than 0.6 rad in a frame (the clip's own motion: 0.51 rad); with flips=False the jump is there."""
     body = load_body("neutral")
