@@ -145,20 +145,22 @@ class TrainOutfit:
         return move_tensors(self, device)
 
 
-def mocap_motion(directory: str | Path, name: str, fps: float, body: str = "neutral") -> tuple[np.ndarray, np.ndarray]:
+def mocap_motion(directory: str | Path, name: str, fps: float, body: str = "neutral",
+                 flips: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The real clip `directory/name.bvh` imported onto the `body` preset at `fps` (drape.assets.motion.import_motion:
     on the floor) -> (poses (T, 24, 3) rad, trans (T, 3) m) float32; cached under data/deepsd/mocap/ (git-ignored).
 
-    Rotation flips are kept (`flips=False`): the shipped DeePSD and MGN models were trained on these clips as
-    imported before the importer repaired flips (2026-11-30), and their configs re-create that data."""
+    Rotation flips (capture errors, drape.assets.motion_flips) are kept by default: the DeePSD and MGN models
+    shipped before the importer repaired them (2026-11-30) were trained on the clips as they were, and their
+    configs re-create that data. `flips=True` repairs them (cached apart)."""
     from drape.assets.motion import import_motion
 
-    cache = CACHE.parent / "mocap" / f"{name}_{body}_{fps:g}.npz"
+    cache = CACHE.parent / "mocap" / f"{name}_{body}_{fps:g}{'_repaired' if flips else ''}.npz"
     if not cache.exists():
         path = Path(directory) / f"{name}.bvh"
         if not path.exists():
             raise FileNotFoundError(f"the config's mocap clip {path} is missing (../shared/data/mocap holds them)")
-        motion = import_motion(path.read_bytes(), load_body(body), fps=fps, flips=False, name=name).motion
+        motion = import_motion(path.read_bytes(), load_body(body), fps=fps, flips=flips, name=name).motion
         cache.parent.mkdir(parents=True, exist_ok=True)
         np.savez(cache, poses=motion.poses, trans=motion.trans)
     with np.load(cache, allow_pickle=False) as z:

@@ -169,6 +169,9 @@ class OuterTask:
         the config's real clips (`mocap`: dir, fps; imported on the body by deepsd_data.mocap_motion, cached) and
         embedded clips, named as drape.assets.motion.list_clips names them (load_clip, at their own fps)."""
         mocap = self.cfg["mocap"]
+        if mocap.get("flips", "keep") not in ("keep", "repair"):
+            raise ValueError(f"mocap.flips must be 'keep' or 'repair', got {mocap['flips']!r}")
+        repair = mocap.get("flips") == "repair"  # the importer's rotation-flip repair (drape.assets.motion_flips)
         embedded = set(list_clips())
         out = []
         for name in names:
@@ -177,7 +180,7 @@ class OuterTask:
                 poses, trans, fps = clip.poses.astype(np.float32), clip.trans.astype(np.float32), clip.fps
             else:
                 fps = float(mocap["fps"])
-                poses, trans = mocap_motion(mocap["dir"], name, fps, self.cfg["body"])
+                poses, trans = mocap_motion(mocap["dir"], name, fps, self.cfg["body"], flips=repair)
             poses, trans = poses[:max_frames], trans[:max_frames]
             out.append(self.prepared(f"clip:{name}", name, thickness, poses, trans, fps, None, []))
         return out

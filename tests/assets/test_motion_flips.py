@@ -105,3 +105,26 @@ def test_the_real_clip_with_a_knee_swing_flip():
                                                    (r.motion, import_motion(data, body, floor=False,
                                                                             flips=False).motion))]
     assert turns[0] < 0.6 < 3.0 < turns[1]
+
+
+@pytest.mark.skipif(not (MOCAP / "05_10_dance.bvh").exists(), reason=f"the real CMU clips are not at {MOCAP}")
+def test_training_loaders_keep_flips_unless_the_config_asks(tmp_path, monkeypatch):
+    """deepsd_data.mocap_motion (the DeePSD and MGN trainings' real clips) keeps the flips by default, so the
+    shipped configs re-create their data; flips=True (an MGN outer config's `"mocap": {"flips": "repair"}`)
+    repairs them, cached apart; any other value of that key is refused."""
+    from drape.training import deepsd_data
+    from drape.training.layers_outer import OuterTask
+
+    monkeypatch.setattr(deepsd_data, "CACHE", tmp_path / "outfits")
+    kept, _ = deepsd_data.mocap_motion(MOCAP, "05_10_dance", 30.0)
+    repaired, _ = deepsd_data.mocap_motion(MOCAP, "05_10_dance", 30.0, flips=True)
+    assert sorted(p.name for p in (tmp_path / "mocap").iterdir()) == [
+        "05_10_dance_neutral_30.npz", "05_10_dance_neutral_30_repaired.npz"]
+    turn = [_angles(q[:-1], q[1:]).max() for q in (axis_angle_to_quaternion(p.astype(np.float64))
+                                                   for p in (kept, repaired))]
+    assert turn[1] < 1.0 < turn[0]  # at 30 fps the flip is a turn of over 1 rad a frame; repaired it is gone
+
+    task = OuterTask.__new__(OuterTask)  # only clip_sequences' config check runs before any clip is read
+    task.cfg = {"mocap": {"flips": "fix"}}
+    with pytest.raises(ValueError, match="mocap.flips must be 'keep' or 'repair'"):
+        task.clip_sequences(["05_10_dance"], 0.008)
