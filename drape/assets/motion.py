@@ -319,11 +319,8 @@ def import_motion(data: bytes, body: Body, *, fps: float | None = None, up: str 
     data = data.removeprefix(b"\xef\xbb\xbf")  # a UTF-8 byte order mark (Windows editors write one)
     kind = sniff_motion_file(data)
     if kind == "bvh":
-        imported = _import_bvh(data, body, fps, up, floor, flips, name, max_frames, max_source_frames)
-    else:
-        imported = _import_npz(data, body, fps, up, floor, flips, name, max_frames, max_source_frames,
-                               max_decoded_bytes)
-    return imported
+        return _import_bvh(data, body, fps, up, floor, flips, name, max_frames, max_source_frames)
+    return _import_npz(data, body, fps, up, floor, flips, name, max_frames, max_source_frames, max_decoded_bytes)
 
 
 def _check_frames(n: int, limit: int | None, what: str) -> None:
