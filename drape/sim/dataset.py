@@ -299,10 +299,11 @@ def build_dataset(
     if only_splits is not None:
         items = [it for it in items if split_of(it.params_index, it.motion.name, s) in only_splits]
     if only_params is not None:
-        unknown = sorted(set(only_params) - set(range(len(params))))
+        wanted = set(only_params)
+        unknown = sorted(wanted - set(range(len(params))))
         if unknown:
             raise ValueError(f"only_params {unknown} are not among the {len(params)} parameter sets")
-        items = [it for it in items if it.params_index in set(only_params)]
+        items = [it for it in items if it.params_index in wanted]
     by_key = {it.key: it for it in items}
 
     def finished(it: Item) -> bool:
