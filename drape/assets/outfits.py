@@ -334,6 +334,7 @@ class _Generator:
                 # sleeve holes: loop length close to the sleeve's perimeter
                 want = self._columns(2 * np.pi * 0.075 + style.ease * 6, even=True)
                 hw = max(1, (want // 2 - (r_hi - r_lo)) // 2)
+                hw = min(hw, c_mid, ncol - 1 - c_mid)  # an oversize top's hole stays inside the grid
             else:
                 hw = half_w
             c0, c1 = c_mid - hw, c_mid + hw

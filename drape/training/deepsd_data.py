@@ -37,20 +37,37 @@ class OutfitSpec:
     vertices: int
     seed: int
     body: str
+    looseness: float | None = None  # generate_outfit's; None: drawn from the seed in [0, 1]; > 1: oversize
 
     @property
     def key(self) -> str:
-        return f"{self.types.replace(',', '+')}_{self.vertices}_{self.seed}_{self.body}"
+        loose = "" if self.looseness is None else f"_loose{self.looseness:.2f}"
+        return f"{self.types.replace(',', '+')}_{self.vertices}_{self.seed}_{self.body}{loose}"
 
 
 def train_specs(cfg: dict) -> list[OutfitSpec]:
+    """The training outfits: `train_outfits` of `train_types` (seeds 1000 on), then, if the config has
+    `train_oversize` ({"outfits", "types", "looseness": [lo, hi]}), that many oversize ones (seeds 5000 on):
+    garments made for a larger body, their looseness drawn in [lo, hi] (generate_outfit: 2 leaves a ~60 mm gap
+    to the body at the median, 3 ~80 mm; the ArcSim tops of ../shared/data/external fitted to the neutral body
+    lie ~70 mm off it)."""
     rng = np.random.default_rng(cfg["seed"])
     lo, hi = cfg["train_vertices"]
     types, bodies = cfg["train_types"], cfg["bodies"]
-    return [
+    specs = [
         OutfitSpec(types[i % len(types)], int(rng.integers(lo, hi)), 1000 + i, bodies[i % len(bodies)])
         for i in range(cfg["train_outfits"])
     ]
+    over: dict = cfg.get("train_oversize") or {}
+    if over:
+        loose_lo, loose_hi = over["looseness"]
+        rng = np.random.default_rng([cfg["seed"], 5000])
+        specs += [
+            OutfitSpec(over["types"][i % len(over["types"])], int(rng.integers(lo, hi)), 5000 + i,
+                       bodies[i % len(bodies)], round(float(rng.uniform(loose_lo, loose_hi)), 2))
+            for i in range(over["outfits"])
+        ]
+    return specs
 
 
 def eval_specs(cfg: dict) -> list[OutfitSpec]:
@@ -69,7 +86,7 @@ def load_outfit(spec: OutfitSpec) -> tuple[np.ndarray, np.ndarray]:
     if path.exists():
         with np.load(path, allow_pickle=False) as z:
             return z["vertices"], z["faces"]
-    o = generate_outfit(spec.types, vertices=spec.vertices, seed=spec.seed, body=spec.body)
+    o = generate_outfit(spec.types, vertices=spec.vertices, seed=spec.seed, body=spec.body, looseness=spec.looseness)
     cache.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, vertices=o.vertices, faces=o.faces)
@@ -202,7 +219,8 @@ def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:
 def pose_pool(cfg: dict) -> np.ndarray:
     """(P, 24, 3) float32 training poses: procedural motions, legs-apart procedural motions
     (`procedural_spread`: {"motions", "spread"}, if any; generate_motion's `spread`) + non-held-out clips +
-    the config's real mocap clips (`mocap`: {"dir", "fps", "train": [names]}, if any), root zeroed."""
+    the config's real mocap clips (`mocap`: {"dir", "fps", "train": [names], "flips": "keep" (default) or
+    "repair" (drape.assets.motion_flips)}, if any), root zeroed."""
     poses = []
     for i in range(cfg["procedural_motions"]):
         poses.append(generate_motion(cfg["procedural_frames"], seed=cfg["seed"] + 500 + i).poses)
@@ -214,8 +232,10 @@ def pose_pool(cfg: dict) -> np.ndarray:
         if name not in cfg["heldout_clips"]:
             poses.append(load_clip(name).poses)
     mocap: dict = cfg.get("mocap") or {}
+    if mocap.get("flips", "keep") not in ("keep", "repair"):
+        raise ValueError(f"mocap.flips must be 'keep' or 'repair', got {mocap['flips']!r}")
     for name in mocap.get("train", []):
-        poses.append(mocap_poses(mocap["dir"], name, mocap["fps"]))
+        poses.append(mocap_motion(mocap["dir"], name, mocap["fps"], flips=mocap.get("flips") == "repair")[0])
     pool = np.concatenate(poses).astype(np.float32)
     pool[:, 0] = 0.0
     return pool

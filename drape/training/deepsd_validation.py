@@ -36,9 +36,16 @@ from drape.training.deepsd_data import OutfitSpec, load_outfit
 
 
 def validation_specs(cfg: dict) -> list[OutfitSpec]:
+    """The validation outfits: `eval_outfits` on the validation seeds, then, if `validation.oversize`
+    ({"types", "looseness"}) is set, those types made oversize (seeds outfit_seed + 100 on)."""
     v, bodies = cfg["validation"], cfg["bodies"]
-    return [OutfitSpec(t, cfg["eval_vertices"], v["outfit_seed"] + i, bodies[i % len(bodies)])
-            for i, t in enumerate(cfg["eval_outfits"])]
+    specs = [OutfitSpec(t, cfg["eval_vertices"], v["outfit_seed"] + i, bodies[i % len(bodies)])
+             for i, t in enumerate(cfg["eval_outfits"])]
+    over: dict = v.get("oversize") or {}
+    specs += [OutfitSpec(t, cfg["eval_vertices"], v["outfit_seed"] + 100 + i, bodies[i % len(bodies)],
+                         float(over["looseness"]))
+              for i, t in enumerate(over.get("types", []))]
+    return specs
 
 
 @lru_cache(maxsize=64)

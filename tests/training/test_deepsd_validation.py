@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from drape.assets.body import load_body
 from drape.export.deepsd import export_deepsd_from_checkpoints
 from drape.training import deepsd_data
 from drape.training.deepsd import load_config, train
@@ -54,6 +55,37 @@ def test_legs_apart_motions_join_the_pose_pool_and_the_validation_motions(cfg):
     assert len(motions) == len(validation_motions(cfg, "neutral")) + 1
     assert np.array_equal(motions[1].poses, generate_motion(30, seed=7101, body="neutral", spread=1.0).poses)
     assert not {7101} & set(cfg["validation"]["procedural_seeds"])
+
+
+def test_oversize_outfits_join_training_and_validation_on_their_own_seeds(cfg):
+    from scipy.spatial import cKDTree
+
+    plain_train, plain_val = deepsd_data.train_specs(cfg), validation_specs(cfg)
+    over = {**cfg, "train_oversize": {"outfits": 3, "types": ["tshirt", "tanktop"], "looseness": [1.5, 3.0]},
+            "validation": {**cfg["validation"], "oversize": {"types": ["longsleeve"], "looseness": 2.0}}}
+    train_specs, val_specs = deepsd_data.train_specs(over), validation_specs(over)
+    assert train_specs[:len(plain_train)] == plain_train and val_specs[:len(plain_val)] == plain_val
+    added, val_added = train_specs[len(plain_train):], val_specs[len(plain_val):]
+    assert [s.types for s in added] == ["tshirt", "tanktop", "tshirt"] and [s.seed for s in added] == [5000, 5001, 5002]
+    assert all(1.5 <= s.looseness <= 3.0 for s in added) and [s.looseness for s in val_added] == [2.0]
+    assert not {s.seed for s in val_specs} & {s.seed for s in train_specs}
+    assert len({s.key for s in train_specs + val_specs}) == len(train_specs) + len(val_specs)
+    # an oversize garment hangs off the body: farther from it than the same type drawn in [0, 1]
+    spec = added[0]
+    v, f = deepsd_data.load_outfit(spec)
+    v0, _ = deepsd_data.load_outfit(deepsd_data.OutfitSpec(spec.types, spec.vertices, spec.seed, spec.body, 0.5))
+    body = cKDTree(load_body(spec.body).vertices)  # distance to the nearest body vertex, metres
+    assert np.median(body.query(v)[0]) > 0.045 > np.median(body.query(v0)[0])
+
+
+def test_the_pose_pool_repairs_the_real_clips_rotation_flips_when_asked(cfg):
+    flipped = {**cfg, "mocap": {**cfg["mocap"], "train": ["05_10_dance"]}}
+    kept = deepsd_data.pose_pool(flipped)
+    repaired = deepsd_data.pose_pool({**flipped, "mocap": {**flipped["mocap"], "flips": "repair"}})
+    assert kept.shape == repaired.shape and not np.allclose(kept, repaired)
+    assert np.array_equal(kept, deepsd_data.pose_pool({**flipped, "mocap": {**flipped["mocap"], "flips": "keep"}}))
+    with pytest.raises(ValueError, match="mocap.flips"):
+        deepsd_data.pose_pool({**flipped, "mocap": {**flipped["mocap"], "flips": "yes"}})
 
 
 @pytest.mark.slow  # about 25 s: `make test-slow`
