@@ -17,7 +17,8 @@ input length)), each with the refinement's defaults (the last check over 8 neare
 1 cm, the surface's FAR_K) and without the last check (-chk); `before`: the relief pass without the check on a
 surface without FAR_K, what both routes ran before them.
 
-Run: .venv/bin/python -m bench.refine_edges [--every 6] [--far-k 0] [--stream-rest] (about 5 minutes on the 2-core
+Run: .venv/bin/python -m bench.refine_edges [--every 6] [--far-k 0] [--stream-rest] [--model-dir DIR] [--stretch-iterations 15,30]
+[--animate-only] (about 5 minutes on the 2-core
 machine; --stream-rest adds two variants with a rest guessed from the stream, for /v1/refine without a rest shape:
 docs/refine.md, section "`/v1/refine` without a rest shape")
 """
@@ -38,7 +39,7 @@ from drape.geometry.fitting import fit_garment
 from drape.geometry.mesh import unique_edges
 from drape.geometry.mesh_io import load_mesh
 from drape.geometry.queries import signed_distance_to_mesh
-from drape.geometry.refine import FAR_K, BodySurface, Refiner, RefineReport
+from drape.geometry.refine import FAR_K, STRETCH_ITERATIONS, BodySurface, Refiner, RefineReport
 from drape.runtime.engine import Engine
 from drape.training.deepsd_eval import REAL_CLIPS
 
@@ -81,9 +82,11 @@ def setup(ap: argparse.ArgumentParser) -> tuple[argparse.Namespace, Engine, Body
                     help="BodySurface(far_k=...): points read outside that one of that many nearest vertices reads "
                          "inside are asked again over their faces "
                          f"(0: not; the refinement's surfaces: {FAR_K})")
+    ap.add_argument("--model-dir", default=None, help="a DeePSD export to rig with (default: the served one)")
     args = ap.parse_args()
     body = load_body("neutral")
-    return args, Engine(refine_workers=1), body, BodySurface(body.faces, len(body.vertices), far_k=args.far_k or None)
+    engine = Engine(refine_workers=1) if args.model_dir is None else Engine(args.model_dir, refine_workers=1)
+    return args, engine, body, BodySurface(body.faces, len(body.vertices), far_k=args.far_k or None)
 
 
 def main() -> None:
@@ -97,6 +100,10 @@ def main() -> None:
                     help="also the edge-limit pass with a rest guessed from the stream (no rest shape given): each "
                          "edge's median length over the frames (`stream median`), or the frame closest to those "
                          "medians (`stream frame`)")
+    ap.add_argument("--stretch-iterations", default=str(STRETCH_ITERATIONS),
+                    help="comma-separated rounds of the edge-limit pass to try (Refiner(stretch_iterations=...)); "
+                         f"variants other than the refinement's {STRETCH_ITERATIONS} are named `edges RATIOx itN`")
+    ap.add_argument("--animate-only", action="store_true", help="only the edge-limit variants (what animate runs)")
     args, engine, body, surface = setup(ap)
     # what both routes ran before the last check and FAR_K were on: the relief pass, the plain surface
     plain = BodySurface(body.faces, len(body.vertices))
@@ -106,14 +113,18 @@ def main() -> None:
         out = engine.rig(rest, faces, "neutral")
         edges = unique_edges(out.faces)
         rest_len = np.linalg.norm(out.vertices[edges[:, 0]] - out.vertices[edges[:, 1]], axis=1)
-        variants = {"before": (Refiner(out.faces, len(rest), verify_k=0), plain),
-                    "relief -chk": (Refiner(out.faces, len(rest), verify_k=0), surface),
-                    "relief": (Refiner(out.faces, len(rest)), surface)}
+        variants = {} if args.animate_only else {
+            "before": (Refiner(out.faces, len(rest), verify_k=0), plain),
+            "relief -chk": (Refiner(out.faces, len(rest), verify_k=0), surface),
+            "relief": (Refiner(out.faces, len(rest)), surface)}
         for r in args.ratios.split(","):
-            variants[f"edges {r}x -chk"] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
-                                                    verify_k=0), surface)
-            variants[f"edges {r}x"] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r)),
-                                       surface)
+            if not args.animate_only:
+                variants[f"edges {r}x -chk"] = (Refiner(out.faces, len(rest), rest=out.vertices,
+                                                        stretch_ratio=float(r), verify_k=0), surface)
+            for n in (int(k) for k in args.stretch_iterations.split(",")):
+                label = f"edges {r}x" if n == STRETCH_ITERATIONS else f"edges {r}x it{n}"
+                variants[label] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
+                                           stretch_iterations=n), surface)
         for clip, poses, trans in clips:
             frames = np.concatenate(list(engine.pose_chunks(out, poses, trans))).astype(np.float64)
             bodies = body.pose(poses, trans).astype(np.float64)
