@@ -18,7 +18,7 @@ input length)), each with the refinement's defaults (the last check over 8 neare
 surface without FAR_K, what both routes ran before them.
 
 Run: .venv/bin/python -m bench.refine_edges [--every 6] [--far-k 0] [--stream-rest] [--model-dir DIR] [--stretch-iterations 15,30]
-[--animate-only] (about 5 minutes on the 2-core
+[--stretch-extra 0,15] [--animate-only] (about 5 minutes on the 2-core
 machine; --stream-rest adds two variants with a rest guessed from the stream, for /v1/refine without a rest shape:
 docs/refine.md, section "`/v1/refine` without a rest shape")
 """
@@ -103,6 +103,9 @@ def main() -> None:
     ap.add_argument("--stretch-iterations", default=str(STRETCH_ITERATIONS),
                     help="comma-separated rounds of the edge-limit pass to try (Refiner(stretch_iterations=...)); "
                          f"variants other than the refinement's {STRETCH_ITERATIONS} are named `edges RATIOx itN`")
+    ap.add_argument("--stretch-extra", default="0",
+                    help="comma-separated Refiner(stretch_extra=...) to try: edge-limit rounds spent only while a new "
+                         "edge over 2x rest lasts; variants other than 0 are named `edges RATIOx +N`")
     ap.add_argument("--animate-only", action="store_true", help="only the edge-limit variants (what animate runs)")
     args, engine, body, surface = setup(ap)
     # what both routes ran before the last check and FAR_K were on: the relief pass, the plain surface
@@ -125,6 +128,9 @@ def main() -> None:
                 label = f"edges {r}x" if n == STRETCH_ITERATIONS else f"edges {r}x it{n}"
                 variants[label] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
                                            stretch_iterations=n), surface)
+            for extra in (int(k) for k in args.stretch_extra.split(",") if int(k) > 0):
+                variants[f"edges {r}x +{extra}"] = (Refiner(out.faces, len(rest), rest=out.vertices,
+                                                            stretch_ratio=float(r), stretch_extra=extra), surface)
         for clip, poses, trans in clips:
             frames = np.concatenate(list(engine.pose_chunks(out, poses, trans))).astype(np.float64)
             bodies = body.pose(poses, trans).astype(np.float64)

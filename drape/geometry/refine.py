@@ -222,7 +222,7 @@ class Refiner:
                  relief_threshold: float = 0.005, relief_iterations: int = RELIEF_ITERATIONS,
                  relief_query_every: int = 5, rest: np.ndarray | None = None, stretch_ratio: float = STRETCH_RATIO,
                  stretch_iterations: int = STRETCH_ITERATIONS, stretch_query_every: int = 5, stretch_omega: float = 1.5,
-                 verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
+                 stretch_extra: int = 0, verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
                  verify_stretch: float = np.inf, rest_length: np.ndarray | None = None):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
@@ -232,6 +232,7 @@ class Refiner:
         self.relief_query_every = relief_query_every
         self.stretch_ratio, self.stretch_iterations = stretch_ratio, stretch_iterations
         self.stretch_query_every, self.stretch_omega = stretch_query_every, stretch_omega
+        self.stretch_extra = stretch_extra  # edge-limit rounds beyond stretch_iterations, only while a new long edge lasts
         self.verify_k, self.verify_within, self.verify_stretch = verify_k, verify_within, verify_stretch
         lap = uniform_laplacian(self.faces, num_vertices)
         self.system = (lap.T @ lap + mu * sp.identity(num_vertices)).tocsr()  # L^T L + mu I, fixed
@@ -462,7 +463,9 @@ class Refiner:
 
         Each edge's cap is max(stretch_ratio x its rest length, its input length): an edge the input already
         stretched past the ratio is not made longer, and one the input compressed (a fold) may unfold. On the
-        vertices of the edges over their cap grown by `rings` rings, `stretch_iterations` Jacobi rounds:
+        vertices of the edges over their cap grown by `rings` rings, `stretch_iterations` Jacobi rounds (and, with
+        `stretch_extra`, blocks of `stretch_query_every` more while an edge the input had under SNAP_STRETCH x rest
+        is over it, up to `stretch_extra` more in all):
         every edge over its cap is shortened to it (a held end takes no share; each vertex's corrections
         averaged and scaled by `stretch_omega`), then whatever went inside is put back out, as in the relief
         pass (its last closest point's tangent plane; closest point + eps every `stretch_query_every`
@@ -507,7 +510,10 @@ class Refiner:
         x = v[verts].copy()
         xm = x[moving]
         cp, nn = closest[verts[moving]], closest_normal[verts[moving]]
-        for it in range(self.stretch_iterations):
+        long_edge = SNAP_STRETCH * rest_length[touching]
+        grown = length0 <= long_edge  # edges the input had under SNAP_STRETCH x rest
+        rounds, it = self.stretch_iterations, 0
+        while it < rounds:
             x[moving] = xm
             d = x[a] - x[b]
             dl = np.sqrt(np.einsum("ec,ec->e", d, d))
@@ -515,8 +521,15 @@ class Refiner:
             corr = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
             count = np.maximum(incident @ (excess > 0).astype(np.float64), 1.0)
             xm = xm + (self.stretch_omega / count)[:, None] * (share @ corr)
-            query = (it + 1) % self.stretch_query_every == 0 or it == self.stretch_iterations - 1
+            query = (it + 1) % self.stretch_query_every == 0 or it == rounds - 1
             s, cp, nn, inside = self._hold_outside(xm, cp, nn, query, surface, body, normals, tree)
+            it += 1
+            if it == rounds and rounds < self.stretch_iterations + self.stretch_extra:
+                # stretch_extra: while an edge the input had under SNAP_STRETCH x rest is over it, one more block of
+                # stretch_query_every rounds (ending on a query), up to stretch_extra rounds in all
+                x[moving] = xm
+                if np.any(grown & (np.linalg.norm(x[a] - x[b], axis=1) > long_edge)):
+                    rounds = min(rounds + self.stretch_query_every, self.stretch_iterations + self.stretch_extra)
         self._settle(xm, s, inside, v[verts[moving]], sd[verts[moving]], surface, body, normals, tree)
         # the pass leaves no edge over SNAP_STRETCH x its rest length that was not so before it nor in the input (a
         # vertex the settle sent back to its refined place, or one put out sideways, beside a neighbour the rounds
