@@ -510,8 +510,8 @@ class Refiner:
         x = v[verts].copy()
         xm = x[moving]
         cp, nn = closest[verts[moving]], closest_normal[verts[moving]]
-        long_edge = SNAP_STRETCH * rest_length[touching]
-        grown = length0 <= long_edge  # edges the input had under SNAP_STRETCH x rest
+        limit = SNAP_STRETCH * rest_length[touching]
+        grown = length0 <= limit  # edges the input had under SNAP_STRETCH x rest
         rounds, it = self.stretch_iterations, 0
         while it < rounds:
             x[moving] = xm
@@ -528,7 +528,7 @@ class Refiner:
                 # stretch_extra: while an edge the input had under SNAP_STRETCH x rest is over it, one more block of
                 # stretch_query_every rounds (ending on a query), up to stretch_extra rounds in all
                 x[moving] = xm
-                if np.any(grown & (np.linalg.norm(x[a] - x[b], axis=1) > long_edge)):
+                if np.any(grown & (np.linalg.norm(x[a] - x[b], axis=1) > limit)):
                     rounds = min(rounds + self.stretch_query_every, self.stretch_iterations + self.stretch_extra)
         self._settle(xm, s, inside, v[verts[moving]], sd[verts[moving]], surface, body, normals, tree)
         # the pass leaves no edge over SNAP_STRETCH x its rest length that was not so before it nor in the input (a
@@ -536,8 +536,7 @@ class Refiner:
         # moved): the moved ends of such edges go back to their refined places until none is left
         x[moving] = xm
         x0 = v[verts]
-        limit = SNAP_STRETCH * rest_length[touching]
-        fine = (np.linalg.norm(x0[a] - x0[b], axis=1) <= limit) & (length0 <= limit)
+        fine = (np.linalg.norm(x0[a] - x0[b], axis=1) <= limit) & grown
         slot = np.full(m, -1)
         slot[moving] = np.arange(len(moving))
         while True:

@@ -211,9 +211,17 @@ def loose_ancestor_prior(prior: np.ndarray, mask: np.ndarray, loose: np.ndarray,
     return out
 
 
-def mocap_poses(directory: str | Path, name: str, fps: float) -> np.ndarray:
+def mocap_poses(directory: str | Path, name: str, fps: float, flips: bool = False) -> np.ndarray:
     """(T, 24, 3) float32 poses of the real clip `directory/name.bvh` on the neutral body at `fps` (mocap_motion)."""
-    return mocap_motion(directory, name, fps)[0]
+    return mocap_motion(directory, name, fps, flips=flips)[0]
+
+
+def repairs_flips(mocap: dict) -> bool:
+    """A config's `mocap` section -> whether its clips are read with their rotation flips repaired (`"flips"`:
+    "keep", the default, or "repair"; drape.assets.motion_flips). ValueError for any other value."""
+    if mocap.get("flips", "keep") not in ("keep", "repair"):
+        raise ValueError(f"mocap.flips must be 'keep' or 'repair', got {mocap['flips']!r}")
+    return mocap.get("flips") == "repair"
 
 
 def pose_pool(cfg: dict) -> np.ndarray:
@@ -232,10 +240,9 @@ def pose_pool(cfg: dict) -> np.ndarray:
         if name not in cfg["heldout_clips"]:
             poses.append(load_clip(name).poses)
     mocap: dict = cfg.get("mocap") or {}
-    if mocap.get("flips", "keep") not in ("keep", "repair"):
-        raise ValueError(f"mocap.flips must be 'keep' or 'repair', got {mocap['flips']!r}")
+    repair = repairs_flips(mocap)
     for name in mocap.get("train", []):
-        poses.append(mocap_motion(mocap["dir"], name, mocap["fps"], flips=mocap.get("flips") == "repair")[0])
+        poses.append(mocap_poses(mocap["dir"], name, mocap["fps"], flips=repair))
     pool = np.concatenate(poses).astype(np.float32)
     pool[:, 0] = 0.0
     return pool

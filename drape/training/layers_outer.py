@@ -61,7 +61,7 @@ from drape.runtime.deepsd import Rig, pose_outfit
 from drape.runtime.layers import INNER_MODELS, InnerModel, blend_windows, window_starts
 from drape.training import physics
 from drape.training.config_file import read_config
-from drape.training.deepsd_data import mocap_motion
+from drape.training.deepsd_data import mocap_motion, repairs_flips
 from drape.training.layers_inner import body_weights
 from drape.training.validated_steps import restore_best, resume, save_step
 
@@ -169,9 +169,7 @@ class OuterTask:
         the config's real clips (`mocap`: dir, fps; imported on the body by deepsd_data.mocap_motion, cached) and
         embedded clips, named as drape.assets.motion.list_clips names them (load_clip, at their own fps)."""
         mocap = self.cfg["mocap"]
-        if mocap.get("flips", "keep") not in ("keep", "repair"):
-            raise ValueError(f"mocap.flips must be 'keep' or 'repair', got {mocap['flips']!r}")
-        repair = mocap.get("flips") == "repair"  # the importer's rotation-flip repair (drape.assets.motion_flips)
+        repair = repairs_flips(mocap)
         embedded = set(list_clips())
         out = []
         for name in names:
