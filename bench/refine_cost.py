@@ -8,6 +8,7 @@ frame once per pass, in an order that rotates between passes so that all see the
   animate ran before;
 - `/v1/refine`: the refinement's defaults (relief pass, last check, FAR_K): a stream with no rest shape;
 - `animate`: the same with the outfit's rest shape (the edge-limit pass in the relief pass's place);
+- `animate, no extra`: `animate` without the edge-limit pass's extra rounds (`stretch_extra=0`);
 - `animate, cKDTree`: `animate` with the body's KD-tree from scipy (cKDTree, leaves of 32, unbalanced), what the
   refinement used before drape.geometry.nearest's pykdtree (same neighbours, bit-identical output).
 Printed: ms per frame of each (median and range over the passes) and its ratio to `before` in the same pass. The
@@ -60,6 +61,7 @@ def main() -> None:
     variants = {"before": (Refiner(out.faces, n, verify_k=0), plain),
                 "/v1/refine": (Refiner(out.faces, n), served),
                 "animate": (Refiner(out.faces, n, rest=out.vertices), served),
+                "animate, no extra": (Refiner(out.faces, n, rest=out.vertices, stretch_extra=0), served),
                 "animate, cKDTree": (Refiner(out.faces, n, rest=out.vertices), served)}
     served_tree = refine_module.body_tree
     trees = {name: ScipyTree if name.endswith("cKDTree") else served_tree for name in variants}
@@ -84,6 +86,7 @@ def main() -> None:
     for name in names:
         print(f"{name:17s} {spread(ms[name]):>22s} {spread(ms[name] / ms['before']):>22s}")
     print(f"animate / animate, cKDTree: {spread(ms['animate'] / ms['animate, cKDTree'])}")
+    print(f"animate / animate, no extra: {spread(ms['animate'] / ms['animate, no extra'])}")
 
 
 if __name__ == "__main__":

@@ -39,7 +39,14 @@ from drape.geometry.fitting import fit_garment
 from drape.geometry.mesh import unique_edges
 from drape.geometry.mesh_io import load_mesh
 from drape.geometry.queries import signed_distance_to_mesh
-from drape.geometry.refine import FAR_K, STRETCH_ITERATIONS, BodySurface, Refiner, RefineReport
+from drape.geometry.refine import (
+    FAR_K,
+    STRETCH_EXTRA,
+    STRETCH_ITERATIONS,
+    BodySurface,
+    Refiner,
+    RefineReport,
+)
 from drape.runtime.engine import Engine
 from drape.training.deepsd_eval import REAL_CLIPS
 
@@ -103,9 +110,10 @@ def main() -> None:
     ap.add_argument("--stretch-iterations", default=str(STRETCH_ITERATIONS),
                     help="comma-separated rounds of the edge-limit pass to try (Refiner(stretch_iterations=...)); "
                          f"variants other than the refinement's {STRETCH_ITERATIONS} are named `edges RATIOx itN`")
-    ap.add_argument("--stretch-extra", default="0",
+    ap.add_argument("--stretch-extra", default=str(STRETCH_EXTRA),
                     help="comma-separated Refiner(stretch_extra=...) to try: edge-limit rounds spent only while a new "
-                         "edge over 2x rest lasts; variants other than 0 are named `edges RATIOx +N`")
+                         f"edge over 2x rest shrinks; variants other than the refinement's {STRETCH_EXTRA} are named "
+                         "`edges RATIOx +N`")
     ap.add_argument("--animate-only", action="store_true", help="only the edge-limit variants (what animate runs)")
     args, engine, body, surface = setup(ap)
     # what both routes ran before the last check and FAR_K were on: the relief pass, the plain surface
@@ -125,12 +133,11 @@ def main() -> None:
                 variants[f"edges {r}x -chk"] = (Refiner(out.faces, len(rest), rest=out.vertices,
                                                         stretch_ratio=float(r), verify_k=0), surface)
             for n in (int(k) for k in args.stretch_iterations.split(",")):
-                label = f"edges {r}x" if n == STRETCH_ITERATIONS else f"edges {r}x it{n}"
-                variants[label] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
-                                           stretch_iterations=n), surface)
-            for extra in (int(k) for k in args.stretch_extra.split(",") if int(k) > 0):
-                variants[f"edges {r}x +{extra}"] = (Refiner(out.faces, len(rest), rest=out.vertices,
-                                                            stretch_ratio=float(r), stretch_extra=extra), surface)
+                for extra in (int(k) for k in args.stretch_extra.split(",")):
+                    label = (f"edges {r}x" + ("" if n == STRETCH_ITERATIONS else f" it{n}")
+                             + ("" if extra == STRETCH_EXTRA else f" +{extra}"))
+                    variants[label] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
+                                               stretch_iterations=n, stretch_extra=extra), surface)
         for clip, poses, trans in clips:
             frames = np.concatenate(list(engine.pose_chunks(out, poses, trans))).astype(np.float64)
             bodies = body.pose(poses, trans).astype(np.float64)

@@ -73,6 +73,8 @@ VERIFY_ROUNDS = 4  # rounds of the last check's projection
 VERIFY_WITHIN = 0.01  # metres: vertices the refinement's own query finds closer than this are checked
 FAR_K = 5  # body surfaces: a point read outside that one of this many nearest vertices reads inside is read again
 SNAP_MARGIN = 0.25  # the third round's second try: eps x this from the body (0.75 mm)
+STRETCH_EXTRA = 15  # edge-limit rounds the pass may add near a new edge over SNAP_STRETCH x rest that shrinks
+STRETCH_EXTRA_PACE = 2.0  # fast enough: under that within those rounds at this many times its last block's pace
 SNAP_STRETCH = 2.0  # the last check's third round: no edge longer than this x the vertex's longest in the input
 
 
@@ -222,7 +224,7 @@ class Refiner:
                  relief_threshold: float = 0.005, relief_iterations: int = RELIEF_ITERATIONS,
                  relief_query_every: int = 5, rest: np.ndarray | None = None, stretch_ratio: float = STRETCH_RATIO,
                  stretch_iterations: int = STRETCH_ITERATIONS, stretch_query_every: int = 5, stretch_omega: float = 1.5,
-                 stretch_extra: int = 0, verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
+                 stretch_extra: int = STRETCH_EXTRA, verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
                  verify_stretch: float = np.inf, rest_length: np.ndarray | None = None):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
@@ -463,15 +465,20 @@ class Refiner:
 
         Each edge's cap is max(stretch_ratio x its rest length, its input length): an edge the input already
         stretched past the ratio is not made longer, and one the input compressed (a fold) may unfold. On the
-        vertices of the edges over their cap grown by `rings` rings, `stretch_iterations` Jacobi rounds (and, with
-        `stretch_extra`, blocks of `stretch_query_every` more while an edge the input had under SNAP_STRETCH x rest
-        is over it, up to `stretch_extra` more in all):
+        vertices of the edges over their cap grown by `rings` rings, `stretch_iterations` Jacobi rounds (then up
+        to `stretch_extra` more on a smaller region, below):
         every edge over its cap is shortened to it (a held end takes no share; each vertex's corrections
         averaged and scaled by `stretch_omega`), then whatever went inside is put back out, as in the relief
         pass (its last closest point's tangent plane; closest point + eps every `stretch_query_every`
         rounds and in the last). The collisions win at the end: a vertex still inside after two more
         projections goes back to its refined position; then the moved ends of any edge the pass left over
         SNAP_STRETCH x its rest length, that was not so before it nor in the input, go back to theirs too.
+        Extra rounds (`stretch_extra`, STRETCH_EXTRA by default; docs/refine.md): an edge the input had under
+        SNAP_STRETCH x rest that is over it after the rounds, and shrank over their last block of
+        `stretch_query_every` fast enough to be under it within `stretch_extra` rounds at STRETCH_EXTRA_PACE x that
+        pace, gets more rounds on its vertices grown by `rings` rings (the rest held), block by block while one such
+        edge keeps that pace. An edge that does not shrink is held apart by the body (a limb through the cloth,
+        which no edge length takes out) and costs no more rounds.
         sd, closest, closest_normal: as in `_relieve` (sd updated in place).
         """
         assert self.rest_length is not None, "the edge-limit pass needs the rest shape"
@@ -512,8 +519,12 @@ class Refiner:
         cp, nn = closest[verts[moving]], closest_normal[verts[moving]]
         limit = SNAP_STRETCH * rest_length[touching]
         grown = length0 <= limit  # edges the input had under SNAP_STRETCH x rest
-        rounds, it = self.stretch_iterations, 0
-        while it < rounds:
+        q = self.stretch_query_every
+        before = np.zeros(k)  # the edges' lengths a block of q rounds back (for stretch_extra)
+        for it in range(self.stretch_iterations):
+            if self.stretch_extra and it == self.stretch_iterations - q:
+                x[moving] = xm
+                before = np.linalg.norm(x[a] - x[b], axis=1)
             x[moving] = xm
             d = x[a] - x[b]
             dl = np.sqrt(np.einsum("ec,ec->e", d, d))
@@ -521,15 +532,46 @@ class Refiner:
             corr = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
             count = np.maximum(incident @ (excess > 0).astype(np.float64), 1.0)
             xm = xm + (self.stretch_omega / count)[:, None] * (share @ corr)
-            query = (it + 1) % self.stretch_query_every == 0 or it == rounds - 1
+            query = (it + 1) % q == 0 or it == self.stretch_iterations - 1
             s, cp, nn, inside = self._hold_outside(xm, cp, nn, query, surface, body, normals, tree)
-            it += 1
-            if it == rounds and rounds < self.stretch_iterations + self.stretch_extra:
-                # stretch_extra: while an edge the input had under SNAP_STRETCH x rest is over it, one more block of
-                # stretch_query_every rounds (ending on a query), up to stretch_extra rounds in all
-                x[moving] = xm
-                if np.any(grown & (np.linalg.norm(x[a] - x[b], axis=1) > limit)):
-                    rounds = min(rounds + self.stretch_query_every, self.stretch_iterations + self.stretch_extra)
+        if self.stretch_extra and self.stretch_iterations >= q:
+            # stretch_extra (docstring): rounds as above, a query every q and in the last, on the watched edges'
+            # vertices grown by `rings` rings
+            x[moving] = xm
+            now = np.linalg.norm(x[a] - x[b], axis=1)
+            blocks = self.stretch_extra / q
+            shrinking = grown & (now > limit) & (now - limit <= STRETCH_EXTRA_PACE * blocks * (before - now))
+            if np.any(shrinking):
+                region = np.zeros(self.n, dtype=bool)
+                region[verts[a[shrinking]]] = region[verts[b[shrinking]]] = True
+                for _ in range(self.rings):
+                    region |= (self.adjacency @ region.astype(np.float32)) > 0
+                sub = np.nonzero(region[verts[moving]])[0]  # positions in xm
+                sub_incident = incident[sub]
+                sub_edges = np.unique(sub_incident.indices)
+                # a few hundred vertices and edges at most: dense products are cheaper than sparse ones here
+                sub_share, sub_incident = share[sub][:, sub_edges].toarray(), sub_incident[:, sub_edges].toarray()
+                at = moving[sub]
+                sa, sb, sub_cap, sub_limit = a[sub_edges], b[sub_edges], cap[sub_edges], limit[sub_edges]
+                watched, last = shrinking[sub_edges], now[sub_edges]
+                xs, cps, nns = xm[sub], cp[sub], nn[sub]
+                for r in range(self.stretch_extra):
+                    x[at] = xs
+                    d = x[sa] - x[sb]
+                    dl = np.sqrt(np.einsum("ec,ec->e", d, d))
+                    if r % q == 0 and r > 0:  # a block ended: go on while a watched edge keeps the pace
+                        left = (self.stretch_extra - r) / q
+                        watched &= (dl > sub_limit) & (dl - sub_limit <= STRETCH_EXTRA_PACE * left * (last - dl))
+                        if not np.any(watched):
+                            break
+                        last = dl
+                    excess = np.maximum(dl - sub_cap, 0.0)
+                    corr = (excess / np.maximum(dl, 1e-12))[:, None] * d
+                    count = np.maximum(sub_incident @ (excess > 0).astype(np.float64), 1.0)
+                    xs = xs + (self.stretch_omega / count)[:, None] * (sub_share @ corr)
+                    query = (r + 1) % q == 0 or r == self.stretch_extra - 1
+                    ss, cps, nns, ins = self._hold_outside(xs, cps, nns, query, surface, body, normals, tree)
+                xm[sub], cp[sub], nn[sub], s[sub], inside[sub] = xs, cps, nns, ss, ins
         self._settle(xm, s, inside, v[verts[moving]], sd[verts[moving]], surface, body, normals, tree)
         # the pass leaves no edge over SNAP_STRETCH x its rest length that was not so before it nor in the input (a
         # vertex the settle sent back to its refined place, or one put out sideways, beside a neighbour the rounds
