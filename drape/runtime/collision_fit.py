@@ -13,7 +13,9 @@ times, each round from the rig the last gave. Fit poses (`fit_poses`): frames of
 procedural motions DeePSD trains on, never a validation or evaluation motion.
 
 The body is the part of its mesh within `reach` of the garment at rest (faces with a vertex that close),
-posed by its own skin; closest points are those of the refinement (`drape.geometry.refine.BodySurface`).
+posed by its own skin; closest points are those of the refinement (`drape.geometry.refine.BodySurface`; its second
+reading with `far_k`). With `settle`, a pushed point that lands within 0.9 eps of another part of the body (under the
+chin, at the armpit) is put out again from there, up to that many rounds.
 Shapes: rest_vertices (N, 3) m; body vertices (M, 3) m, faces (G, 3), weights (M, 24), joints (24, 3) m;
 poses (T, 24, 3) rad; keys (T, P).
 """
@@ -40,6 +42,11 @@ GAIN = 3.0
 DEEPEST = 0.03  # m: a vertex deeper inside the body than this at a fit pose is not pushed (a limb through the cloth)
 THREADS = 2
 REACH = 0.1  # m: body faces farther than this from every garment vertex at rest are left out
+# the served fit reads the body surface once and puts nothing out again (FAR_K None, SETTLE 0), as DeePSD 0.11.0's
+# tables were measured; the second reading and 3 settle rounds (bench.deepsd_collision_fit's push_g3_r1_deep3_settle,
+# docs/deepsd_experiments.md) are what a re-shipped rig would switch on
+FAR_K: int | None = None
+SETTLE = 0
 # fit poses: every 4th of the sparse rig's 300 (frames of the embedded clips DeePSD trained on) and every 12th frame
 # of three of its procedural training motions (drape.training.deepsd_data: seeds 500 + i, 300 frames)
 CLIP_STRIDE = 4
@@ -71,9 +78,13 @@ def body_near(rest_vertices: np.ndarray, body_vertices: np.ndarray, body_faces: 
 def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, poses: np.ndarray,
                    keys: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, body_weights: np.ndarray,
                    eps: float = EPS, reach: float = REACH, tight: tuple[float, float] | None = None,
-                   deepest: float | None = None, threads: int = THREADS) -> np.ndarray:
+                   deepest: float | None = None, threads: int = THREADS, far_k: int | None = FAR_K,
+                   settle: int = SETTLE) -> np.ndarray:
     """The rig posed at `poses` (no translation) with every vertex closer to the body than eps (or inside it)
     moved onto its closest body point + eps along the body's normal there -> (T, N, 3) float32 m.
+    far_k: the body surface's second reading (drape.geometry.refine.BodySurface; None: one reading).
+    settle: rounds in which a moved point that lands nearer than 0.9 eps to the body (put off one part's surface
+    into another's reach: under the chin, at the armpit) goes again to its new closest point + eps.
     tight = (near, far) m: only cloth that lies on the body at rest is pushed: a vertex nearer than `near` to the
     body's vertices at rest fully, one farther than `far` not at all, linearly between. deepest (m): a vertex
     deeper inside than this is left where it is (a limb through the cloth, not cloth sunk into the skin).
@@ -89,15 +100,23 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
     skin = Rig(np.asarray(body_weights, dtype=np.float32)[used], np.zeros((1, len(used), 3), dtype=np.float32))
     bodies = pose_outfit(np.asarray(body_vertices)[used], skin, np.zeros((len(poses), 1), dtype=np.float32),
                          rest_joints, poses)
-    surface = BodySurface(faces, len(used))
+    surface = BodySurface(faces, len(used), far_k=far_k)
 
     def push(t: int) -> None:  # frame t in place; frames are independent
         b, x = bodies[t].astype(np.float64), posed[t].astype(np.float64)
-        sd, cp, n = surface.query(b, surface.normals(b), x)
+        normals = surface.normals(b)
+        sd, cp, n = surface.query(b, normals, x)
         near = (sd < eps) & (share > 0)
         if deepest is not None:
             near &= sd > -deepest
-        posed[t, near] = x[near] + share[near, None] * (cp[near] + eps * n[near] - x[near])
+        target = cp[near] + eps * n[near]
+        for _ in range(settle):
+            again, c2, n2 = surface.query(b, normals, target)
+            close = again < 0.9 * eps
+            if not close.any():
+                break
+            target[close] = c2[close] + eps * n2[close]
+        posed[t, near] = x[near] + share[near, None] * (target - x[near])
 
     if threads > 1:  # the KD-tree queries and numpy's larger passes release the GIL
         with ThreadPoolExecutor(threads) as pool:

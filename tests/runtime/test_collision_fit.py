@@ -86,6 +86,27 @@ def test_cloth_deeper_than_deepest_is_left_where_it_is(shipped, tshirt):
             assert np.all(before[moved[t]] > -deepest - 1e-3), (deepest, before[moved[t]].min())
 
 
+def test_settle_rounds_put_out_again_what_lands_near_another_part(shipped, tshirt):
+    """settle (with the surface's second reading): a pushed point that lands within 0.9 eps of another part of the
+    body goes out again, so more of what is pushed lies at eps by an exact distance, and none less, on every frame;
+    the same points are pushed."""
+    o, body, rig = tshirt
+    poses = load_clip("dance_b").poses[::10][:8].astype(np.float64)
+    keys = shipped.pose_keys(poses)
+    posed = pose_outfit(o.vertices, rig, keys, body.joints, poses)
+    plain, settled = (pushed_targets(o.vertices, rig, body.joints, poses, keys, body.vertices, body.faces,
+                                     body.weights, far_k=5, settle=n) for n in (0, 3))
+    assert np.array_equal(np.any(plain != posed, axis=2), np.any(settled != posed, axis=2))
+    moved = np.any(plain != posed, axis=2)
+    at_eps = np.zeros((2, len(poses)))
+    for t, b in enumerate(body.pose(poses)):
+        b = b.astype(np.float64)
+        exact = MeshDistance(b, body.faces, vertex_normals(b, body.faces))
+        for i, p in enumerate((plain, settled)):
+            at_eps[i, t] = np.sum(exact.signed_distance(p[t][moved[t]].astype(np.float64)) > EPS - 5e-4)
+    assert np.all(at_eps[1] >= at_eps[0]) and at_eps[1].sum() > at_eps[0].sum(), at_eps
+
+
 def test_the_answer_does_not_depend_on_the_threads(shipped, tshirt):
     o, body, rig = tshirt
     poses = fit_poses()[::5]
