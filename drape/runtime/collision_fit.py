@@ -101,6 +101,8 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
     bodies = pose_outfit(np.asarray(body_vertices)[used], skin, np.zeros((len(poses), 1), dtype=np.float32),
                          rest_joints, poses)
     surface = BodySurface(faces, len(used), far_k=far_k)
+    # settle asks the one reading: its points lie eps off the surface, where the second reading would be asked for most
+    once = BodySurface(faces, len(used)) if far_k is not None and settle else surface
 
     def push(t: int) -> None:  # frame t in place; frames are independent
         b, x = bodies[t].astype(np.float64), posed[t].astype(np.float64)
@@ -110,12 +112,14 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
         if deepest is not None:
             near &= sd > -deepest
         target = cp[near] + eps * n[near]
+        check = np.arange(len(target))  # settle: the points put out in the last round, asked again
         for _ in range(settle):
-            again, c2, n2 = surface.query(b, normals, target)
+            again, c2, n2 = once.query(b, normals, target[check])
             close = again < 0.9 * eps
-            if not close.any():
+            check = check[close]
+            if len(check) == 0:
                 break
-            target[close] = c2[close] + eps * n2[close]
+            target[check] = c2[close] + eps * n2[close]
         posed[t, near] = x[near] + share[near, None] * (target - x[near])
 
     if threads > 1:  # the KD-tree queries and numpy's larger passes release the GIL
