@@ -42,6 +42,7 @@ from drape.geometry.queries import signed_distance_to_mesh
 from drape.geometry.refine import (
     FAR_K,
     STRETCH_EXTRA,
+    STRETCH_EXTRA_OMEGA,
     STRETCH_ITERATIONS,
     BodySurface,
     Refiner,
@@ -114,6 +115,9 @@ def main() -> None:
                     help="comma-separated Refiner(stretch_extra=...) to try: edge-limit rounds spent only while a new "
                          f"edge over 2x rest shrinks; variants other than the refinement's {STRETCH_EXTRA} are named "
                          "`edges RATIOx +N`")
+    ap.add_argument("--stretch-extra-omega", default=str(STRETCH_EXTRA_OMEGA),
+                    help="comma-separated Refiner(stretch_extra_omega=...) to try: the extra rounds' step; variants "
+                         f"other than the refinement's {STRETCH_EXTRA_OMEGA} are named `edges RATIOx wW`")
     ap.add_argument("--animate-only", action="store_true", help="only the edge-limit variants (what animate runs)")
     args, engine, body, surface = setup(ap)
     # what both routes ran before the last check and FAR_K were on: the relief pass, the plain surface
@@ -134,10 +138,15 @@ def main() -> None:
                                                         stretch_ratio=float(r), verify_k=0), surface)
             for n in (int(k) for k in args.stretch_iterations.split(",")):
                 for extra in (int(k) for k in args.stretch_extra.split(",")):
-                    label = (f"edges {r}x" + ("" if n == STRETCH_ITERATIONS else f" it{n}")
-                             + ("" if extra == STRETCH_EXTRA else f" +{extra}"))
-                    variants[label] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
-                                               stretch_iterations=n, stretch_extra=extra), surface)
+                    for w in (float(k) for k in args.stretch_extra_omega.split(",")):
+                        if extra == 0 and w != STRETCH_EXTRA_OMEGA:
+                            continue  # no extra rounds: their step does not matter
+                        label = (f"edges {r}x" + ("" if n == STRETCH_ITERATIONS else f" it{n}")
+                                 + ("" if extra == STRETCH_EXTRA else f" +{extra}")
+                                 + ("" if w == STRETCH_EXTRA_OMEGA else f" w{w:g}"))
+                        variants[label] = (Refiner(out.faces, len(rest), rest=out.vertices, stretch_ratio=float(r),
+                                                   stretch_iterations=n, stretch_extra=extra, stretch_extra_omega=w),
+                                           surface)
         for clip, poses, trans in clips:
             frames = np.concatenate(list(engine.pose_chunks(out, poses, trans))).astype(np.float64)
             bodies = body.pose(poses, trans).astype(np.float64)

@@ -75,6 +75,7 @@ FAR_K = 5  # body surfaces: a point read outside that one of this many nearest v
 SNAP_MARGIN = 0.25  # the third round's second try: eps x this from the body (0.75 mm)
 STRETCH_EXTRA = 15  # edge-limit rounds the pass may add near a new edge over SNAP_STRETCH x rest that shrinks
 STRETCH_EXTRA_PACE = 2.0  # fast enough: under that within those rounds at this many times its last block's pace
+STRETCH_EXTRA_OMEGA = 1.5  # those rounds' step (the main rounds': stretch_omega)
 SNAP_STRETCH = 2.0  # the last check's third round: no edge longer than this x the vertex's longest in the input
 
 
@@ -224,7 +225,7 @@ class Refiner:
                  relief_threshold: float = 0.005, relief_iterations: int = RELIEF_ITERATIONS,
                  relief_query_every: int = 5, rest: np.ndarray | None = None, stretch_ratio: float = STRETCH_RATIO,
                  stretch_iterations: int = STRETCH_ITERATIONS, stretch_query_every: int = 5, stretch_omega: float = 1.5,
-                 stretch_extra: int = STRETCH_EXTRA, verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
+                 stretch_extra: int = STRETCH_EXTRA, stretch_extra_omega: float = STRETCH_EXTRA_OMEGA, verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
                  verify_stretch: float = np.inf, rest_length: np.ndarray | None = None):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
@@ -235,6 +236,7 @@ class Refiner:
         self.stretch_ratio, self.stretch_iterations = stretch_ratio, stretch_iterations
         self.stretch_query_every, self.stretch_omega = stretch_query_every, stretch_omega
         self.stretch_extra = stretch_extra  # edge-limit rounds beyond stretch_iterations, only while a new long edge lasts
+        self.stretch_extra_omega = stretch_extra_omega  # those rounds' step
         self.verify_k, self.verify_within, self.verify_stretch = verify_k, verify_within, verify_stretch
         lap = uniform_laplacian(self.faces, num_vertices)
         self.system = (lap.T @ lap + mu * sp.identity(num_vertices)).tocsr()  # L^T L + mu I, fixed
@@ -568,7 +570,7 @@ class Refiner:
                     excess = np.maximum(dl - sub_cap, 0.0)
                     corr = (excess / np.maximum(dl, 1e-12))[:, None] * d
                     count = np.maximum(sub_incident @ (excess > 0).astype(np.float64), 1.0)
-                    xs = xs + (self.stretch_omega / count)[:, None] * (sub_share @ corr)
+                    xs = xs + (self.stretch_extra_omega / count)[:, None] * (sub_share @ corr)
                     query = (r + 1) % q == 0 or r == self.stretch_extra - 1
                     ss, cps, nns, ins = self._hold_outside(xs, cps, nns, query, surface, body, normals, tree)
                 xm[sub], cp[sub], nn[sub], s[sub], inside[sub] = xs, cps, nns, ss, ins
