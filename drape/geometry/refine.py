@@ -225,7 +225,8 @@ class Refiner:
                  relief_threshold: float = 0.005, relief_iterations: int = RELIEF_ITERATIONS,
                  relief_query_every: int = 5, rest: np.ndarray | None = None, stretch_ratio: float = STRETCH_RATIO,
                  stretch_iterations: int = STRETCH_ITERATIONS, stretch_query_every: int = 5, stretch_omega: float = 1.5,
-                 stretch_extra: int = STRETCH_EXTRA, stretch_extra_omega: float = STRETCH_EXTRA_OMEGA, verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
+                 stretch_extra: int = STRETCH_EXTRA, stretch_extra_omega: float = STRETCH_EXTRA_OMEGA,
+                 verify_k: int = VERIFY_K, verify_within: float = VERIFY_WITHIN,
                  verify_stretch: float = np.inf, rest_length: np.ndarray | None = None):
         self.faces = np.asarray(faces, dtype=np.int64)
         self.n = num_vertices
@@ -235,7 +236,8 @@ class Refiner:
         self.relief_query_every = relief_query_every
         self.stretch_ratio, self.stretch_iterations = stretch_ratio, stretch_iterations
         self.stretch_query_every, self.stretch_omega = stretch_query_every, stretch_omega
-        self.stretch_extra = stretch_extra  # edge-limit rounds beyond stretch_iterations, only while a new long edge lasts
+        # edge-limit rounds beyond stretch_iterations, only near a new long edge that shrinks
+        self.stretch_extra = stretch_extra
         self.stretch_extra_omega = stretch_extra_omega  # those rounds' step
         self.verify_k, self.verify_within, self.verify_stretch = verify_k, verify_within, verify_stretch
         lap = uniform_laplacian(self.faces, num_vertices)
@@ -522,18 +524,25 @@ class Refiner:
         limit = SNAP_STRETCH * rest_length[touching]
         grown = length0 <= limit  # edges the input had under SNAP_STRETCH x rest
         q = self.stretch_query_every
+
+        def jacobi(pos: np.ndarray, at: np.ndarray, ea: np.ndarray, eb: np.ndarray, edge_cap: np.ndarray,
+                   inc: sp.spmatrix | np.ndarray, shr: sp.spmatrix | np.ndarray,
+                   omega: float) -> tuple[np.ndarray, np.ndarray]:
+            """One Jacobi round on the moving points pos (P, 3), at `at` in x, over the edges (ea, eb) with their
+            caps; inc, shr (P, E): incidence and signed shares -> (moved points, the edges' lengths before)."""
+            x[at] = pos
+            d = x[ea] - x[eb]
+            dl = np.sqrt(np.einsum("ec,ec->e", d, d))
+            excess = np.maximum(dl - edge_cap, 0.0)
+            corr = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
+            count = np.maximum(inc @ (excess > 0).astype(np.float64), 1.0)
+            return pos + (omega / count)[:, None] * (shr @ corr), dl
+
         before = np.zeros(k)  # the edges' lengths a block of q rounds back (for stretch_extra)
         for it in range(self.stretch_iterations):
-            if self.stretch_extra and it == self.stretch_iterations - q:
-                x[moving] = xm
-                before = np.linalg.norm(x[a] - x[b], axis=1)
-            x[moving] = xm
-            d = x[a] - x[b]
-            dl = np.sqrt(np.einsum("ec,ec->e", d, d))
-            excess = np.maximum(dl - cap, 0.0)
-            corr = (excess / np.maximum(dl, 1e-12))[:, None] * d  # a -> b by the excess
-            count = np.maximum(incident @ (excess > 0).astype(np.float64), 1.0)
-            xm = xm + (self.stretch_omega / count)[:, None] * (share @ corr)
+            xm, dl = jacobi(xm, moving, a, b, cap, incident, share, self.stretch_omega)
+            if it == self.stretch_iterations - q:
+                before = dl
             query = (it + 1) % q == 0 or it == self.stretch_iterations - 1
             s, cp, nn, inside = self._hold_outside(xm, cp, nn, query, surface, body, normals, tree)
         if self.stretch_extra and self.stretch_iterations >= q:
@@ -558,19 +567,14 @@ class Refiner:
                 watched, last = shrinking[sub_edges], now[sub_edges]
                 xs, cps, nns = xm[sub], cp[sub], nn[sub]
                 for r in range(self.stretch_extra):
-                    x[at] = xs
-                    d = x[sa] - x[sb]
-                    dl = np.sqrt(np.einsum("ec,ec->e", d, d))
+                    moved, dl = jacobi(xs, at, sa, sb, sub_cap, sub_incident, sub_share, self.stretch_extra_omega)
                     if r % q == 0 and r > 0:  # a block ended: go on while a watched edge keeps the pace
                         left = (self.stretch_extra - r) / q
                         watched &= (dl > sub_limit) & (dl - sub_limit <= STRETCH_EXTRA_PACE * left * (last - dl))
                         if not np.any(watched):
                             break
                         last = dl
-                    excess = np.maximum(dl - sub_cap, 0.0)
-                    corr = (excess / np.maximum(dl, 1e-12))[:, None] * d
-                    count = np.maximum(sub_incident @ (excess > 0).astype(np.float64), 1.0)
-                    xs = xs + (self.stretch_extra_omega / count)[:, None] * (sub_share @ corr)
+                    xs = moved
                     query = (r + 1) % q == 0 or r == self.stretch_extra - 1
                     ss, cps, nns, ins = self._hold_outside(xs, cps, nns, query, surface, body, normals, tree)
                 xm[sub], cp[sub], nn[sub], s[sub], inside[sub] = xs, cps, nns, ss, ins
