@@ -17,6 +17,9 @@ each refitting the 4-influence rig's blend shapes to targets at the fit poses:
               than 3 cm inside where they are
   push_g3_r1_deep3_settle: push_g3_r1_deep3 on the body surface's second reading (the refinement's FAR_K), a
               pushed point that lands within 0.9 x 5 mm of another part put out again (3 rounds); not served yet
+  push_g3_r1_deep3_relaxN: push_g3_r1_deep3's targets relaxed toward the rest edge lengths, N Jacobi rounds with
+              the pushed vertices held (drape.geometry.edge_relax; collision_fit's `relax`); _repush: then what
+              lies within 5 mm of the body pushed out once more (collision_fit's `repush`)
 
 Fit poses: `--poses 150` is `collision_fit.fit_poses()` (every 4th of the sparse rig's 300 clip frames, every 12th
 of three procedural training motions); 300 and 600 take every 2nd / 6th and all / every 3rd. Prints per outfit
@@ -43,9 +46,13 @@ import time
 from collections.abc import Iterator
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from drape.assets.body import Body, load_body
 from drape.assets.procedural import generate_motion
+from drape.geometry.edge_relax import relax_edges
+from drape.geometry.mesh import unique_edges
+from drape.geometry.metrics import edge_lengths
 from drape.geometry.refine import FAR_K, BodySurface, Refiner, RefineReport
 from drape.runtime import collision_fit as cf
 from drape.runtime.deepsd import DeePSDModel, Rig, pose_outfit
@@ -68,6 +75,18 @@ VARIANTS: dict[str, tuple] = {  # name: (targets, rounds, gain[, pushed_targets 
     # push_g3_r1_deep3 on the body surface's second reading, pushed points that land within 0.9 eps of another
     # part put out again (up to 3 rounds): not served yet (docs/deepsd_experiments.md)
     "push_g3_r1_deep3_settle": ("push", 1, 3.0, {"deepest": 0.03, "far_k": FAR_K, "settle": 3}),
+    # the served fit with N rounds of edge-length relaxation on its targets, pushed vertices held (collision_fit's relax)
+    **{f"push_g3_r1_deep3_relax{n}": ("push", 1, 3.0, {"deepest": 0.03, "relax": n}) for n in (5, 10, 20, 40)},
+    # the same, then what the relaxation drew back within 5 mm of the body pushed out once more (gain 1)
+    **{f"push_g3_r1_deep3_relax{n}_repush": ("push", 1, 3.0, {"deepest": 0.03, "relax": n, "repush": True})
+       for n in (10, 20, 40)},
+    # relax20_repush with only stretched edges shortened, and/or cloth within 1.5 cm of the body's vertices at rest held
+    "push_g3_r1_deep3_relax20s_repush": ("push", 1, 3.0, {"deepest": 0.03, "relax": 20, "repush": True,
+                                                          "stretch_only": True}),
+    "push_g3_r1_deep3_relax20h_repush": ("push", 1, 3.0, {"deepest": 0.03, "relax": 20, "repush": True,
+                                                          "hold": 0.015}),
+    "push_g3_r1_deep3_relax20sh_repush": ("push", 1, 3.0, {"deepest": 0.03, "relax": 20, "repush": True,
+                                                           "stretch_only": True, "hold": 0.015}),
 }
 STRIDES = {150: (4, 12), 300: (2, 6), 600: (1, 3)}  # fit poses: (clip frame stride, procedural frame stride)
 
@@ -94,12 +113,25 @@ def fit_variant(name: str, verts: np.ndarray, faces: np.ndarray, rig: Rig, body:
                 keys: np.ndarray) -> Rig:
     targets, rounds, gain, *extra = VARIANTS[name]
     options = {"far_k": None, "settle": 0, **(extra[0] if extra else {})}
+    relax, repush = options.pop("relax", 0), options.pop("repush", False)
+    stretch_only, hold = options.pop("stretch_only", False), options.pop("hold", None)
+    near = (np.zeros(len(verts), bool) if hold is None else
+            cKDTree(body.vertices).query(verts)[0] < hold)  # cloth on the body at rest, held by `hold`
+    edges = unique_edges(faces)
     for _ in range(rounds):
         posed = pose_outfit(verts, rig, keys, body.joints, poses)
         moved = (refined_targets(verts, faces, rig, body, poses, keys) if targets == "refine" else
                  cf.pushed_targets(verts, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights,
                                    **options))
-        rig = sparse_rig(verts, rig, body.joints, 4, poses, keys, targets=posed + np.float32(gain) * (moved - posed))
+        goal = posed + np.float32(gain) * (moved - posed)
+        if relax:
+            goal = relax_edges(goal, edges, edge_lengths(verts, edges), relax,
+                               fixed=np.any(moved != posed, axis=2) | near[None],
+                               stretch_only=stretch_only).astype(np.float32)
+            if repush:
+                goal = cf.pushed_targets(verts, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights,
+                                         **options, start=goal)
+        rig = sparse_rig(verts, rig, body.joints, 4, poses, keys, targets=goal)
     return rig
 
 

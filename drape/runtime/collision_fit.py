@@ -9,8 +9,12 @@ leg through a skirt in a cartwheel, which no pose-linear correction should chase
 closest body point + eps along the normal there (`pushed_targets`), and refit the blend shapes to the posed rig
 moved `gain` times that push (`drape.runtime.sparse_rig.sparse_rig`, its ridge solve through the rig's own blended rotations; a least-squares
 fit over many poses takes back part of every push, so a gain above 1 lands closer to the pushed cloth); `rounds`
-times, each round from the rig the last gave. Fit poses (`fit_poses`): frames of the embedded clips and the
-procedural motions DeePSD trains on, never a validation or evaluation motion.
+times, each round from the rig the last gave. With the garment's faces the pushed targets are first relaxed toward
+the rest edge lengths (`RELAX` Jacobi rounds, `drape.geometry.edge_relax`; the pushed vertices and the cloth within
+`HOLD` of the body's vertices at rest held) and what that leaves within eps of the body pushed out again (`REPUSH`):
+a pushed vertex alone would stretch its neighbours toward it (docs/deepsd_experiments.md, last section). Fit poses
+(`fit_poses`): frames of the embedded clips and the procedural motions DeePSD trains on, never a validation or
+evaluation motion.
 
 The body is the part of its mesh within `reach` of the garment at rest (faces with a vertex that close),
 posed by its own skin; closest points are those of the refinement (`drape.geometry.refine.BodySurface`; its second
@@ -29,6 +33,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
+from drape.geometry.edge_relax import relax_edges
+from drape.geometry.mesh import unique_edges
+from drape.geometry.metrics import edge_lengths
 from drape.geometry.refine import BodySurface
 from drape.runtime.deepsd import Rig, pose_outfit
 from drape.runtime.sparse_rig import sparse_rig
@@ -47,6 +54,11 @@ REACH = 0.1  # m: body faces farther than this from every garment vertex at rest
 # docs/deepsd_experiments.md) are what a re-shipped rig would switch on
 FAR_K: int | None = None
 SETTLE = 0
+# the fit's edge relaxation, chosen on the validation split (bench.deepsd_collision_fit's
+# push_g3_r1_deep3_relax20h_repush): rounds (0: none), then what it leaves near the body pushed out again
+RELAX = 20
+REPUSH = True
+HOLD: float | None = 0.015  # m: cloth this near the body's vertices at rest is held by the relaxation
 # fit poses: every 4th of the sparse rig's 300 (frames of the embedded clips DeePSD trained on) and every 12th frame
 # of three of its procedural training motions (drape.training.deepsd_data: seeds 500 + i, 300 frames)
 CLIP_STRIDE = 4
@@ -79,8 +91,8 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
                    keys: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, body_weights: np.ndarray,
                    eps: float = EPS, reach: float = REACH, tight: tuple[float, float] | None = None,
                    deepest: float | None = None, threads: int = THREADS, far_k: int | None = FAR_K,
-                   settle: int = SETTLE) -> np.ndarray:
-    """The rig posed at `poses` (no translation) with every vertex closer to the body than eps (or inside it)
+                   settle: int = SETTLE, start: np.ndarray | None = None) -> np.ndarray:
+    """The rig posed at `poses` (no translation; or `start` (T, N, 3) m, points given at those poses) with every vertex closer to the body than eps (or inside it)
     moved onto its closest body point + eps along the body's normal there -> (T, N, 3) float32 m.
     far_k: the body surface's second reading (drape.geometry.refine.BodySurface; None: one reading).
     settle: rounds in which a moved point that lands nearer than 0.9 eps to the body (put off one part's surface
@@ -89,7 +101,8 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
     body's vertices at rest fully, one farther than `far` not at all, linearly between. deepest (m): a vertex
     deeper inside than this is left where it is (a limb through the cloth, not cloth sunk into the skin).
     threads: frames queried at once (the answer does not depend on it)."""
-    posed = pose_outfit(rest_vertices, rig, keys, rest_joints, poses)
+    posed = (pose_outfit(rest_vertices, rig, keys, rest_joints, poses) if start is None
+             else np.array(start, dtype=np.float32))
     share = np.ones(len(posed[0]))
     if tight is not None:
         rest_gap = cKDTree(np.asarray(body_vertices, dtype=np.float64)).query(np.asarray(rest_vertices, np.float64))[0]
@@ -134,15 +147,33 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
 def collision_fit(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, influences: int,
                   poses: np.ndarray, keys: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray,
                   body_weights: np.ndarray, eps: float = EPS, rounds: int = ROUNDS, gain: float = GAIN,
-                  reach: float = REACH, deepest: float | None = DEEPEST) -> Rig:
+                  reach: float = REACH, deepest: float | None = DEEPEST, faces: np.ndarray | None = None,
+                  relax: int = RELAX, repush: bool = REPUSH, hold: float | None = HOLD, far_k: int | None = FAR_K,
+                  settle: int = SETTLE) -> Rig:
     """`rig` with at most `influences` weights per vertex and its blend shapes refit, `rounds` times, to its own
-    posed vertices moved `gain` times their push out of the body (`pushed_targets`) at the fit poses -> Rig."""
+    posed vertices moved `gain` times their push out of the body (`pushed_targets`) at the fit poses -> Rig.
+    relax (with the garment's faces (F, 3)): that many rounds of edge-length relaxation toward the rest mesh's
+    lengths (`drape.geometry.edge_relax`) on the targets, before the refit; the pushed vertices are held, and
+    with `hold` (m) every vertex nearer than that to the body's vertices at rest (cloth lying on the body); with
+    `repush`, what the relaxation leaves within eps of the body (or inside) is pushed out once more (gain 1)."""
     out = rig
+    edges = unique_edges(np.asarray(faces)) if relax and faces is not None else None
+    on_body = np.zeros(len(rest_vertices), dtype=bool)
+    if edges is not None and hold is not None:
+        on_body = cKDTree(np.asarray(body_vertices, np.float64)).query(np.asarray(rest_vertices, np.float64))[0] < hold
     for _ in range(rounds):
         posed = pose_outfit(rest_vertices, out, keys, rest_joints, poses)
         pushed = pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces,
-                                body_weights, eps, reach, deepest=deepest)
+                                body_weights, eps, reach, deepest=deepest, far_k=far_k, settle=settle)
         targets = posed + np.float32(gain) * (pushed - posed)
+        if edges is not None:
+            rest = edge_lengths(rest_vertices, edges)
+            moved = np.any(pushed != posed, axis=2) | on_body[None]
+            targets = relax_edges(targets, edges, rest, relax, fixed=moved)
+            if repush:  # what the relaxation drew back into the body (or within eps of it) put out again
+                targets = pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces,
+                                         body_weights, eps, reach, deepest=deepest, far_k=far_k, settle=settle,
+                                         start=targets)
         out = sparse_rig(rest_vertices, out, rest_joints, influences, poses, keys, targets=targets)
     return out
 
@@ -159,13 +190,13 @@ def served_fit_frames(pose_keys: Callable[[np.ndarray], np.ndarray]) -> tuple[Fr
 
 
 def served_rig(rest_vertices: np.ndarray, dense: Rig, body: Body, influences: int,
-               sparse_fit: Frames, collision: Frames | None) -> Rig:
+               sparse_fit: Frames, collision: Frames | None, faces: np.ndarray | None = None) -> Rig:
     """What the service serves for a network's `dense` rig of an outfit (rest_vertices (N, 3) m) on `body`: at
     most `influences` weights per vertex (`sparse_rig` at sparse_fit = (poses, keys)), then, unless `collision` is
     None, the collision fit at collision = (poses, keys) (`fit_poses` and their pose keys; both from
-    `served_fit_frames`)."""
+    `served_fit_frames`); faces (F, 3): the outfit's, for the fit's edge relaxation (`RELAX`; none without them)."""
     rig = sparse_rig(rest_vertices, dense, body.joints, influences, *sparse_fit)
     if collision is None:
         return rig
     return collision_fit(rest_vertices, rig, body.joints, influences, *collision, body.vertices, body.faces,
-                         body.weights)
+                         body.weights, faces=faces)

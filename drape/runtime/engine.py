@@ -370,7 +370,7 @@ class Engine:
         dense = self.model.rig(v, f, body_mesh)
         self._observe("outfit", time.perf_counter() - t)
         t = time.perf_counter()
-        rig = served_rig(v, dense, body_mesh, influences, self.fit_frames(), self.collision_frames())
+        rig = served_rig(v, dense, body_mesh, influences, self.fit_frames(), self.collision_frames(), faces=f)
         self._observe("sparse_rig", time.perf_counter() - t)
         out = RiggedOutfit(oid, body, v, f, rig, influences)
         self.cache.put(oid, out)

@@ -48,8 +48,8 @@ def method_poser(model: DeePSDModel, verts: np.ndarray, faces: np.ndarray, body)
     rig = model.rig(verts, faces, body)
     fit, collision = served_fit_frames(model.pose_keys)
     rigs = {"model": rig, "no_chi": Rig(rig.weights, model.blend_shapes_data(verts, faces, body)),
-            "served": served_rig(verts, rig, body, 4, fit, collision),
-            "served8": served_rig(verts, rig, body, 8, fit, collision)}
+            "served": served_rig(verts, rig, body, 4, fit, collision, faces),
+            "served8": served_rig(verts, rig, body, 8, fit, collision, faces)}
     base_w = nearest_vertex_weights(verts, body.vertices, body.weights)
 
     def pose(poses: np.ndarray, trans: np.ndarray) -> dict[str, np.ndarray]:

@@ -126,7 +126,7 @@ def validate(cfg: dict, model_dir: str | Path, log: Callable[[str], object] = pr
     def rig(verts: np.ndarray, faces: np.ndarray, body: Body) -> Poser:
         dense = model.rig(verts, faces, body)
         off_prior.append(weights_off_prior(dense.weights, nearest_vertex_weights(verts, body.vertices, body.weights)))
-        r = served_rig(verts, dense, body, influences, fit, collision)
+        r = served_rig(verts, dense, body, influences, fit, collision, faces)
         return lambda poses, trans: pose_outfit(verts, r, model.pose_keys(poses), body.joints, poses, trans)
 
     record = _measure(cfg, rig, log)

@@ -27,7 +27,7 @@ def test_animate_equals_library_posing(server_url, settings, outfit):
     model = DeePSDModel(settings.model_dir)
     body = load_body("neutral")
     rig = served_rig(outfit.vertices, model.rig(outfit.vertices, outfit.faces, body), body, 4,
-                     *served_fit_frames(model.pose_keys))  # 4 influences, collision fit
+                     *served_fit_frames(model.pose_keys), outfit.faces)  # 4 influences, collision fit
     poses, trans = clip.poses.astype(np.float64), clip.trans.astype(np.float64)
     ref = pose_outfit(outfit.vertices, rig, model.pose_keys(poses), load_body("neutral").joints, poses, trans)
     assert verts.shape == (clip.num_frames, len(outfit.vertices), 3) and verts.dtype == np.float32
