@@ -34,7 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from drape.geometry.edge_relax import relax_edges
-from drape.geometry.mesh import unique_edges
+from drape.geometry.mesh import coincident_groups, regroup_faces, unique_edges
 from drape.geometry.metrics import edge_lengths
 from drape.geometry.refine import BodySurface
 from drape.runtime.deepsd import Rig, pose_outfit
@@ -92,8 +92,9 @@ def pushed_targets(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray,
                    eps: float = EPS, reach: float = REACH, tight: tuple[float, float] | None = None,
                    deepest: float | None = None, threads: int = THREADS, far_k: int | None = FAR_K,
                    settle: int = SETTLE, start: np.ndarray | None = None) -> np.ndarray:
-    """The rig posed at `poses` (no translation; or `start` (T, N, 3) m, points given at those poses) with every vertex closer to the body than eps (or inside it)
-    moved onto its closest body point + eps along the body's normal there -> (T, N, 3) float32 m.
+    """The rig posed at `poses` (no translation; or `start` (T, N, 3) m, points given at those poses) with every
+    vertex closer to the body than eps (or inside it) moved onto its closest body point + eps along the body's
+    normal there -> (T, N, 3) float32 m.
     far_k: the body surface's second reading (drape.geometry.refine.BodySurface; None: one reading).
     settle: rounds in which a moved point that lands nearer than 0.9 eps to the body (put off one part's surface
     into another's reach: under the chin, at the armpit) goes again to its new closest point + eps.
@@ -157,7 +158,11 @@ def collision_fit(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, 
     with `hold` (m) every vertex nearer than that to the body's vertices at rest (cloth lying on the body); with
     `repush`, what the relaxation leaves within eps of the body (or inside) is pushed out once more (gain 1)."""
     out = rig
-    edges = unique_edges(np.asarray(faces)) if relax and faces is not None else None
+    edges = rest = None
+    if relax and faces is not None:  # relaxed on the welded mesh, so that coincident vertices (UV seams) stay one
+        first, group = coincident_groups(rest_vertices)
+        edges = unique_edges(regroup_faces(np.asarray(faces), group))
+        rest = edge_lengths(np.asarray(rest_vertices)[first], edges)
     on_body = np.zeros(len(rest_vertices), dtype=bool)
     if edges is not None and hold is not None:
         on_body = cKDTree(np.asarray(body_vertices, np.float64)).query(np.asarray(rest_vertices, np.float64))[0] < hold
@@ -166,10 +171,9 @@ def collision_fit(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, 
         pushed = pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces,
                                 body_weights, eps, reach, deepest=deepest, far_k=far_k, settle=settle)
         targets = posed + np.float32(gain) * (pushed - posed)
-        if edges is not None:
-            rest = edge_lengths(rest_vertices, edges)
-            moved = np.any(pushed != posed, axis=2) | on_body[None]
-            targets = relax_edges(targets, edges, rest, relax, fixed=moved)
+        if edges is not None and rest is not None:
+            moved = np.any(pushed != posed, axis=2) | on_body[None]  # the same for coincident vertices
+            targets = relax_edges(targets[:, first], edges, rest, relax, fixed=moved[:, first])[:, group]
             if repush:  # what the relaxation drew back into the body (or within eps of it) put out again
                 targets = pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces,
                                          body_weights, eps, reach, deepest=deepest, far_k=far_k, settle=settle,
