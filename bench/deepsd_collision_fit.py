@@ -46,13 +46,9 @@ import time
 from collections.abc import Iterator
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from drape.assets.body import Body, load_body
 from drape.assets.procedural import generate_motion
-from drape.geometry.edge_relax import relax_edges
-from drape.geometry.mesh import unique_edges
-from drape.geometry.metrics import edge_lengths
 from drape.geometry.refine import FAR_K, BodySurface, Refiner, RefineReport
 from drape.runtime import collision_fit as cf
 from drape.runtime.deepsd import DeePSDModel, Rig, pose_outfit
@@ -112,26 +108,15 @@ def refined_targets(verts: np.ndarray, faces: np.ndarray, rig: Rig, body: Body, 
 def fit_variant(name: str, verts: np.ndarray, faces: np.ndarray, rig: Rig, body: Body, poses: np.ndarray,
                 keys: np.ndarray) -> Rig:
     targets, rounds, gain, *extra = VARIANTS[name]
-    options = {"far_k": None, "settle": 0, **(extra[0] if extra else {})}
-    relax, repush = options.pop("relax", 0), options.pop("repush", False)
-    stretch_only, hold = options.pop("stretch_only", False), options.pop("hold", None)
-    near = (np.zeros(len(verts), bool) if hold is None else
-            cKDTree(body.vertices).query(verts)[0] < hold)  # cloth on the body at rest, held by `hold`
-    edges = unique_edges(faces)
-    for _ in range(rounds):
+    if targets == "push":  # the served function, with the variant's settings in place of the served ones
+        options = {"deepest": None, "far_k": None, "settle": 0, "relax": 0, "repush": False, "hold": None,
+                   **(extra[0] if extra else {})}
+        return cf.collision_fit(verts, rig, body.joints, 4, poses, keys, body.vertices, body.faces, body.weights,
+                                rounds=rounds, gain=gain, faces=faces, **options)
+    for _ in range(rounds):  # the service's refinement of each fit frame as the targets
         posed = pose_outfit(verts, rig, keys, body.joints, poses)
-        moved = (refined_targets(verts, faces, rig, body, poses, keys) if targets == "refine" else
-                 cf.pushed_targets(verts, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights,
-                                   **options))
-        goal = posed + np.float32(gain) * (moved - posed)
-        if relax:
-            goal = relax_edges(goal, edges, edge_lengths(verts, edges), relax,
-                               fixed=np.any(moved != posed, axis=2) | near[None],
-                               stretch_only=stretch_only).astype(np.float32)
-            if repush:
-                goal = cf.pushed_targets(verts, rig, body.joints, poses, keys, body.vertices, body.faces, body.weights,
-                                         **options, start=goal)
-        rig = sparse_rig(verts, rig, body.joints, 4, poses, keys, targets=goal)
+        moved = refined_targets(verts, faces, rig, body, poses, keys)
+        rig = sparse_rig(verts, rig, body.joints, 4, poses, keys, targets=posed + np.float32(gain) * (moved - posed))
     return rig
 
 

@@ -150,34 +150,41 @@ def collision_fit(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, 
                   body_weights: np.ndarray, eps: float = EPS, rounds: int = ROUNDS, gain: float = GAIN,
                   reach: float = REACH, deepest: float | None = DEEPEST, faces: np.ndarray | None = None,
                   relax: int = RELAX, repush: bool = REPUSH, hold: float | None = HOLD, far_k: int | None = FAR_K,
-                  settle: int = SETTLE) -> Rig:
+                  settle: int = SETTLE, tight: tuple[float, float] | None = None,
+                  stretch_only: bool = False) -> Rig:
     """`rig` with at most `influences` weights per vertex and its blend shapes refit, `rounds` times, to its own
-    posed vertices moved `gain` times their push out of the body (`pushed_targets`) at the fit poses -> Rig.
+    posed vertices moved `gain` times their push out of the body (`pushed_targets`, with its deepest, far_k,
+    settle and tight) at the fit poses -> Rig.
     relax (with the garment's faces (F, 3)): that many rounds of edge-length relaxation toward the rest mesh's
-    lengths (`drape.geometry.edge_relax`) on the targets, before the refit; the pushed vertices are held, and
-    with `hold` (m) every vertex nearer than that to the body's vertices at rest (cloth lying on the body); with
-    `repush`, what the relaxation leaves within eps of the body (or inside) is pushed out once more (gain 1)."""
-    out = rig
-    edges = rest = None
+    lengths (`drape.geometry.edge_relax`, its stretch_only) on the targets, before the refit; the pushed vertices
+    are held, and with `hold` (m) every vertex nearer than that to the body's vertices at rest (cloth lying on the
+    body); with `repush`, what the relaxation leaves within eps of the body (or inside) is pushed out once more
+    (gain 1)."""
+    welded = None
     if relax and faces is not None:  # relaxed on the welded mesh, so that coincident vertices (UV seams) stay one
         first, group = coincident_groups(rest_vertices)
         edges = unique_edges(regroup_faces(np.asarray(faces), group))
-        rest = edge_lengths(np.asarray(rest_vertices)[first], edges)
+        welded = first, group, edges, edge_lengths(np.asarray(rest_vertices)[first], edges)
     on_body = np.zeros(len(rest_vertices), dtype=bool)
-    if edges is not None and hold is not None:
+    if welded is not None and hold is not None:
         on_body = cKDTree(np.asarray(body_vertices, np.float64)).query(np.asarray(rest_vertices, np.float64))[0] < hold
+    out = rig
+
+    def push(points: np.ndarray) -> np.ndarray:  # points (T, N, 3) at the fit poses, pushed out of the body
+        return pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces, body_weights,
+                              eps, reach, tight=tight, deepest=deepest, far_k=far_k, settle=settle, start=points)
+
     for _ in range(rounds):
         posed = pose_outfit(rest_vertices, out, keys, rest_joints, poses)
-        pushed = pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces,
-                                body_weights, eps, reach, deepest=deepest, far_k=far_k, settle=settle)
+        pushed = push(posed)
         targets = posed + np.float32(gain) * (pushed - posed)
-        if edges is not None and rest is not None:
+        if welded is not None:
+            first, group, edges, rest = welded
             moved = np.any(pushed != posed, axis=2) | on_body[None]  # the same for coincident vertices
-            targets = relax_edges(targets[:, first], edges, rest, relax, fixed=moved[:, first])[:, group]
+            targets = relax_edges(targets[:, first], edges, rest, relax, fixed=moved[:, first],
+                                  stretch_only=stretch_only)[:, group]
             if repush:  # what the relaxation drew back into the body (or within eps of it) put out again
-                targets = pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces,
-                                         body_weights, eps, reach, deepest=deepest, far_k=far_k, settle=settle,
-                                         start=targets)
+                targets = push(targets)
         out = sparse_rig(rest_vertices, out, rest_joints, influences, poses, keys, targets=targets)
     return out
 
