@@ -194,7 +194,8 @@ intrinsic-data-long-skirt-long: $(VENV)/.dev-installed
 # the last LAYERS_HOLDOUT_PARAMS held out, with bins of their own) x 7 seeded procedural motions, the last held
 # out (the validation motion; the DeepMimic dance_a failed the quality gate at both held-out H_in: penetrations
 # of 5 cm; `drape eval layers` evaluates on dance_b and CMU 02_01_walk, in neither) x LAYERS_FRAMES frames;
-# only the train and test (held-out H_in x the held-out motion) splits.
+# only the train and test (held-out H_in x the held-out motion) splits; LAYERS_SPLITS=test simulates the outer
+# networks' validation sequences alone (2 a combination; what bench.layers_collision_fit and bench.layers_choice read).
 # ~2.3 s per simulated sequence frame per core for tshirt+jacket (1.5k + 2.4k vertices): 38 sequences x 90
 # frames is ~2.2 core-hours per combination. Resumable (rerun to continue; train items first), WORKERS=N, e.g.
 #   mkdir -p data/layers && nohup make layers-data WORKERS=2 > data/layers/log.txt 2>&1 &
@@ -206,6 +207,7 @@ LAYERS_FRAMES ?= 90
 LAYERS_VERTICES ?= 4000
 LAYERS_SEED ?= 7  # the served templates (drape.runtime.layers: 4,000 vertices, seed 7), so an outer network trained here serves them
 LAYERS_COMBOS ?= tshirt,jacket tanktop,longsleeve
+LAYERS_SPLITS ?= train,test
 LAYERS_PROC := 1 2 3 4 5 6 7  # the last one held out
 LAYERS_MOTIONS = $(subst $(space),$(comma),$(strip $(patsubst %,../motions/proc%.npz,$(LAYERS_PROC))))
 layers-data: $(VENV)/.dev-installed
@@ -219,7 +221,7 @@ layers-data: $(VENV)/.dev-installed
 		(cd $$dir && $(CURDIR)/$(BIN)/drape sim dataset --garment $$inner.obj --outer $$outer.obj --material fixed \
 			--params $(LAYERS_PARAMS) --seed 22 --thickness $(LAYERS_THICKNESS) --motions $(LAYERS_MOTIONS) \
 			--frames $(LAYERS_FRAMES) --holdout-params $(LAYERS_HOLDOUT_PARAMS) --holdout-motions 1 \
-			--splits train,test --workers $(WORKERS) --out .) || exit 1; \
+			--splits $(LAYERS_SPLITS) --workers $(WORKERS) --out .) || exit 1; \
 	done
 
 # Blender (bpy, ~400 MB wheel, needs numpy < 2) lives in its own venv, installed once (stamp file);
