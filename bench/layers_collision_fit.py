@@ -31,6 +31,7 @@ from drape.assets.motion import load_clip
 from drape.assets.procedural import generate_motion
 from drape.geometry.layers import LayerRefiner
 from drape.runtime.deepsd import Rig, pose_outfit
+from drape.runtime.layers import OUTER_MODELS, OuterModel
 from drape.runtime.sparse_rig import FIT_CLIPS, sparse_rig
 from drape.training import layers_inner, layers_outer
 
@@ -43,8 +44,8 @@ def fit_motions(task: layers_outer.OuterTask, real: int) -> list[tuple[np.ndarra
     of each real CMU clip the outer network trained on (its config's mocap.train)."""
     out = []
     if real:
-        for s in task.clip_sequences(task.cfg["mocap"]["train"], 0.008, real):
-            out.append((s.poses, s.trans, float(task.cfg["mocap"]["fps"])))
+        for clip in task.clip_sequences(task.cfg["mocap"]["train"], 0.008, real):
+            out.append((clip.poses, clip.trans, float(task.cfg["mocap"]["fps"])))
     for name in FIT_CLIPS:
         c = load_clip(name)
         out.append((c.poses.astype(np.float32), c.trans.astype(np.float32), float(c.fps)))
@@ -54,12 +55,10 @@ def fit_motions(task: layers_outer.OuterTask, real: int) -> list[tuple[np.ndarra
     return out
 
 
-def fit_frames(task: layers_outer.OuterTask, outer_model, thicknesses: list[float], stride: int, real: int = 0):
+def fit_frames(task: layers_outer.OuterTask, outer_model: OuterModel, thicknesses: list[float], stride: int,
+               real: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every `stride`-th frame of the fit motions at each thickness -> (poses (T, 24, 3), inner keys (T, Ki),
     outer keys (T, Ko), thickness (T,))."""
-    from drape.runtime.layers import OuterModel
-
-    assert isinstance(outer_model, OuterModel)
     poses, ik, ok, th = [], [], [], []
     for p, t, fps in fit_motions(task, real):
         inner_keys = task.inner_model.pose_keys(p)
@@ -73,7 +72,7 @@ def fit_frames(task: layers_outer.OuterTask, outer_model, thicknesses: list[floa
 
 
 def extended(rig: Rig, extra: int) -> Rig:
-    """`rig` with `extra` zero blend shapes after its own (driven by the extra keys of `with_extra`)."""
+    """`rig` with `extra` zero blend shapes after its own (driven by keys appended to the rig's own)."""
     zeros = np.zeros((extra,) + rig.blend_shapes.shape[1:], np.float32)
     return Rig(rig.weights, np.concatenate([rig.blend_shapes, zeros]))
 
@@ -85,13 +84,13 @@ def fitted_rigs(task: layers_outer.OuterTask, outer_rig: Rig, frames, gain: floa
     each driving a corrective blend shape of its own (zero before the fit) in both rigs."""
     t0 = time.perf_counter()
     poses, ik, ok, th = frames
-    if extra is not None:
-        ik, ok = np.concatenate([ik, extra], 1), np.concatenate([ok, extra], 1)
-        outer_rig = extended(outer_rig, extra.shape[1])
     joints = task.body.joints
-    inner = pose_outfit(task.inner_vertices, task.inner_model.rig, ik[:, :len(task.inner_model.rig.blend_shapes)],
-                        joints, poses)
-    outer = pose_outfit(task.vertices, outer_rig, ok, joints, poses)  # the extra shapes are zero
+    inner = pose_outfit(task.inner_vertices, task.inner_model.rig, ik, joints, poses)
+    outer = pose_outfit(task.vertices, outer_rig, ok, joints, poses)
+    inner_rig = task.inner_model.rig
+    if extra is not None:  # the extra shapes start at zero: the posed layers above are those of the extended rigs
+        ik, ok = np.concatenate([ik, extra], 1), np.concatenate([ok, extra], 1)
+        inner_rig, outer_rig = extended(inner_rig, extra.shape[1]), extended(outer_rig, extra.shape[1])
     bodies = task.body.pose(poses)
     ri, ro = np.empty_like(inner), np.empty_like(outer)
     refiners: dict[float, LayerRefiner] = {}
@@ -102,14 +101,12 @@ def fitted_rigs(task: layers_outer.OuterTask, outer_rig: Rig, frames, gain: floa
                                        h, task.body.faces, len(task.body.vertices))
         ri[i], ro[i] = refiners[h].refine_frame(inner[i], outer[i], bodies[i], None)
     g = np.float32(gain)
-    shipped = task.inner_model.rig if extra is None else extended(task.inner_model.rig, extra.shape[1])
-    inner_rig = sparse_rig(task.inner_vertices, shipped, joints, 4, poses, ik,
-                           targets=inner + g * (ri - inner))
-    outer_rig2 = sparse_rig(task.vertices, outer_rig, joints, 4, poses, ok, targets=outer + g * (ro - outer))
-    return inner_rig, outer_rig2, time.perf_counter() - t0
+    return (sparse_rig(task.inner_vertices, inner_rig, joints, 4, poses, ik, targets=inner + g * (ri - inner)),
+            sparse_rig(task.vertices, outer_rig, joints, 4, poses, ok, targets=outer + g * (ro - outer)),
+            time.perf_counter() - t0)
 
 
-def measure_variant(task: layers_outer.OuterTask, model, icfg: dict, ir: Rig, orig: Rig, base_seqs: list,
+def measure_variant(task: layers_outer.OuterTask, model: OuterModel, icfg: dict, ir: Rig, orig: Rig, base_seqs: list,
                     base_clips: list, extra_keys) -> tuple[dict, dict, int]:
     """One variant's rigs on both validation splits -> (inner figures, outer figures, validation sequences)."""
     def keyed(poses: np.ndarray, keys: np.ndarray, rig: Rig) -> np.ndarray:  # the extra keys, where fitted
@@ -146,7 +143,6 @@ def main() -> None:
         from drape.runtime import sparse_rig as sr
 
         sr.RIDGE = float(args.ridge)
-    from drape.runtime.layers import OUTER_MODELS, OuterModel
 
     results = {}
     for inner_name, outer_name in PAIRS:
