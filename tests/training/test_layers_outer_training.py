@@ -127,3 +127,31 @@ def test_the_choice_bench_measures_deepsd_with_the_validation_clips_as_training_
     lc.main()
     assert calls == [["a real validation clip"]]
     assert "mgn_outer -> mgn_outer" in capsys.readouterr().out
+
+
+def test_refined_targets_leave_the_body_and_keep_what_was_outside():
+    from drape.assets.body import load_body
+    from drape.assets.outfits import split_outfit
+    from drape.geometry.queries import signed_distance_to_mesh
+    from drape.training.layers_outer import refined_outer
+
+    body = load_body("neutral")
+    (inner, inner_faces), (outer, outer_faces) = split_outfit("tanktop,longsleeve", 4000, seed=7, body="neutral")
+    rest = body.vertices.astype(np.float64)
+    centre = rest.mean(0)
+    sd = signed_distance_to_mesh(outer, rest, body.faces)
+    near = np.argsort(sd)[:40]  # the sleeve's closest 40 vertices, 3 cm toward the body's centre: inside
+    target = outer.astype(np.float32).copy()
+    target[near] += (0.03 * (centre - outer[near]) / np.linalg.norm(centre - outer[near], axis=1)[:, None])
+    before = signed_distance_to_mesh(target, rest, body.faces) < 0
+    assert before.sum() >= 20
+
+    def refined(x: np.ndarray) -> np.ndarray:
+        return refined_outer((inner[None].astype(np.float32), inner_faces, x[None], outer_faces, rest[None],
+                              body.faces, 0.006))[0]
+
+    moved, undented = refined(target), refined(outer.astype(np.float32))
+    assert moved.shape == target.shape and moved.dtype == np.float32
+    assert np.mean(signed_distance_to_mesh(moved, rest, body.faces) < 0) <= 0.001
+    far = np.linalg.norm(outer[:, None] - outer[near][None], axis=-1).min(1) > 0.1  # 10 cm from every dent
+    assert far.sum() > 1000 and np.abs(moved[far] - undented[far]).max() < 2e-3  # there: as without the dents
