@@ -148,9 +148,11 @@ def test_refined_targets_leave_the_body_and_keep_what_was_outside():
 
     def refined(x: np.ndarray) -> np.ndarray:
         return refined_outer((inner[None].astype(np.float32), inner_faces, x[None], outer_faces, rest[None],
-                              body.faces, 0.006))[0]
+                              body.faces, 0.006))
 
-    moved, undented = refined(target), refined(outer.astype(np.float32))
+    (moved, figures), (undented, _) = refined(target), refined(outer.astype(np.float32))
+    moved, undented = moved[0], undented[0]
+    assert figures["in_body_before"] >= 20 and figures["in_body_after"] == 0 and figures["vertex_frames"] == len(outer)
     assert moved.shape == target.shape and moved.dtype == np.float32
     assert np.mean(signed_distance_to_mesh(moved, rest, body.faces) < 0) <= 0.001
     far = np.linalg.norm(outer[:, None] - outer[near][None], axis=-1).min(1) > 0.1  # 10 cm from every dent
