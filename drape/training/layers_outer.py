@@ -19,6 +19,8 @@ layer moved with the served inner layer (follow_inner: the simulation's inner la
 the outer layer is judged against the served one); validation still measures against the simulation.
 With `target_refined` true, each training target (after follow_inner) is then moved out of the body and the
 served inner layer by the served post step between layers (OuterTask.refine_targets).
+With `body_triangles` true, the body term measures to the closest point on the body's triangles around the
+nearest body vertex (physics.BodyCollider's `triangles`), not to that vertex's tangent plane.
 Data: the dataset's "train" split (training H_in values x procedural motions; `train_items`, when the config
 names them, those alone), with the sequences the quality gate rejected only for checks in `tolerated_checks`
 (the simulated inner layer's body penetration: the network never reads the simulated inner layer; the outer
@@ -121,7 +123,8 @@ class OuterTask:
         self.candidates = torch.as_tensor(cand, dtype=torch.int64)  # (No, k)
         self.inner_boundary = torch.as_tensor(boundary_vertices(self.inner_faces, len(self.inner_vertices)))
         self.edges = torch.as_tensor(unique_edges(self.faces), dtype=torch.int64)  # (E, 2)
-        self.collider = physics.BodyCollider(self.body, load_body(cfg["body"], proxy=True), self.vertices)
+        self.collider = physics.BodyCollider(self.body, load_body(cfg["body"], proxy=True), self.vertices,
+                                             triangles=bool(cfg.get("body_triangles", False)))
 
     def _check_templates(self) -> None:
         inner, outer = self.cfg["pair"].split(",")

@@ -84,18 +84,66 @@ def move_tensors(obj, device: torch.device | str):  # noqa: ANN001, ANN201
     return obj
 
 
+def closest_point_on_triangles(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+    """Barycentric coordinates (..., 3) of the closest point to p on the triangle (a, b, c), all (..., 3)
+    (Ericson, RTCD 5.1.5; drape.geometry.queries.closest_point_on_triangles in torch, without its zero-area case)."""
+    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
+    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
+    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
+    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    tiny = 1e-30
+    denom = 1.0 / (va + vb + vc).clamp_min(tiny)
+    v, w = vb * denom, vc * denom  # the interior; then edges, then corners (the most specific region last)
+    e43, e56 = d4 - d3, d5 - d6
+    m = (va <= 0) & (e43 >= 0) & (e56 >= 0)  # edge bc
+    t = e43 / (e43 + e56).clamp_min(tiny)
+    v, w = torch.where(m, 1 - t, v), torch.where(m, t, w)
+    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)  # edge ac
+    t = d2 / (d2 - d6).clamp_min(tiny)
+    v, w = torch.where(m, 0.0, v), torch.where(m, t, w)
+    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)  # edge ab
+    t = d1 / (d1 - d3).clamp_min(tiny)
+    v, w = torch.where(m, t, v), torch.where(m, 0.0, w)
+    for m, vv, ww in (((d6 >= 0) & (d5 <= d6), 0.0, 1.0), ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),
+                      ((d1 <= 0) & (d2 <= 0), 0.0, 0.0)):  # corners c, b, a
+        v, w = torch.where(m, vv, v), torch.where(m, ww, w)
+    return torch.stack([1 - v - w, v, w], dim=-1)
+
+
+def vertex_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
+    """Each vertex's incident faces (V, K) int64, K the largest valence; rows padded with their first face."""
+    ring: list[list[int]] = [[] for _ in range(num_vertices)]
+    for f, corners in enumerate(np.asarray(faces)):
+        for v in corners:
+            ring[int(v)].append(f)
+    k = max(len(r) for r in ring)
+    return np.array([r + [r[0]] * (k - len(r)) if r else [0] * k for r in ring], dtype=np.int64)
+
+
 class BodyCollider:
     """Signed distance of garment vertices to the posed body, DeePSD style.
 
     The nearest posed body vertex is searched among candidates: the garment
     vertex's nearest body vertices at rest, plus the full-body neighbourhood of
     its nearest posed collision-proxy vertex (which catches contacts that the
-    rest pose did not have, e.g. a sleeve against the torso).
+    rest pose did not have, e.g. a sleeve against the torso); the distance is
+    measured to that vertex's tangent plane (its normal). With `triangles`, the
+    nearest posed body vertex is searched over the whole body (a KD-tree per
+    frame, on the CPU) and the distance is measured to the closest point on the
+    triangles around it, signed by the normal interpolated there (as
+    drape.geometry.queries.MeshDistance, the evaluation's measure, signs it):
+    on the long sleeve along a real walk the candidates miss the forearm or the
+    chest the cloth is in, for 40% of the vertex-frames the evaluation counts
+    inside (bench.layers_collider_agreement).
     """
 
-    def __init__(self, body, proxy, garment_rest: np.ndarray, k_rest: int = 24, k_proxy: int = 16):
+    def __init__(self, body, proxy, garment_rest: np.ndarray, k_rest: int = 24, k_proxy: int = 16,
+                 triangles: bool = False, rings: int = 3):
         from scipy.spatial import cKDTree
 
+        self.triangles, self.rings = triangles, rings
+        self.vertex_faces = torch.as_tensor(vertex_faces(body.faces, len(body.vertices)))
         self.faces = torch.as_tensor(body.faces, dtype=torch.int64)
         self.rest = torch.as_tensor(body.vertices, dtype=torch.float32)
         self.weights = torch.as_tensor(body.weights, dtype=torch.float32)
@@ -115,6 +163,9 @@ class BodyCollider:
         with torch.no_grad():
             body = lbs(self.rest, self.weights, transforms)
             normals = vertex_normals(body, self.faces)
+        if self.triangles:
+            return self._to_triangles(garment, body, normals)
+        with torch.no_grad():
             proxy = lbs(self.proxy_rest, self.proxy_weights, transforms)
             near_proxy = torch.cdist(garment.detach(), proxy).argmin(dim=-1)  # (B, N)
             cand = torch.cat([self.rest_cand.expand(garment.shape[0], -1, -1), self.proxy_nbrs[near_proxy]], dim=-1)
@@ -124,6 +175,29 @@ class BodyCollider:
             b = torch.arange(garment.shape[0], device=garment.device)[:, None]
             p, n = body[b, nearest], normals[b, nearest]
         return ((garment - p) * n).sum(dim=-1)
+
+    def _to_triangles(self, garment: torch.Tensor, body: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+        """garment (B, N, 3), posed body and its normals (B, M, 3) -> (B, N) m: |g - c| to the closest point c on
+        the faces around the `rings` nearest body vertices (a KD-tree per frame), negative where the normal
+        interpolated at c points away from g. The gradient moves g along g - c."""
+        from scipy.spatial import cKDTree
+
+        with torch.no_grad():
+            g_np, b_np = garment.detach().cpu().numpy(), body.cpu().numpy()
+            near = np.stack([cKDTree(b_np[i]).query(g_np[i], k=self.rings)[1].reshape(len(g_np[i]), -1)
+                             for i in range(len(g_np))])  # (B, N, rings)
+            corners = self.faces[self.vertex_faces[torch.as_tensor(near, device=garment.device)].flatten(2)]
+            bb = torch.arange(garment.shape[0], device=garment.device)[:, None, None, None]
+            tri, tri_n = body[bb, corners], normals[bb, corners]  # (B, N, K, 3 corners, 3)
+            g = garment.detach()[:, :, None]
+            bary = closest_point_on_triangles(g, tri[..., 0, :], tri[..., 1, :], tri[..., 2, :])  # (B, N, K, 3)
+            cp = (bary[..., None] * tri).sum(-2)
+            best = ((g - cp) ** 2).sum(-1).argmin(-1)[..., None, None].expand(-1, -1, 1, 3)
+            p = cp.gather(2, best)[:, :, 0]
+            n = (bary[..., None] * tri_n).sum(-2).gather(2, best)[:, :, 0]
+        diff = garment - p
+        side = torch.where((diff.detach() * n).sum(-1) < 0, -1.0, 1.0)
+        return side * ((diff ** 2).sum(-1) + 1e-18).sqrt()
 
 
 def collision_loss(sd: torch.Tensor, eps: float) -> torch.Tensor:
