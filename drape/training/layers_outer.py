@@ -19,8 +19,8 @@ layer moved with the served inner layer (follow_inner: the simulation's inner la
 the outer layer is judged against the served one); validation still measures against the simulation.
 With `target_refined` true, each training target (after follow_inner) is then moved out of the body and the
 served inner layer by the served post step between layers (OuterTask.refine_targets).
-With `body_triangles` true, the body term measures to the closest point on the body's triangles around the
-nearest body vertex (physics.BodyCollider's `triangles`), not to that vertex's tangent plane.
+With `body_triangles` true, the body term measures to the closest point on the body's triangles around the 3
+nearest posed body vertices (physics.BodyCollider's `triangles`), not to the nearest candidate's tangent plane.
 Data: the dataset's "train" split (training H_in values x procedural motions; `train_items`, when the config
 names them, those alone), with the sequences the quality gate rejected only for checks in `tolerated_checks`
 (the simulated inner layer's body penetration: the network never reads the simulated inner layer; the outer
@@ -159,8 +159,6 @@ class OuterTask:
                 full, zero = self.cfg["target_follows_inner"]
                 seq.target = follow_inner(outer, sim_inner, seq.inner, full, zero)
             out.append(seq)
-        if self.cfg.get("target_refined") and split == "train":
-            self.refine_targets(out)
         return out
 
     def refine_targets(self, seqs: list[Sequence], workers: int = 2) -> None:
@@ -482,6 +480,8 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
         if missing:
             raise SystemExit(f"{task.data_dir}: missing training sequences {missing}; make layers-data simulates them")
         train_seqs = [s for s in train_seqs if s.key in set(cfg["train_items"])]
+    if cfg.get("target_refined"):
+        task.refine_targets(train_seqs)
     if not train_seqs or not val_seqs:
         raise SystemExit(f"{task.data_dir}: {len(train_seqs)} training and {len(val_seqs)} validation sequences; "
                          "make layers-data simulates them")

@@ -112,13 +112,15 @@ def closest_point_on_triangles(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor
 
 
 def vertex_faces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
-    """Each vertex's incident faces (V, K) int64, K the largest valence; rows padded with their first face."""
-    ring: list[list[int]] = [[] for _ in range(num_vertices)]
-    for f, corners in enumerate(np.asarray(faces)):
-        for v in corners:
-            ring[int(v)].append(f)
-    k = max(len(r) for r in ring)
-    return np.array([r + [r[0]] * (k - len(r)) if r else [0] * k for r in ring], dtype=np.int64)
+    """Each vertex's incident faces (V, K) int64, K the largest valence; rows padded with their first face (a
+    vertex on no face: face 0)."""
+    from drape.geometry.mesh import vertex_face_incidence
+
+    incidence = vertex_face_incidence(faces, num_vertices)
+    counts = np.diff(incidence.indptr)
+    slot = np.minimum(np.arange(counts.max())[None], np.maximum(counts, 1)[:, None] - 1)  # pad: the first again
+    at = np.minimum(incidence.indptr[:-1, None] + slot, len(incidence.indices) - 1)
+    return np.where(counts[:, None] > 0, incidence.indices[at], 0).astype(np.int64)
 
 
 class BodyCollider:
@@ -143,7 +145,8 @@ class BodyCollider:
         from scipy.spatial import cKDTree
 
         self.triangles, self.rings = triangles, rings
-        self.vertex_faces = torch.as_tensor(vertex_faces(body.faces, len(body.vertices)))
+        if triangles:
+            self.vertex_faces = torch.as_tensor(vertex_faces(body.faces, len(body.vertices)))
         self.faces = torch.as_tensor(body.faces, dtype=torch.int64)
         self.rest = torch.as_tensor(body.vertices, dtype=torch.float32)
         self.weights = torch.as_tensor(body.weights, dtype=torch.float32)
