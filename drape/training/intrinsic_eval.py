@@ -22,7 +22,7 @@ Tables (one per template):
   sequences before and after refinement (the service's post step), of the simulation, and the edge
   error against the template (mm).
 
-Runs on numpy + ONNX Runtime; DeePSD's rig through drape.runtime.deepsd.
+Runs on numpy + ONNX Runtime; DeePSD's rig as the service serves it (drape.runtime.engine.Engine.rig).
 """
 
 from __future__ import annotations
@@ -143,16 +143,17 @@ def keyframe_ratio(garment: IntrinsicGarment, seq: dict, threshold_mm: float = K
 
 
 def _deepsd_poser(garment: IntrinsicGarment, deepsd_dir: Path | None):  # noqa: ANN202
-    from drape.runtime.deepsd import MODEL_DIR, DeePSDModel, pose_outfit
+    """DeePSD's animation of the template as the service answers it (POST /v1/outfits/animate without refine):
+    the served rig (4 influences, blend shapes refit for them and by the collision fit, Engine.rig) posed by
+    the pose network. -> pose(poses (T, 24, 3), trans (T, 3)) -> (T, N, 3) float32, metres."""
+    from drape.runtime.deepsd import MODEL_DIR
+    from drape.runtime.engine import Engine
 
-    model = DeePSDModel(deepsd_dir or MODEL_DIR)
-    rest = garment.template_vertices.astype(np.float64)
-    body = load_body(garment.body)
-    rig = model.rig(rest, garment.faces, body)
-    joints = body.joints
+    engine = Engine(deepsd_dir or MODEL_DIR, intrinsic_dir=None)
+    outfit = engine.rig(garment.template_vertices, garment.faces, garment.body)
 
     def pose(poses: np.ndarray, trans: np.ndarray) -> np.ndarray:
-        return pose_outfit(rest, rig, model.pose_keys(poses), joints, poses, trans)
+        return np.concatenate(list(engine.pose_chunks(outfit, poses.astype(np.float32), trans.astype(np.float32))))
 
     return pose
 
