@@ -380,3 +380,21 @@ def test_the_schema_offers_the_garment_routes(http):
     assert {"application/json", NPZ, "application/x-drape-frames", "application/x-pc2", GLB} <= set(content)
     assert "GarmentList" in schema["components"]["schemas"] and "KeyframeAnimateRequest" in schema["components"][
         "schemas"]
+
+
+def test_intrinsic_eval_deepsd_baseline_is_what_animate_answers(settings, http):
+    """`drape eval intrinsic`'s DeePSD re-targeting row is the animation a user of POST /v1/outfits/animate gets
+    for the template (served rig: 4 influences, collision fit), not the network's dense rig."""
+    from drape.training.intrinsic_eval import _deepsd_poser
+
+    garment = IntrinsicGarment(intrinsic_model().path)
+    clip = load_clip("dance_a")
+    poses, trans = clip.poses[:12].astype(np.float64), clip.trans[:12].astype(np.float64)
+    ours = _deepsd_poser(garment, settings.model_dir)(poses, trans)
+    body = {"outfit": {"vertices": garment.template_vertices.tolist(), "faces": garment.faces.tolist()},
+            "motion": {"poses": poses.reshape(len(poses), 72).tolist(), "translation": trans.tolist(), "fps": 30.0}}
+    r = http.post("/v1/outfits/animate", json=body)
+    assert r.status_code == 200, r.text[:300]
+    served = np.asarray(r.json()["vertices"], np.float32)
+    assert ours.shape == served.shape == (12, len(garment.template_vertices), 3)
+    assert np.abs(ours - served).max() < 1e-5

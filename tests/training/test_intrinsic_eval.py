@@ -7,7 +7,7 @@ import pytest
 
 from drape.assets.motion import load_clip
 from drape.runtime.intrinsic import IntrinsicGarment
-from drape.training.intrinsic_eval import _deepsd_poser, keyframe_ratio, two_keyframes
+from drape.training.intrinsic_eval import keyframe_ratio, two_keyframes
 from tests.intrinsic_model import intrinsic_model
 
 
@@ -41,24 +41,3 @@ def test_two_keyframes_reports_every_method(seq):
     with pytest.raises(ValueError, match="shorter"):
         two_keyframes(garment, s, length=41)
 
-
-def test_deepsd_baseline_is_what_the_service_answers(seq):
-    """The re-targeting table's DeePSD row is the animation a user of POST /v1/outfits/animate gets for the
-    template (served rig: 4 influences, collision fit), not the network's dense rig."""
-    from fastapi.testclient import TestClient
-
-    from drape.service.app import create_app
-    from tests.service.svc_env import test_settings
-
-    garment, s = seq
-    settings = test_settings()
-    poses, trans = s["poses"][:12], s["trans"][:12]
-    ours = _deepsd_poser(garment, settings.model_dir)(poses, trans)
-    body = {"outfit": {"vertices": garment.template_vertices.tolist(), "faces": garment.faces.tolist()},
-            "motion": {"poses": poses.reshape(len(poses), 72).tolist(), "translation": trans.tolist(), "fps": 30.0}}
-    with TestClient(create_app(settings)) as http:
-        r = http.post("/v1/outfits/animate", json=body)
-    assert r.status_code == 200, r.text[:300]
-    served = np.asarray(r.json()["vertices"], np.float32)
-    assert ours.shape == served.shape == (12, len(garment.template_vertices), 3)
-    assert np.abs(ours - served).max() < 1e-5
