@@ -25,7 +25,11 @@ Fit poses: `--poses 150` is `collision_fit.fit_poses()` (every 4th of the sparse
 of three procedural training motions); 300 and 600 take every 2nd / 6th and all / every 3rd. Prints per outfit
 and the means, with the seconds each fit takes on a 3,000-vertex outfit.
 Run: .venv/bin/python -m bench.deepsd_collision_fit [--variants served,push_g3_r1] [--outfits tshirt,jacket]
-     [--poses 150]  (all variants, 11 outfits: ~12 minutes on the 2-core machine)
+     [--poses 150] [--posture N] [--fitted]  (all variants, 11 outfits: ~12 minutes on the 2-core machine)
+     --posture N: the fit poses also take every 12th frame of N procedural motions with real mocap's upper-back
+     and clavicle posture (drape.assets.procedural's `posture`; `collision_fit.fit_poses`'s posture_motions);
+     --fitted: the garments of ../shared/data/external fitted onto the neutral body too, on the same validation
+     motions, with means of their own (not in the score)
      .venv/bin/python -m bench.deepsd_collision_fit --latency: what a rig request costs with the fit, against the
      same engine without it in the same run (Engine.rig of a t-shirt + trousers of 1k, 10k and 30k vertices on the
      neutral body; the median of 3 cold rigs each, the content cache cleared between them)
@@ -87,10 +91,26 @@ VARIANTS: dict[str, tuple] = {  # name: (targets, rounds, gain[, pushed_targets 
 STRIDES = {150: (4, 12), 300: (2, 6), 600: (1, 3)}  # fit poses: (clip frame stride, procedural frame stride)
 
 
-def poses_for(count: int) -> np.ndarray:
+def poses_for(count: int, posture: int = 0) -> np.ndarray:
+    """The fit poses: `count` (150: `collision_fit.fit_poses(0)`), then every 12th frame of `posture` procedural
+    motions with real mocap's posture (`collision_fit.fit_poses`'s posture_motions)."""
     clip, proc = STRIDES[count]
     procedural = np.concatenate([generate_motion(300, seed=s).poses for s in cf.PROCEDURAL_SEEDS])
-    return np.concatenate([clip_poses()[::clip], procedural[::proc]]).astype(np.float64)
+    extra = [generate_motion(300, seed=504 + i, posture=1.0).poses[::cf.PROCEDURAL_STRIDE] for i in range(posture)]
+    return np.concatenate([clip_poses()[::clip], procedural[::proc], *extra]).astype(np.float64)
+
+
+def fitted_outfits(body_name: str) -> Iterator[tuple[OutfitSpec, np.ndarray, np.ndarray, Body]]:
+    """The garments made outside the project for other bodies (`drape eval deepsd`'s EXTERNAL_GARMENTS, absent:
+    none), fitted onto `body_name` as that evaluation fits them."""
+    from pathlib import Path
+
+    from drape.training.deepsd_eval import EXTERNAL_GARMENTS, fitted_garment
+
+    body = load_body(body_name)
+    for path in sorted(Path(EXTERNAL_GARMENTS).glob("*.obj")) if Path(EXTERNAL_GARMENTS).is_dir() else []:
+        verts, faces = fitted_garment(path, body)
+        yield OutfitSpec(path.stem, len(verts), 0, body_name), verts, faces, body
 
 
 def refined_targets(verts: np.ndarray, faces: np.ndarray, rig: Rig, body: Body, poses: np.ndarray,
@@ -232,6 +252,10 @@ def main() -> None:
     p.add_argument("--variants", default=",".join(VARIANTS))
     p.add_argument("--outfits", default=None, help="comma list of outfit types, '+' joining layers (default: all 11)")
     p.add_argument("--poses", type=int, default=150, choices=sorted(STRIDES))
+    p.add_argument("--posture", type=int, default=cf.POSTURE_MOTIONS,
+                   help="fit poses also from this many procedural motions with real mocap's posture")
+    p.add_argument("--fitted", action="store_true",
+                   help="also the garments of ../shared/data/external, fitted onto the neutral body (own means)")
     p.add_argument("--latency", action="store_true", help="time rig requests with and without the fit instead")
     p.add_argument("--where", action="store_true", help="where the rig without the fit leaves cloth inside")
     p.add_argument("--pushes", action="store_true", help="how far the plain push moves cloth at the fit poses")
@@ -249,14 +273,17 @@ def main() -> None:
     names = args.variants.split(",")
     model = DeePSDModel()
     cfg = model.manifest["training"]["config"]  # the shipped model's own validation split
-    poses = poses_for(args.poses)
+    poses = poses_for(args.poses, args.posture)
     keys = model.pose_keys(poses)
     clip_fit = clip_poses()
     clip_keys = model.pose_keys(clip_fit)
     rows: dict[str, list[dict]] = {n: [] for n in names}
     seconds: dict[str, list[float]] = {n: [] for n in names}
     print(f"validation ({len(poses)} fit poses): inside % / edge error mm / fit seconds")
-    for spec, verts, faces, body in validation_outfits(cfg, outfits):
+    fitted: dict[str, list[dict]] = {n: [] for n in names}
+    outfit_list = [(False, o) for o in validation_outfits(cfg, outfits)]
+    outfit_list += [(True, o) for o in fitted_outfits("neutral")] if args.fitted else []
+    for is_fitted, (spec, verts, faces, body) in outfit_list:
         served = sparse_rig(verts, model.rig(verts, faces, body), body.joints, 4, clip_fit, clip_keys)
         line = []
         for n in names:
@@ -264,7 +291,7 @@ def main() -> None:
             rig = fit_variant(n, verts, faces, served, body, poses, keys)
             seconds[n].append(time.perf_counter() - t0)
             r = measure_poser(cfg, verts, faces, spec.body, body, poser(model, verts, rig, body))
-            rows[n].append(r)
+            (fitted if is_fitted else rows)[n].append(r)
             line.append(f"{n} {r['inside_triangle_pct']:.2f}% {r['edge_error_mm']:.2f}mm {seconds[n][-1]:.1f}s")
         print(f"{spec.key:38s} " + " | ".join(line), flush=True)
     base = summarise(rows[names[0]])["score"]
@@ -273,6 +300,12 @@ def main() -> None:
         s = summarise(rows[n])
         print(f"  {n:12s} inside {s['inside_triangle_pct']:.2f}%  edge {s['edge_error_mm']:.3f} mm  score "
               f"{s['score']:.3f} ({s['score'] / base:.3f}x)  fit {np.mean(seconds[n]):.1f} s")
+    if args.fitted and fitted[names[0]]:
+        print("means over the fitted garments (not in the score above):")
+        for n in names:
+            s = summarise(fitted[n])
+            print(f"  {n:12s} inside {s['inside_triangle_pct']:.2f}%  edge {s['edge_error_mm']:.3f} mm  score "
+                  f"{s['score']:.3f}")
 
 
 if __name__ == "__main__":

@@ -38,6 +38,19 @@ LIMITS: dict[str, tuple[tuple[float, float], tuple[float, float], tuple[float, f
 }
 
 
+# real CMU mocap imported onto drape's skeleton (drape.assets.bvh) carries rotations at the upper back and the
+# clavicles that the channels below never make: over DeePSD's 31 real training clips (its manifest's mocap.train,
+# at 30 fps) the local axis-angle of spine3 averages (-0.49, -0.05, 0.01) rad (std 0.15, 0.13, 0.11 per axis), the
+# left collar's (0.32, -0.02, 0.43) (std 0.12, 0.16, 0.16) and the right's (0.30, 0.09, -0.41) (0.14, 0.13, 0.17)
+# (a one-off measurement, logs/ not kept; the validation and evaluation clips were not read for it)
+POSTURE: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {  # joint: (mean, std) rad
+    "spine3": ((-0.49, -0.05, 0.01), (0.15, 0.13, 0.11)),
+    "left_collar": ((0.32, -0.02, 0.43), (0.12, 0.16, 0.16)),
+    "right_collar": ((0.30, 0.09, -0.41), (0.14, 0.13, 0.17)),
+}
+POSTURE_DRIFT = 0.05  # rad: smooth drift of each posture channel around the motion's draw
+
+
 def smooth_noise(n: int, fps: float, rng: np.random.Generator, period: float, scale: float = 1.0) -> np.ndarray:
     """(n,) C2-smooth random signal: a cubic spline through N(0, scale^2) keys every ~`period` s."""
     duration = max(n / fps, 1e-3)
@@ -53,6 +66,19 @@ def _rot(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.ndarray:
         @ axis_angle_to_matrix(np.stack([z, ry, z], -1))
         @ axis_angle_to_matrix(np.stack([z, z, rz], -1))
     )
+
+
+def _add_posture(local: np.ndarray, fps: float, rng: np.random.Generator, amount: float) -> None:
+    """Rotate spine3 and the collars of local rotations (T, 24, 3, 3) in place by a captured skeleton's posture
+    (`POSTURE`: one draw per motion, amount x (mean + std x N(0, 1)), plus a smooth drift). Their children's local
+    rotations stay as they are, as in the real clips (whose neck and shoulders average what the channels here
+    make: e.g. the left shoulder (0.20, -0.41, -1.41) rad against (-0.14, -0.11, -1.36)), so the head and the arms
+    turn with the chest and the clavicles."""
+    n = len(local)
+    for name, (mean, std) in POSTURE.items():
+        draw = np.asarray(mean) + np.asarray(std) * rng.normal(size=3)
+        drift = np.stack([POSTURE_DRIFT * smooth_noise(n, fps, rng, 1.8) for _ in range(3)], -1)
+        local[:, JOINT_INDEX[name]] = local[:, JOINT_INDEX[name]] @ axis_angle_to_matrix(amount * (draw[None] + drift))
 
 
 def _spread_legs(ch: dict[str, list[np.ndarray]], n: int, fps: float, rng: np.random.Generator,
@@ -75,6 +101,7 @@ def generate_motion(
     body: str | Body = "neutral",
     walk: float = 0.6,
     spread: float = 0.0,
+    posture: float = 0.0,
 ) -> Motion:
     """A procedural motion of `frames` frames.
 
@@ -82,10 +109,13 @@ def generate_motion(
     spread: amplitude (0..1) of legs-apart bursts: one leg at a time swung forward and out (a kick, a lunge,
         a wide step) while the other reaches back, up to the hips' limits (at 1 the ankles reach 1.45-1.49 m
         apart, like the DeepMimic kick's 1.43 m). Drawn from a second generator, so `spread=0` gives exactly the motion without it.
+    posture: amplitude (0..1) of a captured skeleton's upper-back and clavicle rotations (`_add_posture`), which
+        the channels above keep at zero. Drawn from a third generator, so `posture=0` gives exactly the motion
+        without it.
     """
     if frames < 1:
         raise ValueError("frames must be >= 1")
-    for name, share in (("walk", walk), ("spread", spread)):
+    for name, share in (("walk", walk), ("spread", spread), ("posture", posture)):
         if not 0.0 <= share <= 1.0:  # NaN too
             raise ValueError(f"{name} must be within [0, 1], got {share}")
     b = load_body(body) if isinstance(body, str) else body
@@ -127,6 +157,8 @@ def generate_motion(
     for name, (lx, ly, lz) in LIMITS.items():
         rx, ry, rz = (np.clip(c, lo, hi) for c, (lo, hi) in zip(ch[name], (lx, ly, lz), strict=True))
         local[:, JOINT_INDEX[name]] = _rot(rx, ry, rz)
+    if posture > 0:
+        _add_posture(local, fps, np.random.default_rng([seed, 2]), posture)
     # root: smoothly varying turn rate, forward speed from the gait
     yaw = rng.uniform(-np.pi, np.pi) + np.cumsum(0.6 * smooth_noise(n, fps, rng, 2.0)) / fps
     local[:, 0] = _rot(np.zeros(n), yaw, np.zeros(n))

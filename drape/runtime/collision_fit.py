@@ -64,15 +64,20 @@ HOLD: float | None = 0.015  # m: cloth this near the body's vertices at rest is 
 CLIP_STRIDE = 4
 PROCEDURAL_SEEDS = (501, 502, 503)
 PROCEDURAL_STRIDE = 12
+# and every 12th frame of procedural motions with a captured skeleton's posture (drape.assets.procedural's
+# `posture`: real mocap's upper-back and clavicle rotations, which the motions above never make), seeds 504 + i
+POSTURE_MOTIONS = 0
 
 
-def fit_poses() -> np.ndarray:
-    """(150, 24, 3) rad: the collision fit's poses."""
+def fit_poses(posture_motions: int = POSTURE_MOTIONS) -> np.ndarray:
+    """(150 + 25 x posture_motions, 24, 3) rad: the collision fit's poses."""
     from drape.assets.procedural import generate_motion
     from drape.runtime.sparse_rig import fit_poses as clip_poses
 
-    procedural = np.concatenate([generate_motion(300, seed=s).poses for s in PROCEDURAL_SEEDS])
-    return np.concatenate([clip_poses()[::CLIP_STRIDE], procedural[::PROCEDURAL_STRIDE]]).astype(np.float64)
+    procedural = [generate_motion(300, seed=s).poses for s in PROCEDURAL_SEEDS]
+    procedural += [generate_motion(300, seed=504 + i, posture=1.0).poses for i in range(posture_motions)]
+    return np.concatenate([clip_poses()[::CLIP_STRIDE],
+                           *(p[::PROCEDURAL_STRIDE] for p in procedural)]).astype(np.float64)
 
 
 def body_near(rest_vertices: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray,

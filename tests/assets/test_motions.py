@@ -132,6 +132,31 @@ def test_spread_motions_part_the_legs_like_the_kick_and_leave_spread_zero_unchan
     assert np.allclose(ankles, body.joints[JOINT_INDEX["left_ankle"], 1], atol=1e-4)
 
 
+def test_posture_motions_carry_real_mocaps_upper_back_and_clavicles_and_leave_posture_zero_unchanged():
+    """posture=1 gives spine3 and the collars the local rotations real CMU mocap has there (POSTURE's means,
+    which the plain generator never makes: it keeps the collars at zero, spine3 near it); every other joint's local rotation, the
+    smoothness and the foot on the floor are those of the plain motion."""
+    from drape.assets.procedural import POSTURE
+
+    body = load_body("neutral")
+    plain, zero = generate_motion(300, seed=11), generate_motion(300, seed=11, posture=0.0)
+    assert np.array_equal(plain.poses, zero.poses) and np.array_equal(plain.trans, zero.trans)
+    moved = [JOINT_INDEX[j] for j in POSTURE]
+    collars = [JOINT_INDEX["left_collar"], JOINT_INDEX["right_collar"]]
+    assert np.abs(plain.poses[:, collars]).max() < 1e-9 and abs(plain.poses[:, JOINT_INDEX["spine3"], 0].mean()) < 0.1
+    motions = [generate_motion(300, seed=20 + i, posture=1.0) for i in range(8)]
+    for name, (mean, _std) in POSTURE.items():
+        got = np.concatenate([m.poses[:, JOINT_INDEX[name]] for m in motions]).mean(0)
+        assert np.abs(got - np.asarray(mean)).max() < 0.12, (name, got)
+    postured = generate_motion(300, seed=11, posture=1.0)
+    rest = [j for j in range(24) if j not in moved]
+    assert np.allclose(postured.poses[:, rest], plain.poses[:, rest])
+    _, joints = forward_kinematics(postured.poses, body.joints, translation=postured.trans)
+    assert (np.linalg.norm(np.diff(joints, 2, axis=0), axis=2) * postured.fps**2).max() < 120.0
+    ankles = joints[:, [JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"]], 1].min(1)
+    assert np.allclose(ankles, body.joints[JOINT_INDEX["left_ankle"], 1], atol=1e-4)
+
+
 def _write_bvh(path, body, frames):
     """A CMU-named BVH whose rest skeleton is `body`'s, in centimetres, with Euler ZXY channels."""
     from drape.geometry.skeleton import CMU_EXTRAS, CMU_TO_SMPL
@@ -224,7 +249,8 @@ def test_bvh_import_reproduces_joint_positions(tmp_path):
         assert np.allclose(ours[:, JOINT_INDEX[smpl]], ref[:, names.index(cmu)] / 100.0, atol=2e-3), cmu
 
 
-@pytest.mark.parametrize("bad", [{"walk": 1.5}, {"walk": -0.1}, {"walk": float("nan")}, {"spread": 2.0}])
+@pytest.mark.parametrize("bad", [{"walk": 1.5}, {"walk": -0.1}, {"walk": float("nan")}, {"spread": 2.0},
+                                 {"posture": -0.5}])
 def test_generate_motion_refuses_shares_outside_0_1(bad):
     """walk and spread are shares (0..1): outside it (or NaN) a ValueError naming the argument, which the CLI
     prints as one line (`drape motions generate --walk 1.5`), not a motion that silently saturates."""
