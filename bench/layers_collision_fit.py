@@ -15,7 +15,11 @@ Figures, per combination and variant (none: the shipped rigs):
 - outer: drape.training.layers_outer.measure_all on its validation sequences (`make layers-data`'s test split:
   held-out H_in x the held-out procedural motion; RMSE mm, L-Coll %, H-Coll %) and its real validation clips.
 
-Run: PYTHONPATH=. .venv/bin/python -m bench.layers_collision_fit [--gains 1,3] [--stride 6]
+Variants: none (the shipped rigs), gainG (both rigs fitted), and with --inner-only gainG_inner (the inner rig
+fitted by drape.training.layers_inner_fit, what `drape train mgn-inner-fit` serves, the outer network's rig as shipped: the outer network's keys read the inner network's, which a refit of
+the inner rig's blend shapes does not change).
+
+Run: PYTHONPATH=. .venv/bin/python -m bench.layers_collision_fit [--gains 1,3] [--stride 6] [--inner-only]
 """
 
 from __future__ import annotations
@@ -138,6 +142,8 @@ def main() -> None:
     ap.add_argument("--ridge", default="")
     ap.add_argument("--pose-keys", default="", help="deepsd: corrective shapes driven by DeePSD's pose keys too")
     ap.add_argument("--real", type=int, default=0, help="frames of each real training clip among the fit frames")
+    ap.add_argument("--inner-only", action="store_true",
+                    help="also each gain with only the inner rig fitted (the outer rig as shipped)")
     args = ap.parse_args()
     if args.ridge:
         from drape.runtime import sparse_rig as sr
@@ -166,6 +172,13 @@ def main() -> None:
             ir, orig, s = fitted_rigs(task, model.rig, frames, g, extra)
             print(f"  gain {g}: fit {s:.1f} s", flush=True)
             variants[f"gain{g:g}"] = (ir, orig)
+            if args.inner_only:  # the inner rig fitted as `drape train mgn-inner-fit` fits it, the outer as shipped
+                from drape.training.layers_inner_fit import fit_inner_rig, fit_poses
+
+                inner = task.inner_model
+                served = fit_inner_rig(task.inner_vertices, task.inner_faces, inner.rig, inner.pose_keys, task.body,
+                                       fit_poses(args.stride), g)
+                variants[f"gain{g:g}_inner"] = (served, model.rig)
         # the validation sequences and clips, prepared with the shipped inner rig (their inner keys are the inner
         # network's, which the outer network reads); each variant re-poses their inner layer with its own rig
         base_seqs = task.sequences("test") if (task.data_dir / "manifest.json").exists() else []

@@ -358,8 +358,30 @@ def _train_mgn_inner(args: argparse.Namespace) -> None:
     summary["wall_seconds"] = round(time.time() - t0, 1)
     summary["machine"] = f"{platform.machine()}, {os.cpu_count()} CPUs"
     print(json.dumps({k: v for k, v in summary.items() if k != "validation"}, indent=2))
-    for path in export_trained(model, task, summary, args.out or ASSETS / "models" / "mgn_inner" / args.inner):
+    out = args.out or ASSETS / "models" / "mgn_inner" / args.inner
+    for path in export_trained(model, task, summary, out):
         print(path)
+    if "collision_fit" in task.cfg:  # the rig's collision fit, kept where it measures better on validation
+        from drape.training.layers_inner_fit import apply
+
+        apply(out, task.cfg)
+
+
+def _train_mgn_inner_fit(args: argparse.Namespace) -> None:
+    import time
+
+    from drape.training.layers_inner import load_config
+    from drape.training.layers_inner_fit import apply
+
+    t0 = time.time()
+    cfg = load_config(args.inner, args.config)
+    if "collision_fit" not in cfg:
+        raise SystemExit(f"the config of {args.inner} has no collision_fit")
+    try:
+        record = apply(args.folder or ASSETS / "models" / "mgn_inner" / args.inner, cfg)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
+    print(f"served: {record['served']} ({time.time() - t0:.0f} s)")
 
 
 def _train_mgn_outer(args: argparse.Namespace) -> None:
@@ -752,6 +774,13 @@ def build_parser() -> argparse.ArgumentParser:
     tm.add_argument("--checkpoints", help="default checkpoints/mgn_inner_<inner>")
     tm.add_argument("--out", help="default drape/assets/models/mgn_inner/<inner>")
     tm.set_defaults(func=_train_mgn_inner)
+    tf = t.add_parser("mgn-inner-fit", help="refit an exported inner-layer network's rig to keep the layer out of the "
+                      "body (its config's collision_fit; kept where it measures better on the validation split; "
+                      "`mgn-inner` runs it after the export)")
+    tf.add_argument("--inner", required=True, help="tshirt or tanktop: drape/training/configs/mgn_inner_<inner>.json")
+    tf.add_argument("--config", help="another config file")
+    tf.add_argument("--folder", help="the exported network, default drape/assets/models/mgn_inner/<inner>")
+    tf.set_defaults(func=_train_mgn_inner_fit)
     to = t.add_parser("mgn-outer", help="MGN's outer-layer network of one served combination, on its two-layer "
                       "simulations (make layers-data; resumes from checkpoints; exported with DeePSD's outer rig "
                       "measured on the same validation sequences)")

@@ -146,6 +146,14 @@ class LayerReport:
     outer_in_inner_after: list[int] = field(default_factory=list)
 
 
+def inner_refiner(inner_faces: np.ndarray, num_inner: int, eps: float = EPS, max_iterations: int = MAX_ITERATIONS,
+                  relief_iterations: int = RELIEF_ITERATIONS, verify_k: int = LAYER_VERIFY_K) -> Refiner:
+    """The post step's inner pass (`LayerRefiner`'s first): the inner garment (Fi, 3) faces against the body,
+    queried on `BodySurface(body_faces, body_vertices, far_k=FAR_K)`."""
+    return Refiner(inner_faces, num_inner, eps=eps, max_iterations=max_iterations,
+                   relief_iterations=relief_iterations, verify_k=verify_k, verify_stretch=LAYER_VERIFY_STRETCH)
+
+
 class LayerRefiner:
     """Refinement of a two-layer garment stream; built once per pair of topologies and thickness.
 
@@ -160,8 +168,7 @@ class LayerRefiner:
                  max_iterations: int = MAX_ITERATIONS, relief_iterations: int = RELIEF_ITERATIONS,
                  verify_k: int = LAYER_VERIFY_K):
         it, relief = max_iterations, relief_iterations
-        self.inner = Refiner(inner_faces, num_inner, eps=eps, max_iterations=it, relief_iterations=relief,
-                             verify_k=verify_k, verify_stretch=LAYER_VERIFY_STRETCH)
+        self.inner = inner_refiner(inner_faces, num_inner, eps, it, relief, verify_k)
         self.outer = Refiner(outer_faces, num_outer, eps=eps, max_iterations=it, relief_iterations=relief)
         self.between = Refiner(outer_faces, num_outer, eps=LAYER_EPS, max_iterations=it, relief_iterations=relief)
         self.last = Refiner(outer_faces, num_outer, eps=LAYER_EPS, max_iterations=it, relief_iterations=relief,

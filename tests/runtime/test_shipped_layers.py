@@ -49,6 +49,20 @@ def test_the_committed_config_is_the_one_the_shipped_inner_network_was_trained_w
     assert load_inner_model(name).manifest["config"] == layers_inner.load_config(name)
 
 
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_inner_rigs_collision_fit_serves_only_where_it_measured_better_on_validation(name):
+    """`drape train mgn-inner-fit` (drape.training.layers_inner_fit): the fitted rig serves where its validation
+    score is lower than the network's own rig's; that figure is the network's validation (measured again)."""
+    m = load_inner_model(name).manifest
+    if "collision_fit" not in m:
+        pytest.skip("no collision fit recorded")
+    fit = m["collision_fit"]
+    better = fit["validation_fitted"]["score"] < fit["validation_network"]["score"]
+    assert fit["served"] == ("fitted" if better else "network")
+    assert abs(fit["validation_network"]["score"] - m["validation"]["score"]) < 0.01
+    assert fit["settings"] == m["config"]["collision_fit"]
+
+
 @pytest.mark.parametrize("pair", SHIPPED_OUTER)
 def test_the_committed_config_is_the_one_the_shipped_outer_network_was_trained_with(pair):
     """As above, for `drape train mgn-outer --outer OUTER` and drape/training/configs/mgn_outer_OUTER.json."""
