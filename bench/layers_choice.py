@@ -5,7 +5,8 @@ rig on their validation splits when they were trained (the manifest's `served`, 
 prints both scores and what the rule would serve.
 
 - inner networks (drape/assets/models/mgn_inner/<template>): score = inside % (closest triangle) + edge error mm
-  on the validation split of drape.training.layers_inner (lower wins);
+  on the validation split of drape.training.layers_inner (lower wins); the network's, or its refit rig's where
+  that serves (the manifest's `collision_fit`, drape.training.layers_inner_fit);
 - outer networks (drape/assets/models/mgn_outer/<pair>): RMSE mm to the simulated outer layer on the dataset's
   validation sequences, plus layers_outer.PENALTY where the config's collision caps (on those sequences, or on
   its real validation clips) are exceeded (drape.training.layers_outer; needs `make layers-data`'s sequences
@@ -34,7 +35,9 @@ def main() -> None:
         cfg = m["config"]
         vertices, faces = layers_inner.template(cfg)
         now = layers_inner.deepsd_validation(cfg, vertices, faces)
-        ours, then = m["validation"]["score"], m["deepsd_validation"]["score"]
+        fit = m.get("collision_fit", {})  # the rig that serves: refit out of the body where that measured better
+        ours = (fit["validation_fitted"] if fit.get("served") == "fitted" else m["validation"])["score"]
+        then = m["deepsd_validation"]["score"]
         rule = "mgn_inner" if ours < now["score"] else "deepsd"
         print(f"{'mgn_inner/' + folder.name:28} {ours:15.2f} {then:12.2f} {now['score']:11.2f}  {m['served']} -> {rule}"
               f"  (DeePSD now: {now['inside_triangle_pct']:.2f}% inside, {now['edge_error_mm']:.2f} mm)")
@@ -48,7 +51,9 @@ def main() -> None:
         seqs = task.sequences("test")
         # with the real validation clips and their caps, as training measured both sides (layers_outer.train)
         now = layers_outer.deepsd_validation(task, seqs, layers_outer.validation_clips(task))
-        ours, then = m["validation"]["score"], m["deepsd_validation"]["score"]
+        fit = m.get("collision_fit", {})  # the rig that serves: refit out of the body where that measured better
+        ours = (fit["validation_fitted"] if fit.get("served") == "fitted" else m["validation"])["score"]
+        then = m["deepsd_validation"]["score"]
         rule = "mgn_outer" if ours < now["score"] else "deepsd"
         print(f"{'mgn_outer/' + folder.name:28} {ours:15.2f} {then:12.2f} {now['score']:11.2f}  {m['served']} -> {rule}"
               f"  (DeePSD now: RMSE {now['rmse_mm']:.1f} mm, L-Coll {now['l_coll_pct']:.2f}%, STED {now['sted']:.3f};"
