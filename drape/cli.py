@@ -367,6 +367,12 @@ def _train_mgn_inner(args: argparse.Namespace) -> None:
         apply(out, task.cfg)
 
 
+def _inner_config_args(parser: argparse.ArgumentParser) -> None:
+    """--inner and --config of the inner-layer network's commands."""
+    parser.add_argument("--inner", required=True, help="tshirt or tanktop: drape/training/configs/mgn_inner_<inner>.json")
+    parser.add_argument("--config", help="another config file")
+
+
 def _train_mgn_inner_fit(args: argparse.Namespace) -> None:
     import time
 
@@ -769,16 +775,14 @@ def build_parser() -> argparse.ArgumentParser:
     ti.set_defaults(func=_train_intrinsic)
     tm = t.add_parser("mgn-inner", help="MGN's inner-layer network of one served inner template, by physics "
                       "(resumes from checkpoints; exported with DeePSD's rig measured on the same validation split)")
-    tm.add_argument("--inner", required=True, help="tshirt or tanktop: drape/training/configs/mgn_inner_<inner>.json")
-    tm.add_argument("--config", help="another config file")
+    _inner_config_args(tm)
     tm.add_argument("--checkpoints", help="default checkpoints/mgn_inner_<inner>")
     tm.add_argument("--out", help="default drape/assets/models/mgn_inner/<inner>")
     tm.set_defaults(func=_train_mgn_inner)
     tf = t.add_parser("mgn-inner-fit", help="refit an exported inner-layer network's rig to keep the layer out of the "
                       "body (its config's collision_fit; kept where it measures better on the validation split; "
                       "`mgn-inner` runs it after the export)")
-    tf.add_argument("--inner", required=True, help="tshirt or tanktop: drape/training/configs/mgn_inner_<inner>.json")
-    tf.add_argument("--config", help="another config file")
+    _inner_config_args(tf)
     tf.add_argument("--folder", help="the exported network, default drape/assets/models/mgn_inner/<inner>")
     tf.set_defaults(func=_train_mgn_inner_fit)
     to = t.add_parser("mgn-outer", help="MGN's outer-layer network of one served combination, on its two-layer "

@@ -13,7 +13,7 @@ keys, not the inner vertices).
 The fit serves only where it measures better: the inner network's validation split (drape.training.layers_inner:
 inside % + edge error mm) before and after, the lower score kept; both are in the manifest's `collision_fit`.
 Configured by the inner config's `"collision_fit": {"gain": g, "stride": s}`; `drape train mgn-inner` runs it after
-the export, `drape train mgn-inner-fit` on a network already exported (once: a fitted rig is not fitted again).
+the export, `drape train mgn-inner-fit` on a network already exported (once: a fitted rig is not fitted again, nor measured twice).
 Shapes: template vertices (N, 3) m; poses (T, 24, 3) rad; keys (T, K).
 """
 
@@ -67,7 +67,7 @@ def apply(folder: str | Path, cfg: dict, log: Callable[[str], object] = print) -
     """Fit the rig of the inner network exported in `folder` (drape.export.layers.export_inner) by `cfg`'s
     `collision_fit`, measure both rigs on `cfg`'s validation split, and keep the lower score: rig.npz and the
     manifest (its sha256 and `collision_fit`: settings, both figures, `served` "fitted" or "network") rewritten.
-    -> the manifest's `collision_fit`. A ValueError for a folder whose rig was fitted already."""
+    -> the manifest's `collision_fit`. A ValueError for a folder whose fit was measured already."""
     from drape.export.onnx_export import sha256
     from drape.runtime.layers import InnerModel
     from drape.training.layers_inner import measure
@@ -75,7 +75,8 @@ def apply(folder: str | Path, cfg: dict, log: Callable[[str], object] = print) -
     folder = Path(folder)
     model = InnerModel(folder, threads=2)
     if "collision_fit" in model.manifest:
-        raise ValueError(f"{folder}: the rig was fitted already ({model.manifest['collision_fit']['served']})")
+        raise ValueError(f"{folder}: the rig's collision fit was measured already (serving the "
+                         f"{model.manifest['collision_fit']['served']} rig); export the network again to redo it")
     settings = cfg["collision_fit"]
     body = load_body(cfg["body"])
     poses = fit_poses(int(settings["stride"]))

@@ -59,7 +59,7 @@ def test_apply_keeps_the_better_rig_once_and_the_manifest_says_what_the_files_ar
     assert record["served"] == ("fitted" if better else "network")
     with np.load(folder / "rig.npz") as z:
         assert np.array_equal(z["blend_shapes"], network_shapes) != better
-    with pytest.raises(ValueError, match="fitted already"):
+    with pytest.raises(ValueError, match="measured already"):
         apply(folder, cfg)
 
 
