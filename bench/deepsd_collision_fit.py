@@ -96,8 +96,7 @@ def poses_for(count: int, posture: int = 0) -> np.ndarray:
     motions with real mocap's posture (`collision_fit.fit_poses`'s posture_motions)."""
     clip, proc = STRIDES[count]
     procedural = np.concatenate([generate_motion(300, seed=s).poses for s in cf.PROCEDURAL_SEEDS])
-    extra = [generate_motion(300, seed=504 + i, posture=1.0).poses[::cf.PROCEDURAL_STRIDE] for i in range(posture)]
-    return np.concatenate([clip_poses()[::clip], procedural[::proc], *extra]).astype(np.float64)
+    return np.concatenate([clip_poses()[::clip], procedural[::proc], cf.posture_poses(posture)]).astype(np.float64)
 
 
 def fitted_outfits(body_name: str) -> Iterator[tuple[OutfitSpec, np.ndarray, np.ndarray, Body]]:

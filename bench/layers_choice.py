@@ -51,9 +51,7 @@ def main() -> None:
         seqs = task.sequences("test")
         # with the real validation clips and their caps, as training measured both sides (layers_outer.train)
         now = layers_outer.deepsd_validation(task, seqs, layers_outer.validation_clips(task))
-        fit = m.get("collision_fit", {})  # the rig that serves: refit out of the body where that measured better
-        ours = (fit["validation_fitted"] if fit.get("served") == "fitted" else m["validation"])["score"]
-        then = m["deepsd_validation"]["score"]
+        ours, then = m["validation"]["score"], m["deepsd_validation"]["score"]
         rule = "mgn_outer" if ours < now["score"] else "deepsd"
         print(f"{'mgn_outer/' + folder.name:28} {ours:15.2f} {then:12.2f} {now['score']:11.2f}  {m['served']} -> {rule}"
               f"  (DeePSD now: RMSE {now['rmse_mm']:.1f} mm, L-Coll {now['l_coll_pct']:.2f}%, STED {now['sted']:.3f};"

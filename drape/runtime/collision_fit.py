@@ -67,6 +67,16 @@ PROCEDURAL_STRIDE = 12
 # and every 12th frame of procedural motions with a captured skeleton's posture (drape.assets.procedural's
 # `posture`: real mocap's upper-back and clavicle rotations, which the motions above never make), seeds 504 + i
 POSTURE_MOTIONS = 0
+POSTURE_SEED = 504
+
+
+def posture_poses(motions: int) -> np.ndarray:
+    """(25 x motions, 24, 3) rad: every PROCEDURAL_STRIDE-th frame of `motions` procedural motions (300 frames)
+    with real mocap's posture, seeds POSTURE_SEED + i."""
+    from drape.assets.procedural import generate_motion
+
+    return np.concatenate([np.zeros((0, 24, 3))] + [
+        generate_motion(300, seed=POSTURE_SEED + i, posture=1.0).poses[::PROCEDURAL_STRIDE] for i in range(motions)])
 
 
 def fit_poses(posture_motions: int = POSTURE_MOTIONS) -> np.ndarray:
@@ -74,10 +84,9 @@ def fit_poses(posture_motions: int = POSTURE_MOTIONS) -> np.ndarray:
     from drape.assets.procedural import generate_motion
     from drape.runtime.sparse_rig import fit_poses as clip_poses
 
-    procedural = [generate_motion(300, seed=s).poses for s in PROCEDURAL_SEEDS]
-    procedural += [generate_motion(300, seed=504 + i, posture=1.0).poses for i in range(posture_motions)]
-    return np.concatenate([clip_poses()[::CLIP_STRIDE],
-                           *(p[::PROCEDURAL_STRIDE] for p in procedural)]).astype(np.float64)
+    procedural = np.concatenate([generate_motion(300, seed=s).poses for s in PROCEDURAL_SEEDS])
+    return np.concatenate([clip_poses()[::CLIP_STRIDE], procedural[::PROCEDURAL_STRIDE],
+                           posture_poses(posture_motions)]).astype(np.float64)
 
 
 def body_near(rest_vertices: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray,

@@ -19,7 +19,6 @@ Shapes: template vertices (N, 3) m; poses (T, 24, 3) rad; keys (T, K).
 
 from __future__ import annotations
 
-import io
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -29,11 +28,11 @@ import numpy as np
 from drape.assets.body import Body, load_body
 from drape.assets.motion import load_clip
 from drape.assets.procedural import generate_motion
+from drape.runtime.collision_fit import PROCEDURAL_SEEDS
 from drape.runtime.deepsd import Rig, pose_outfit
 from drape.runtime.sparse_rig import FIT_CLIPS, sparse_rig
 
-PROCEDURAL_SEEDS = (501, 502, 503)
-PROCEDURAL_FRAMES = 300
+PROCEDURAL_FRAMES = 300  # PROCEDURAL_SEEDS: those of the served DeePSD rig's collision fit, 501-503
 INFLUENCES = 4
 
 
@@ -95,10 +94,8 @@ def apply(folder: str | Path, cfg: dict, log: Callable[[str], object] = print) -
     manifest = model.manifest
     if served == "fitted":
         rig_path = folder / manifest["files"]["rig"]["file"]
-        buf = io.BytesIO()
-        np.savez(buf, vertices=model.vertices, faces=model.faces, weights=fitted.weights.astype(np.float32),
+        np.savez(rig_path, vertices=model.vertices, faces=model.faces, weights=fitted.weights.astype(np.float32),
                  blend_shapes=fitted.blend_shapes.astype(np.float32))
-        rig_path.write_bytes(buf.getvalue())
         manifest["files"]["rig"].update(sha256=sha256(rig_path), bytes=rig_path.stat().st_size)
     manifest["collision_fit"] = record
     manifest["config"]["collision_fit"] = settings  # the recipe: the training, then this fit
