@@ -42,8 +42,12 @@ class Admission:
         return Overloaded(f"{detail}; retry in {self.retry_after_s} s", self.retry_after_s)
 
     async def enter(self) -> Slot:
-        """A slot now, or after waiting in the queue; Overloaded when the queue is full or the wait too long."""
-        if self.active >= self.max_active and self.waiting >= self.max_queue:
+        """A slot now, or after waiting in the queue; Overloaded when the queue is full or the wait too long.
+
+        Counted before the first await: a request taking a free slot is `waiting` until its turn is handed over
+        (the semaphore's acquire yields to the event loop first), so `active` alone would let every request that
+        arrives in that moment into the queue."""
+        if self.active + self.waiting >= self.max_active + self.max_queue:
             raise self._refuse("queue_full", f"{self.active} requests computing and {self.waiting} waiting "
                                              "(the limits)")
         self.waiting += 1
