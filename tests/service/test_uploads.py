@@ -381,6 +381,21 @@ def test_obj_face_index_values_are_bounded():
     assert peak > 10 * MB
 
 
+def test_obj_material_blocks_neither_copy_nor_multiply_the_vertices():
+    """trimesh (maintain_order) gives every `usemtl` block a copy of all the vertices: 1,000 blocks over 2,000
+    `v` lines built 2 million vertices before the count could refuse them, and a garment of two materials came
+    back twice over. Materials are not read: the vertices are the file's own, once."""
+    two = b"mtllib a.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl a\nf 1 2 3\n  usemtl b\nf 2 4 3\n"
+    v, f = load(two, "two.obj")
+    np.testing.assert_array_equal(v, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    np.testing.assert_array_equal(f, [[0, 1, 2], [1, 3, 2]])
+    assert len(plain_read(two, "two.obj")[0]) == 8  # the reader as it is: each block its own copy
+    many = b"".join(b"v %d 0 %d\n" % (i, i % 7) for i in range(2000)) + b"usemtl m\nf 1 2 3\n" * 1000
+    with frugal(max_bytes=4 * MB, max_seconds=1.0):
+        v, f = load(many, "many.obj")
+    assert v.shape == (2000, 3) and f.shape == (1000, 3)
+
+
 def test_obj_texture_coordinate_lines_are_bounded():
     n = MAXV + 3 * MAXF + 1
     refused(LimitExceeded, b"v 0 0 0\n" * 3 + b"vt 0 0\n" * n + b"f 1 2 3\n", "vt.obj", str(n))
