@@ -30,6 +30,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from drape.assets.body import Body
+from drape.geometry.lbs import SingularSkinning, unskin
 from drape.geometry.mesh import unique_edges
 from drape.geometry.placement import FAR_M, Z_UP_TO_Y_UP
 from drape.geometry.queries import MeshDistance, nearest_vertex_weights
@@ -46,7 +47,12 @@ LEFT_SHOULDER, RIGHT_SHOULDER = 16, 17  # SMPL joint order
 
 
 class FitError(ValueError):
-    """The garment cannot be fitted (e.g. it sits nowhere on the body); the message says why."""
+    """The garment cannot be fitted (e.g. it sits nowhere on the body); the message says why, `argument`
+    which input is at fault ("vertices", or "pose")."""
+
+    def __init__(self, message: str, argument: str = "vertices"):
+        super().__init__(message)
+        self.argument = argument
 
 
 @dataclass(frozen=True)
@@ -133,8 +139,10 @@ def unpose(vertices: np.ndarray, body: Body, pose: np.ndarray) -> np.ndarray:
     posed_body = body.pose(pose)[0].astype(np.float64)
     w = nearest_vertex_weights(vertices, posed_body, body.weights).astype(np.float64)  # (N, 24)
     blended = np.einsum("nk,kij->nij", w, transforms)  # (N, 4, 4)
-    homo = np.concatenate([vertices, np.ones((len(vertices), 1))], axis=1)
-    return np.linalg.solve(blended, homo[..., None])[:, :3, 0]
+    try:
+        return unskin(blended, vertices)
+    except SingularSkinning as exc:
+        raise FitError(f"the body's skinning in this pose cannot be undone: {exc}", "pose") from None
 
 
 def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: str | None = None,
@@ -167,7 +175,7 @@ def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: s
     elif isinstance(pose, str) and pose == "a":
         pose_arr, pose_name = a_pose(), "a"
     elif isinstance(pose, str):
-        raise FitError(f"pose must be 't', 'a' or (24, 3) axis-angle radians, not {pose!r}")
+        raise FitError(f"pose must be 't', 'a' or (24, 3) axis-angle radians, not {pose!r}", "pose")
     else:
         pose_arr, pose_name = np.asarray(pose, dtype=np.float64).reshape(24, 3), "given"
     posed = pose_name != "t"

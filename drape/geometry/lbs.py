@@ -57,17 +57,47 @@ def smooth_weights(weights: np.ndarray, faces: np.ndarray, iterations: int = 20,
     return (w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)).astype(np.float32)
 
 
+MIN_BLEND_DET = 1e-2  # |det| of a blended skinning rotation below this: weights mixing rotations ~170 deg apart
+
+
 def rest_space_offsets(offsets: np.ndarray, weights: np.ndarray, rotations: np.ndarray) -> np.ndarray:
     """The rest-space offsets that linear blend skinning maps to given world-space offsets.
 
     LBS is affine in the rest position: p = sum_k w_k (R_k x + t_k), so moving x by d moves p by
     (sum_k w_k R_k) d. offsets: (n, 3) metres, world space, of n vertices at one frame; weights:
     (n, K) their skin weights; rotations: (K, 3, 3) the joints' skinning rotations at that frame
-    (`forward_kinematics(...)[0][t, :, :3, :3]`). Returns d (n, 3) float32 metres.
+    (`forward_kinematics(...)[0][t, :, :3, :3]`). Returns d (n, 3) float32 metres. Where the blend is
+    singular or nearly (|det| < MIN_BLEND_DET: weights mixing rotations about half a turn apart, e.g. an elbow
+    bent all the way), no rest offset gives the move: d is the least-squares one (pseudo-inverse).
     """
     blended = np.einsum("nk,kij->nij", np.asarray(weights, np.float64), np.asarray(rotations, np.float64))
-    d = np.linalg.solve(blended, np.asarray(offsets, np.float64)[..., None])[..., 0]
+    offsets = np.asarray(offsets, np.float64)
+    invertible = np.abs(np.linalg.det(blended)) >= MIN_BLEND_DET
+    d = np.empty_like(offsets)
+    d[invertible] = np.linalg.solve(blended[invertible], offsets[invertible][..., None])[..., 0]
+    if not invertible.all():
+        d[~invertible] = (np.linalg.pinv(blended[~invertible], rcond=1e-3) @ offsets[~invertible][..., None])[..., 0]
     return d.astype(np.float32)
+
+
+class SingularSkinning(ValueError):
+    """Some vertices' blended skinning transforms cannot be inverted: their weights mix joint rotations that
+    (nearly) cancel, so no rest position maps to where they are posed."""
+
+
+def unskin(blended: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Invert per-vertex blended skinning transforms: blended (N, 4, 4) rest -> posed, points (N, 3) metres posed
+    -> (N, 3) float64 metres at rest. Raises SingularSkinning where |det| of a blended rotation part is under
+    MIN_BLEND_DET (the inverse would throw the vertex metres away, or fail)."""
+    blended = np.asarray(blended, dtype=np.float64)
+    det = np.linalg.det(blended[:, :3, :3])
+    bad = ~(np.abs(det) >= MIN_BLEND_DET)
+    if bad.any():
+        raise SingularSkinning(f"{int(bad.sum())} of {len(det)} vertices' skinning cannot be undone: their "
+                               f"weights mix joint rotations that cancel (|det| {float(np.abs(det).min()):.2g} < "
+                               f"{MIN_BLEND_DET:g})")
+    homo = np.concatenate([np.asarray(points, dtype=np.float64), np.ones((len(points), 1))], axis=1)
+    return np.linalg.solve(blended, homo[..., None])[:, :3, 0]
 
 
 def unpose_body(
@@ -96,5 +126,4 @@ def unpose_body(
         rest[k] = posed[k] if p < 0 else rest[p] + world_rot[p].T @ (posed[k] - posed[p])
     transforms = forward_kinematics(pose, rest, parents)[0][0]  # (K, 4, 4) rest -> posed
     blended = np.einsum("vk,kij->vij", np.asarray(weights, dtype=np.float64), transforms)
-    homo = np.concatenate([np.asarray(vertices, dtype=np.float64), np.ones((len(vertices), 1))], axis=1)
-    return np.linalg.solve(blended, homo[..., None])[:, :3, 0], rest
+    return unskin(blended, vertices), rest

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from drape.assets.body import Body
-from drape.geometry.lbs import unpose_body
+from drape.geometry.lbs import SingularSkinning, unpose_body
 from drape.geometry.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
 from drape.runtime.body_store import BodyStore, body_id
 from drape.service.decode import npz_members, npz_numbers
@@ -163,7 +163,10 @@ def check_body_arrays(arrays: dict[str, Any], settings: Settings, *, field: str 
         pose = _numbers(rest_pose, "rest_pose", (NUM_JOINTS, 3), "axis-angle radians")
         if np.abs(pose).max() > 2 * np.pi:
             raise InvalidInput("angles must lie within 2 pi radians", "rest_pose")
-        vertices, joints = unpose_body(vertices, w, joints, pose)
+        try:
+            vertices, joints = unpose_body(vertices, w, joints, pose)
+        except SingularSkinning as exc:
+            raise InvalidInput(f"the body's skinning in this pose cannot be undone: {exc}", "rest_pose") from None
     _check_shape(vertices, joints, pre)
     arrays_out = {"vertices": vertices.astype(np.float32), "faces": f.astype(np.int32),
                   "weights": w.astype(np.float32), "joints": joints.astype(np.float32)}

@@ -263,7 +263,10 @@ def _local(node: dict[str, Any], i: int) -> np.ndarray:
         if (not isinstance(value, list) or len(value) != size or not all(
                 isinstance(x, int | float) and not isinstance(x, bool) for x in value)):
             _bad(f"nodes[{i}].{key} must be a list of {size} numbers")
-        out = np.array(value, dtype=np.float64)
+        try:
+            out = np.array(value, dtype=np.float64)
+        except OverflowError:  # an integer past float64's range (JSON allows 10**400)
+            _invalid(f"nodes[{i}].{key} is not finite")
         if not np.isfinite(out).all():
             _invalid(f"nodes[{i}].{key} is not finite")
         return out

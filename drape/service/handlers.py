@@ -252,7 +252,7 @@ def fit(settings: Settings, vertices: Any, faces: Any, body: str | None, units: 
     try:
         return fit_garment(v, f, held_body(body_name), units=units_, up=up_, pose=pose_)
     except FitError as exc:
-        raise InvalidInput(str(exc), f"{pre}vertices") from None
+        raise InvalidInput(str(exc), "pose" if exc.argument == "pose" else f"{pre}{exc.argument}") from None
 
 
 def body_scale_warnings(engine: Engine, body: str) -> list[str]:

@@ -124,3 +124,38 @@ def test_lbs_translation_and_batching():
     transforms, _ = forward_kinematics(poses, body.joints)
     offsets = np.broadcast_to(body.vertices, (5,) + body.vertices.shape)
     assert np.allclose(linear_blend_skinning(offsets, body.weights, transforms), shifted, atol=1e-5)
+
+
+def test_unskin_inverts_skinning_and_refuses_cancelling_blends():
+    """unskin(blended transforms, posed points) gives the rest points back (an independent check: re-posing by
+    linear_blend_skinning); weights mixing rotations half a turn apart raise SingularSkinning, not a 1e15 m
+    answer or LinAlgError."""
+    from drape.geometry.lbs import SingularSkinning, unskin
+
+    body = load_body("neutral", proxy=True)
+    rng = np.random.default_rng(3)
+    pose = rng.normal(scale=0.4, size=(1, 24, 3))
+    transforms = forward_kinematics(pose, body.joints, PARENTS)[0][0]
+    blended = np.einsum("vk,kij->vij", body.weights.astype(np.float64), transforms)
+    posed = linear_blend_skinning(body.vertices[None], body.weights, transforms[None])[0]
+    np.testing.assert_allclose(unskin(blended, posed), body.vertices, atol=1e-5)  # posed: float32
+    half_x, half_y = np.eye(4), np.eye(4)
+    half_x[:3, :3], half_y[:3, :3] = np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1])
+    for other in (half_y, np.eye(4)):  # det 0 exactly; 0.5 (I + R_x(pi)) = diag(1, 0, 0)
+        with pytest.raises(SingularSkinning, match="cannot be undone"):
+            unskin(np.stack([np.eye(4), 0.5 * (half_x + other)]), np.zeros((2, 3)))
+
+
+def test_rest_space_offsets_survive_a_singular_blend():
+    """A vertex weighted half and half on two joints half a turn apart (an elbow bent all the way): the exact
+    inverse does not exist (it was a LinAlgError); the least-squares offset is answered, the others exactly."""
+    from drape.geometry.lbs import rest_space_offsets
+
+    rotations = np.stack([np.eye(3), np.diag([1.0, -1, -1])])
+    weights = np.array([[0.5, 0.5], [1.0, 0.0], [0.2, 0.8]])
+    offsets = np.array([[0.01, 0.02, 0.0], [0.0, 0.0, 0.03], [0.01, 0.01, 0.01]])
+    d = rest_space_offsets(offsets, weights, rotations)
+    assert np.isfinite(d).all()
+    np.testing.assert_allclose(d[0], [0.01, 0.0, 0.0], atol=1e-7)  # diag(1, 0, 0): only x can be reproduced
+    np.testing.assert_allclose(d[1], offsets[1], atol=1e-7)
+    np.testing.assert_allclose((0.2 * rotations[0] + 0.8 * rotations[1]) @ d[2], offsets[2], atol=1e-6)

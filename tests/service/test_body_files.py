@@ -354,3 +354,13 @@ def test_a_file_that_is_not_a_glb_is_refused(glb):
     _refused(MalformedInput, b"solid cube\nfacet normal 0 0 1\n", "not a GLB")
     _refused(MalformedInput, glb[: len(glb) // 2], "the GLB header declares")
     _refused(MalformedInput, b'{"asset": {"version": "2.0"}, "nodes": [', "unreadable")
+
+
+def test_a_node_transform_past_the_float_range_is_refused(glb):
+    """JSON allows integers of any size: 10**400 in a joint's translation is refused, not a 500."""
+    def huge(doc: gl.GLTF2, blob: bytearray) -> None:
+        joint = doc.skins[0].joints[0]
+        doc.nodes[joint].translation = [10 ** 400, 0, 0]
+
+    _refused(InvalidInput, _edit(glb, huge), f"nodes[{gl.GLTF2.load_from_bytes(glb).skins[0].joints[0]}].translation",
+             "not finite")

@@ -173,3 +173,14 @@ def test_openapi_documents_the_form(http):
         form = spec["paths"][path]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
         assert form["required"] == required and form["properties"]["motion_file"]["format"] == "binary"
         assert "fps" in form["properties"]
+
+
+def test_a_body_gone_before_the_motion_file_is_read_is_a_404():
+    """The route checks the body, then reads the file; a DELETE in between was a KeyError (500)."""
+    from drape.service.errors import NotFound
+    from drape.service.uploads import motion_from_file
+
+    with pytest.raises(NotFound) as info:
+        motion_from_file(b"HIERARCHY\n", "user-0123456789abcdef", fps=30.0, up=None, max_frames=100,
+                         max_decoded_bytes=10**6)
+    assert info.value.field == "body" and "deleted" in info.value.detail

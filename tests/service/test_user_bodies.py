@@ -196,6 +196,38 @@ def test_an_a_pose_body_needs_its_rest_pose_and_is_un_posed_with_it(http, proxy)
     http.delete(f"/v1/bodies/{r.json()['body_id']}")
 
 
+def _cancelling(proxy) -> tuple[np.ndarray, np.ndarray]:
+    """The proxy's weights with every torso vertex split 0.5 / 0.5 between the hips, and a pose turning one hip
+    half a turn about x and the other about y: those vertices' blended skinning rotation is singular
+    (diag(0, 0, -1)) -> (weights (V, 24), pose (24, 3))."""
+    w = proxy.weights.copy()
+    torso = np.isin(w.argmax(axis=1), [3, 6, 9])  # spine1..3
+    w[torso] = 0.0
+    w[torso, 1] = w[torso, 2] = 0.5
+    pose = np.zeros((24, 3))
+    pose[1], pose[2] = [np.pi, 0, 0], [0, np.pi, 0]
+    return w, pose
+
+
+def test_a_pose_the_skinning_cannot_undo_is_a_422_naming_it(http, proxy, shirt):
+    """Weights that mix joint rotations cancelling in a pose: un-posing by them was a 500 (LinAlgError), or
+    vertices 1e15 m away; a rest_pose (POST /v1/bodies) and a fit's pose (POST /v1/outfits/fit) say so."""
+    w, pose = _cancelling(proxy)
+    arrays = npz(vertices=proxy.vertices, faces=proxy.faces, weights=w, joints=proxy.joints)
+    problem(http.post("/v1/bodies", files={"body_file": ("c.npz", arrays)}, data={"rest_pose": json.dumps(pose.tolist())}),
+            422, "rest_pose", "cannot be undone")
+    nearly = pose.copy()
+    nearly[2] = 0.0  # one hip alone half a turn: 0.5 (I + R) is singular too, up to rounding
+    problem(http.post("/v1/bodies", files={"body_file": ("c.npz", arrays)}, data={"rest_pose": json.dumps(nearly.tolist())}),
+            422, "rest_pose", "cannot be undone")
+    r = http.post("/v1/bodies", content=arrays, headers={"Content-Type": NPZ})
+    assert r.status_code == 201, r.text[:300]
+    v, f = shirt
+    problem(http.post("/v1/outfits/fit", json={"vertices": v.tolist(), "faces": f.tolist(), "body": r.json()["body_id"],
+                                               "pose": pose.tolist()}), 422, "pose", "cannot be undone")
+    http.delete(f"/v1/bodies/{r.json()['body_id']}")
+
+
 @pytest.mark.parametrize("value", [[["0", "0", "0"]] * 24, [[False] * 3] * 24, [[0.0, True, "0"]] * 24,
                                    [[None] * 3] * 24])
 def test_a_rest_pose_of_strings_booleans_or_nulls_is_refused(http, proxy, value):
