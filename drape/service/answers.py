@@ -13,7 +13,7 @@ import logging
 import time
 import zipfile
 from collections.abc import AsyncIterator, Callable, Generator, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from fastapi.concurrency import run_in_threadpool
@@ -122,17 +122,42 @@ ENCODERS: dict[str, Callable[[FrameSource], Pieces]] = {
     JSON: encode_json, NPZ: encode_npz_stream, FRAMES: encode_frame_stream, PC2: encode_pc2_stream}
 
 
+def first_chunk_ahead(src: FrameSource) -> FrameSource:
+    """`src` with its first chunk computed now (every encoder's first piece is a header, before any frame):
+    `stream_frames` calls it before the answer starts, so an error in the first chunk is a problem document,
+    not a 200 cut short. The rest are computed as the encoder asks for them (the source's chunks() is called once)."""
+    rest = src.chunks()
+    first = next(rest, None)
+
+    def chunks() -> Iterator[np.ndarray]:
+        try:
+            if first is not None:
+                yield first
+            yield from rest
+        finally:
+            close = getattr(rest, "close", None)
+            if close is not None:
+                close()
+
+    return replace(src, chunks=chunks)
+
+
 async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: float,
                         metrics: Metrics) -> StreamingResponse:
     """Drive the answer's encoder off the event loop, one piece at a time, holding `slot` until the end.
 
-    The first piece (and so the first chunk's computation) is made before the answer starts, so an error
-    there is still a problem document. Afterwards, the starlette response cancels this generator when the
+    The first chunk's frames (`first_chunk_ahead`) and the first piece are made before the answer starts, so
+    an error there is still a problem document. Afterwards, the starlette response cancels this generator when the
     client disconnects: the thread finishes its chunk and nothing more is computed. Past `budget_s` the
     answer is cut (the client sees an incomplete stream) and the cut is counted and logged.
     """
-    pieces = ENCODERS[answer](src)
     deadline = time.monotonic() + budget_s
+    try:
+        src = await run_in_threadpool(first_chunk_ahead, src)
+    except BaseException:
+        slot.release()
+        raise
+    pieces = ENCODERS[answer](src)
 
     def next_piece() -> bytes | memoryview | None:
         return next(pieces, None)

@@ -1,11 +1,17 @@
-"""Admission control on the event loop, without HTTP: the bounds hold however the requests interleave."""
+"""Admission control and the streamed answers on the event loop, without HTTP: the bounds hold however the
+requests interleave; a failure before the first frame is raised while a problem document can still answer."""
 
 from __future__ import annotations
 
 import asyncio
 
+import numpy as np
+import pytest
+
 from drape.service.admission import Admission, Slot
+from drape.service.answers import ENCODERS, FrameSource, first_chunk_ahead, stream_frames
 from drape.service.errors import Overloaded
+from drape.service.metrics import Metrics
 
 
 def test_requests_arriving_together_get_one_slot_and_one_queue_place():
@@ -52,3 +58,37 @@ def test_no_slots_refuses_everything():
         assert (admission.active, admission.waiting) == (0, 0)
 
     asyncio.run(scenario())
+
+
+@pytest.mark.parametrize("answer", sorted(ENCODERS))
+def test_an_error_in_the_first_chunk_is_raised_before_the_answer_starts(answer):
+    """Every encoder's first piece is a header: the first chunk is computed before the answer starts, so its
+    error reaches the route (a problem document), not a 200 cut short; the slot is handed back."""
+    def chunks():
+        raise ValueError("the first chunk failed")
+        yield  # a generator, as the routes' chunks are
+
+    src = FrameSource(chunks, np.zeros((1, 3), np.int32), 4, 3, 30.0, "")
+
+    async def scenario() -> None:
+        admission = Admission(1, 0, 1.0, 1)
+        slot = await admission.enter()
+        with pytest.raises(ValueError, match="first chunk failed"):
+            await stream_frames(answer, src, slot, 60.0, Metrics())
+        assert admission.active == 0
+
+    asyncio.run(scenario())
+
+
+def test_the_first_chunk_ahead_keeps_every_frame_in_order():
+    frames = np.arange(5 * 2 * 3, dtype=np.float32).reshape(5, 2, 3)
+    calls = []
+
+    def chunks():
+        for i in range(0, 5, 2):
+            calls.append(i)
+            yield frames[i:i + 2]
+
+    ahead = first_chunk_ahead(FrameSource(chunks, np.zeros((1, 3), np.int32), 5, 2, 30.0, ""))
+    assert calls == [0]  # computed now, the rest when asked
+    np.testing.assert_array_equal(np.concatenate(list(ahead.chunks())), frames)
