@@ -142,7 +142,7 @@ def unpose(vertices: np.ndarray, body: Body, pose: np.ndarray) -> np.ndarray:
     try:
         return unskin(blended, vertices)
     except SingularSkinning as exc:
-        raise FitError(f"the body's skinning in this pose cannot be undone: {exc}", "pose") from None
+        raise FitError(str(exc), "pose") from None
 
 
 def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: str | None = None,

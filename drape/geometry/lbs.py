@@ -60,6 +60,11 @@ def smooth_weights(weights: np.ndarray, faces: np.ndarray, iterations: int = 20,
 MIN_BLEND_DET = 1e-2  # |det| of a blended skinning rotation below this: weights mixing rotations ~170 deg apart
 
 
+def invertible_blends(blended: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) blended skinning rotations -> (n,) bool: |det| >= MIN_BLEND_DET (False for NaN too)."""
+    return np.abs(np.linalg.det(blended)) >= MIN_BLEND_DET
+
+
 def rest_space_offsets(offsets: np.ndarray, weights: np.ndarray, rotations: np.ndarray) -> np.ndarray:
     """The rest-space offsets that linear blend skinning maps to given world-space offsets.
 
@@ -72,7 +77,7 @@ def rest_space_offsets(offsets: np.ndarray, weights: np.ndarray, rotations: np.n
     """
     blended = np.einsum("nk,kij->nij", np.asarray(weights, np.float64), np.asarray(rotations, np.float64))
     offsets = np.asarray(offsets, np.float64)
-    invertible = np.abs(np.linalg.det(blended)) >= MIN_BLEND_DET
+    invertible = invertible_blends(blended)
     d = np.empty_like(offsets)
     d[invertible] = np.linalg.solve(blended[invertible], offsets[invertible][..., None])[..., 0]
     if not invertible.all():
@@ -90,12 +95,10 @@ def unskin(blended: np.ndarray, points: np.ndarray) -> np.ndarray:
     -> (N, 3) float64 metres at rest. Raises SingularSkinning where |det| of a blended rotation part is under
     MIN_BLEND_DET (the inverse would throw the vertex metres away, or fail)."""
     blended = np.asarray(blended, dtype=np.float64)
-    det = np.linalg.det(blended[:, :3, :3])
-    bad = ~(np.abs(det) >= MIN_BLEND_DET)
+    bad = ~invertible_blends(blended[:, :3, :3])
     if bad.any():
-        raise SingularSkinning(f"{int(bad.sum())} of {len(det)} vertices' skinning cannot be undone: their "
-                               f"weights mix joint rotations that cancel (|det| {float(np.abs(det).min()):.2g} < "
-                               f"{MIN_BLEND_DET:g})")
+        raise SingularSkinning(f"{int(bad.sum())} of {len(bad)} vertices' skinning cannot be undone in this pose: "
+                               f"their weights mix joint rotations that cancel (|det| under {MIN_BLEND_DET:g})")
     homo = np.concatenate([np.asarray(points, dtype=np.float64), np.ones((len(points), 1))], axis=1)
     return np.linalg.solve(blended, homo[..., None])[:, :3, 0]
 

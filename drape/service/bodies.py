@@ -166,7 +166,7 @@ def check_body_arrays(arrays: dict[str, Any], settings: Settings, *, field: str 
         try:
             vertices, joints = unpose_body(vertices, w, joints, pose)
         except SingularSkinning as exc:
-            raise InvalidInput(f"the body's skinning in this pose cannot be undone: {exc}", "rest_pose") from None
+            raise InvalidInput(str(exc), "rest_pose") from None
     _check_shape(vertices, joints, pre)
     arrays_out = {"vertices": vertices.astype(np.float32), "faces": f.astype(np.int32),
                   "weights": w.astype(np.float32), "joints": joints.astype(np.float32)}
