@@ -77,6 +77,8 @@ def decode_npz(data: bytes, names: Iterable[str] | None = None, *,
                 key = info.filename.removesuffix(".npy")
                 if wanted is not None and key not in wanted:
                     continue
+                if key in out:  # a zip may name two entries alike: which one is meant is anyone's guess
+                    raise ValueError(f"member {key!r} is stored more than once")
                 if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
                     raise ValueError(f"member {key!r} uses zip compression {info.compress_type}; "
                                      "only stored and deflated members are read")

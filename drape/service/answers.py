@@ -81,11 +81,12 @@ class _Pieces(io.RawIOBase):
 
 
 def encode_npz_stream(src: FrameSource) -> Pieces:
-    """The npz answer (vertices (T, N, 3) float32, faces, fps, outfit_id), as numpy's uncompressed npz
-    written while the frames are computed: stored zip members, CRCs in data descriptors (np.load reads it)."""
+    """The npz answer (vertices (T, N, 3) float32, faces, fps float64 (as asked: a float32 read 29.97 as 29.969999),
+    outfit_id), as numpy's uncompressed npz written while the frames are computed: stored zip members, CRCs in data
+    descriptors (np.load reads it)."""
     sink = _Pieces()
     with zipfile.ZipFile(sink, "w", zipfile.ZIP_STORED) as zf:
-        for name, arr in (("faces", src.faces), ("fps", np.array(src.fps, np.float32)),
+        for name, arr in (("faces", src.faces), ("fps", np.array(src.fps, np.float64)),
                           ("outfit_id", np.array(src.outfit_id))):
             with zf.open(name + ".npy", "w") as f:
                 np.lib.format.write_array(f, np.asarray(arr), allow_pickle=False)

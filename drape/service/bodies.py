@@ -20,7 +20,7 @@ from drape.assets.body import Body
 from drape.geometry.lbs import SingularSkinning, unpose_body
 from drape.geometry.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
 from drape.runtime.body_store import BodyStore, body_id
-from drape.service.decode import npz_members, npz_numbers
+from drape.service.decode import json_reals, npz_members, npz_numbers
 from drape.service.errors import InvalidInput, quoted
 from drape.service.handlers import check_mesh
 from drape.service.http import parse_form
@@ -35,23 +35,10 @@ MAX_ARM_TILT_DEG = 30.0  # a T-pose's upper arms lie within this of horizontal
 JOINT_SLACK_M = 0.1  # rest joints lie within the mesh's bounding box grown by this
 
 
-def _json_reals(value: Any) -> bool:
-    """Whether a parsed JSON value (a form field's) is numbers in nested lists: no strings, booleans or nulls,
-    which numpy would read as numbers (strict, as the JSON models are). Walked without recursion."""
-    stack = [value]
-    while stack:
-        v = stack.pop()
-        if isinstance(v, list):
-            stack.extend(v)
-        elif isinstance(v, bool) or not isinstance(v, int | float):
-            return False
-    return True
-
-
 def _numbers(value: Any, field: str, shape: tuple[int, ...], what: str) -> np.ndarray:
     if isinstance(value, np.ndarray) and value.dtype.kind not in "iuf":
         raise InvalidInput(f"expected real numbers, got dtype {value.dtype}", field)
-    if not isinstance(value, np.ndarray) and not _json_reals(value):
+    if not isinstance(value, np.ndarray) and not json_reals(value):
         raise InvalidInput("expected numbers in nested lists, got strings, booleans or nulls", field)
     try:
         a = np.asarray(value, dtype=np.float64)

@@ -66,6 +66,19 @@ def _precheck_motion(doc: Any, settings: Settings) -> None:
         _count(doc.get("poses"), settings.max_frames, "frames", "motion.poses")
 
 
+def json_reals(value: Any) -> bool:
+    """Whether a parsed JSON value (a form field's) is numbers in nested lists: no strings, booleans or nulls,
+    which numpy would read as numbers (strict, as the JSON models are). Walked without recursion."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, list):
+            stack.extend(v)
+        elif isinstance(v, bool) or not isinstance(v, int | float):
+            return False
+    return True
+
+
 def _document(data: bytes, field: str = "body") -> dict:
     doc = parse_json(data, field)
     if not isinstance(doc, dict):
@@ -163,12 +176,23 @@ def _form_mesh_parts(parts: dict[str, Any], num_vertices: int) -> list[dict] | N
     return uploads.mesh_parts(mesh.data, mesh.filename, num_vertices)
 
 
+RIG_FORM = ("mesh", "body", "influences", "fit")
+
+
+def _known_fields(parts: dict[str, Any], allowed: tuple[str, ...], expected: str) -> None:
+    """A 422 naming the first form field not among `allowed` (`expected` says what is)."""
+    unknown = sorted(set(parts) - set(allowed))
+    if unknown:
+        raise InvalidInput(f"unknown form field; expected {expected}", quoted(unknown[0], 40))
+
+
 def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
                   ) -> tuple[Any, Any, str | None, Any, bool, list[dict] | None]:
     """A rig request's body -> (vertices, faces, body preset or None, influences or None, fit, the mesh file's
     named parts or None), not yet checked."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
+        _known_fields(parts, RIG_FORM, "mesh and some of body, influences, fit")
         v, f = _form_mesh(parts, settings)
         return (v, f, _text(parts, "body"), _text(parts, "influences"), bool(_form_flag(parts, "fit")),
                 _form_mesh_parts(parts, len(v)))
@@ -193,10 +217,7 @@ def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings)
     handlers.fit, not yet checked."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
-        unknown = sorted(set(parts) - {"mesh", *FIT_FIELDS})
-        if unknown:
-            raise InvalidInput(f"unknown form field; expected mesh and some of {', '.join(FIT_FIELDS)}",
-                               quoted(unknown[0], 40))
+        _known_fields(parts, ("mesh", *FIT_FIELDS), f"mesh and some of {', '.join(FIT_FIELDS)}")
         v, f = _form_mesh(parts, settings)
         pose: Any = _text(parts, "pose")
         if pose is not None and pose not in ("t", "a"):
@@ -205,6 +226,9 @@ def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings)
             except (ValueError, RecursionError):  # RecursionError: nested deeper than json.loads can take
                 raise InvalidInput(f"expected 't', 'a' or a JSON (24, 3) array, got {quoted(pose, 40)}",
                                    "pose") from None
+            if not json_reals(pose):  # strict as the JSON request: numpy would read "0" and true as numbers
+                raise InvalidInput("expected numbers in nested lists (24, 3), got strings, booleans or nulls",
+                                   "pose")
         return {"vertices": v, "faces": f, "body": _text(parts, "body"), "units": _text(parts, "units"),
                 "up": _text(parts, "up"), "pose": pose}
     if kind == "application/x-npz":

@@ -10,12 +10,19 @@ from dataclasses import dataclass
 from typing import Any
 
 from fastapi import Request
-from python_multipart.exceptions import MultipartParseError
-from python_multipart.multipart import MultipartParser, parse_options_header
+from python_multipart.exceptions import FormParserError
+from python_multipart.multipart import MAX_BOUNDARY_LENGTH, MultipartParser, parse_options_header
 
 from drape.runtime.engine import Engine
 from drape.service.admission import Admission
-from drape.service.errors import LimitExceeded, MalformedInput, RequestTimeout, Unauthorized
+from drape.service.errors import (
+    InvalidInput,
+    LimitExceeded,
+    MalformedInput,
+    RequestTimeout,
+    Unauthorized,
+    quoted,
+)
 from drape.service.settings import Settings
 
 
@@ -67,11 +74,14 @@ class FormPart:
 
 def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str, FormPart]:
     """A multipart/form-data body (already read within the limits) -> its parts by name; a 400 for a broken
-    form. Pure CPU work: call it off the event loop."""
+    form, a 422 for a field given more than once. Pure CPU work: call it off the event loop."""
     _, params = parse_options_header(content_type.encode("latin-1", "replace"))
     boundary = params.get(b"boundary")
     if not boundary:
         raise MalformedInput("multipart/form-data without a boundary", "Content-Type")
+    if len(boundary) > MAX_BOUNDARY_LENGTH:
+        raise MalformedInput(f"a boundary of {len(boundary)} characters, over the {MAX_BOUNDARY_LENGTH} the form "
+                             "parser takes (RFC 2046: at most 70)", "Content-Type")
     parts: dict[str, FormPart] = {}
     headers: dict[bytes, bytes] = {}
     field, value, data = bytearray(), bytearray(), bytearray()
@@ -87,6 +97,8 @@ def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str,
         filename = disposition.get(b"filename")
         if len(parts) >= max_parts:
             raise MalformedInput(f"more than {max_parts} parts", "body")
+        if name in parts:
+            raise InvalidInput("the form gives this field more than once", quoted(name, 40))
         parts[name] = FormPart(filename.decode("utf-8", "replace") if filename is not None else None, bytes(data))
         headers.clear()
         data.clear()
@@ -102,7 +114,7 @@ def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str,
         parser = MultipartParser(boundary, callbacks)  # type: ignore[arg-type]
         parser.write(body)
         parser.finalize()
-    except MultipartParseError as exc:
+    except FormParserError as exc:  # MultipartParseError and the parser's other refusals
         raise MalformedInput(f"not a readable multipart form ({exc})", "body") from exc
     return parts
 

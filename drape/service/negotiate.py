@@ -15,9 +15,10 @@ def choose(accept: str | None, offered: list[str]) -> str:
         fields = [x.strip() for x in part.split(";")]
         media, q = fields[0].lower(), 1.0
         for param in fields[1:]:
-            if param.startswith("q="):
+            name, _, value = param.partition("=")
+            if name.strip().lower() == "q":  # parameter names are case-insensitive (RFC 9110 5.6.6)
                 try:
-                    q = float(param[2:])
+                    q = float(value.strip())
                 except ValueError:
                     q = 0.0
         ranked.append((q if 0.0 <= q <= 1.0 else 0.0, -i, media))

@@ -17,6 +17,7 @@ OFFERED = [JSON, NPZ, GLB]
     (f"{GLB};q=nan, {NPZ};q=0.1", NPZ),  # an invalid q-value counts as 0
     (f"{GLB};q=2, {NPZ};q=0.1", NPZ),
     ("text/*, */*;q=0.1", JSON),
+    (f"{JSON};Q=0, {NPZ}", NPZ),  # parameter names are case-insensitive (Q=0 was read as q=1)
 ])
 def test_accept_chooses_what_it_prefers(accept, chosen):
     assert choose(accept, OFFERED) == chosen

@@ -1,0 +1,70 @@
+"""Multipart forms and npz archives the parser or a route once mishandled: each is a 4xx problem naming the field,
+never a 500 and never a silent guess (a long boundary was a 500; a repeated or misspelt field, a member stored twice,
+or a fit pose of strings, was quietly taken or dropped)."""
+
+import io
+import zipfile
+
+import numpy as np
+import pytest
+from svc_env import problem
+
+from drape.schemas.binary import NPZ
+
+OBJ = b"v 0 1 0.2\nv 0.1 1 0.2\nv 0 1.1 0.2\nv 0.1 1.1 0.25\nf 1 2 3\nf 2 4 3\n"
+
+
+@pytest.mark.parametrize("path", ["/v1/outfits/rig", "/v1/outfits/animate", "/v1/refine", "/v1/bodies"])
+def test_a_boundary_longer_than_the_parser_takes_is_a_400_naming_content_type(http, path):
+    boundary = "b" * 300  # python-multipart refuses over 256 (RFC 2046: at most 70): was a 500 FormParserError
+    body = f"--{boundary}\r\nContent-Disposition: form-data; name=\"x\"\r\n\r\n1\r\n--{boundary}--\r\n".encode()
+    r = http.post(path, content=body, headers={"content-type": f"multipart/form-data; boundary={boundary}"})
+    problem(r, 400, "Content-Type", "boundary")
+
+
+def test_a_field_given_twice_is_refused_not_last_wins(http):
+    files = [("mesh", ("a.obj", OBJ)), ("mesh", ("b.obj", OBJ))]
+    problem(http.post("/v1/outfits/rig", files=files), 422, "mesh", "more than once")
+    files = [("motion_file", ("m.bvh", b"HIERARCHY")), ("outfit_id", (None, b"a")), ("outfit_id", (None, b"b"))]
+    problem(http.post("/v1/outfits/animate", files=files), 422, "outfit_id", "more than once")
+
+
+def test_the_rig_form_refuses_an_unknown_field_as_the_other_forms_do(http):
+    """`influence=8` (for influences) was dropped without a word: the rig answered 4 influences."""
+    r = http.post("/v1/outfits/rig", files={"mesh": ("a.obj", OBJ)}, data={"influence": "8"})
+    problem(r, 422, "'influence'", "unknown form field", "influences")
+
+
+@pytest.mark.parametrize("cell", ['"0"', "true", "null"])
+def test_a_fit_form_pose_of_strings_booleans_or_nulls_is_refused(http, cell):
+    """Strings were read as numbers (a 200), booleans as 0/1 and nulls as NaN ('must be finite ... within 2 pi')."""
+    pose = "[" + ",".join([f"[{cell}, 0, 0]"] * 24) + "]"
+    r = http.post("/v1/outfits/fit", files={"mesh": ("a.obj", OBJ)}, data={"pose": pose})
+    problem(r, 422, "pose", "numbers")
+
+
+def _npy(a: np.ndarray) -> bytes:
+    f = io.BytesIO()
+    np.save(f, a)
+    return f.getvalue()
+
+
+def test_an_npz_member_stored_twice_is_refused_not_last_wins(http):
+    """A zip may hold one name twice; the later entry was read (here: an outfit_id that answered 404)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("poses.npy", _npy(np.zeros((3, 72))))
+        z.writestr("outfit_id.npy", _npy(np.array("first")))
+        z.writestr("outfit_id.npy", _npy(np.array("second")))
+    r = http.post("/v1/outfits/animate", content=buf.getvalue(), headers={"content-type": NPZ})
+    problem(r, 400, "body", "'outfit_id'", "more than once")
+
+
+@pytest.mark.parametrize("fps", [29.97, 1e-300])
+def test_the_npz_answer_gives_the_frame_rate_it_was_asked_for(http, fps):
+    """The npz answer stored fps as float32: 29.97 came back 29.969999 and 1e-300 (in range: (0, 1000]) as 0."""
+    req = {"outfit": {"vertices": [[0, 1, 0.2], [0.1, 1, 0.2], [0, 1.1, 0.2]], "faces": [[0, 1, 2]]},
+           "motion": {"poses": np.zeros((2, 72)).tolist(), "fps": fps}}
+    r = http.post("/v1/outfits/animate", json=req, headers={"accept": NPZ})
+    assert r.status_code == 200, r.text
+    assert float(np.load(io.BytesIO(r.content))["fps"]) == fps
