@@ -167,15 +167,34 @@ def compile_scene(cloths: list[Cloth], starts: list[np.ndarray], pinned: list[np
     return spec.compile()
 
 
-def _bone_frames(body: Body, poses: np.ndarray, trans: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Skinning transforms (T, 24, 4, 4) plus their translations (T, 24, 3) and quaternions (T, 24, 4)."""
+def float32_grid(x: np.ndarray) -> np.ndarray:
+    """x (any shape) rounded to the nearest float32 and returned as float64.
+
+    The simulation's kinematic inputs go through this so that the last bits of numpy's SIMD paths do not reach
+    MuJoCo: numpy picks its transcendental and reduction loops by CPU (AVX512 or AVX2), which differ by an ulp or
+    two (measured: the bones' angular velocities by 1.8e-15 rad/s on dance_b), and the contact dynamics amplify that
+    (the tank top + long sleeve's outer cloth on dance_b 6.2 mm RMS apart after 60 frames). A float32 grid is
+    1e-7 relative: far below anything the cloth responds to, far above those differences."""
+    return np.asarray(x, dtype=np.float64).astype(np.float32).astype(np.float64)
+
+
+def bone_kinematics(body: Body, poses: np.ndarray, trans: np.ndarray, fps: float
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What moves the bone hulls, for poses (F, 24, 3) rad and trans (F, 3) m at fps: skinning transforms
+    (F, 24, 4, 4); bone positions (F, 24, 3) m and quaternions (F, 24, 4) (w, x, y, z; consecutive ones in the
+    same hemisphere, so lerping between frames is short); from each frame to the next the body-frame angular
+    velocity (F - 1, 24, 3) rad/s (q_f = q_{f-1} exp(w dt)) and the linear velocity (F - 1, 24, 3) m/s. All but
+    the transforms on the float32 grid (`float32_grid`), so they are the same bytes on every CPU."""
     tr, _ = forward_kinematics(poses, body.joints, body.parents, trans)
     q = matrix_to_quaternion(tr[..., :3, :3])
-    # keep consecutive quaternions in the same hemisphere so lerping between frames is short
     for t in range(1, len(q)):
         flip = np.einsum("kc,kc->k", q[t], q[t - 1]) < 0
         q[t, flip] *= -1
-    return tr, tr[..., :3, 3], q
+    pos = tr[..., :3, 3]
+    rel = quaternion_multiply(q[:-1] * np.array([1, -1, -1, -1]), q[1:])
+    omega = quaternion_to_axis_angle(rel) * fps
+    vel = np.diff(pos, axis=0) * fps
+    return (tr, *(float32_grid(x) for x in (pos, q, omega, vel)))
 
 
 def settle_motion(motion: Motion, frames: int, blend: int, hold: int) -> tuple[np.ndarray, np.ndarray]:
@@ -234,7 +253,7 @@ def simulate_cloths(
         hulls = fit_hulls(body, garment_bones(body, np.concatenate(rest).astype(np.float32), reach=0.2))
     all_p, all_t = settle_motion(motion, T, settle_blend, settle_hold)
     S = len(all_p) - T
-    tr, pos, quat = _bone_frames(body, all_p, all_t)
+    tr, pos, quat, omega, vel = bone_kinematics(body, all_p, all_t, motion.fps)
 
     t_start = time.perf_counter()
     # the cloth starts in rest pose under the body's first horizontal position (the settle frames' translation)
@@ -247,10 +266,6 @@ def simulate_cloths(
     bone_body = np.array([model.body(f"bone{k}").id for k in bones])
     bone_q = (model.jnt_qposadr[model.body_jntadr[bone_body]][:, None] + np.arange(7)).ravel()
     bone_d = (model.jnt_dofadr[model.body_jntadr[bone_body]][:, None] + np.arange(6)).ravel()
-    # body-frame angular velocity from frame f - 1 to f: q_f = q_{f-1} * exp(w dt)
-    rel = quaternion_multiply(quat[:-1] * np.array([1, -1, -1, -1]), quat[1:])
-    omega = quaternion_to_axis_angle(rel) * motion.fps  # (S + T - 1, 24, 3)
-    vel = np.diff(pos, axis=0) * motion.fps
 
     dof3_all, drag_all = [], []
     pin_q_all, pin_d_all, pin_rest_all, pin_xyz_all = [], [], [], []
@@ -259,10 +274,10 @@ def simulate_cloths(
         dof = model.jnt_dofadr[model.body_jntadr[vbody]]  # 3 slide DOFs (x, y, z) per vertex, consecutive
         qadr = model.jnt_qposadr[model.body_jntadr[vbody]]
         dof3_all.append((dof[:, None] + np.arange(3)).ravel())
-        drag_all.append(np.repeat(params.air_drag * vertex_areas(V0, c.faces), 3))
+        drag_all.append(float32_grid(np.repeat(params.air_drag * vertex_areas(V0, c.faces), 3)))
         if len(pinned):
             pin_w = nearest_vertex_weights(V0[pinned], body.vertices, body.weights)
-            pin_xyz_all.append(linear_blend_skinning(V0[pinned], pin_w, tr).astype(np.float64))  # (S + T, P, 3)
+            pin_xyz_all.append(float32_grid(linear_blend_skinning(V0[pinned], pin_w, tr)))  # (S + T, P, 3)
             pin_q_all.append((qadr[pinned][:, None] + np.arange(3)).ravel())
             pin_d_all.append((dof[pinned][:, None] + np.arange(3)).ravel())
             pin_rest_all.append(start[pinned].ravel())
@@ -275,7 +290,7 @@ def simulate_cloths(
     def place(f: int, a: float) -> None:
         """Move bones (and pinned vertices) to fraction a of the way from frame f - 1 to f."""
         q = (1 - a) * quat[f - 1, bones] + a * quat[f, bones]
-        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        q /= np.sqrt(q[:, :1] ** 2 + q[:, 1:2] ** 2 + q[:, 2:3] ** 2 + q[:, 3:] ** 2)  # elementwise: no SIMD-width sum
         x = (1 - a) * pos[f - 1, bones] + a * pos[f, bones]
         data.qpos[bone_q] = np.concatenate([x, q], axis=1).ravel()
         data.qvel[bone_d] = np.concatenate([vel[f - 1, bones], omega[f - 1, bones]], axis=1).ravel()

@@ -165,3 +165,38 @@ def test_sim_run_command_writes_the_contract_and_renders(tmp_path):
         assert "penetration_p99_m" in json.loads(str(z["stats"]))
     drape("render", "--sim", str(seq), "--out", str(png))
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+
+_KINEMATICS = """
+import hashlib
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.sim.simulate import bone_kinematics, settle_motion
+clip = load_clip("dance_b")
+poses, trans = settle_motion(clip, clip.num_frames, 15, 15)
+_, *moving = bone_kinematics(load_body("neutral"), poses, trans, clip.fps)
+print(hashlib.sha256(b"".join(x.tobytes() for x in moving)).hexdigest())
+"""
+
+
+def test_what_moves_the_body_in_the_simulation_does_not_depend_on_numpys_simd_paths():
+    """numpy picks its loops by CPU; with every dispatched SIMD target turned off (NPY_DISABLE_CPU_FEATURES, as on
+    an older CPU) the bones' positions, rotations and velocities MuJoCo is given are the same bytes (without the
+    float32 grid, dance_b's angular velocities differed in 12 values by ~1e-15 rad/s, and its two-layer simulation
+    by 6 mm RMS), so a cached held-out simulation is the same on every x86 machine (docs/sim.md)."""
+    import os
+    import subprocess
+    import sys
+
+    from numpy._core import _multiarray_umath as m
+
+    found = [f for f in m.__cpu_dispatch__ if m.__cpu_features__.get(f)]
+    if not found:
+        pytest.skip("this CPU runs numpy's baseline loops only: nothing to turn off")
+    runs = []
+    for disabled in ("", " ".join(found)):
+        env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": disabled}
+        out = subprocess.run([sys.executable, "-c", _KINEMATICS], env=env, capture_output=True, text=True, check=True)
+        runs.append(out.stdout.strip())
+    assert runs[0] == runs[1], f"numpy's SIMD targets {found} changed the bones' kinematics"
