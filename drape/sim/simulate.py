@@ -194,7 +194,7 @@ def bone_kinematics(body: Body, poses: np.ndarray, trans: np.ndarray, fps: float
     rel = quaternion_multiply(q[:-1] * np.array([1, -1, -1, -1]), q[1:])
     omega = quaternion_to_axis_angle(rel) * fps
     vel = np.diff(pos, axis=0) * fps
-    return (tr, *(float32_grid(x) for x in (pos, q, omega, vel)))
+    return tr, float32_grid(pos), float32_grid(q), float32_grid(omega), float32_grid(vel)
 
 
 def settle_motion(motion: Motion, frames: int, blend: int, hold: int) -> tuple[np.ndarray, np.ndarray]:
