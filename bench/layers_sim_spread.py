@@ -15,6 +15,7 @@ the variants are cached under data/layers_spread/, the unperturbed ones are data
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ import numpy as np
 from drape.assets.body import load_body
 from drape.geometry.metrics import rmse_mm
 from drape.runtime.engine import Engine
-from drape.runtime.layers import LayerCombination
+from drape.runtime.layers import LayerCombination, LayerTemplate
 from drape.training import layers_eval as le
 
 PERTURB_M = 1e-6
@@ -31,14 +32,12 @@ CACHE = Path("data") / "layers_spread"
 
 def perturbed(c: LayerCombination, seed: int) -> LayerCombination:
     """c with both garments' rest vertices (N, 3) m moved by N(0, PERTURB_M) per coordinate (seeded)."""
-    from dataclasses import replace
-
     rng = np.random.default_rng([seed, 7])
-    inner = replace(c.inner, vertices=(c.inner.vertices + rng.normal(0, PERTURB_M, c.inner.vertices.shape)
-                                       ).astype(c.inner.vertices.dtype))
-    outer = replace(c.outer, vertices=(c.outer.vertices + rng.normal(0, PERTURB_M, c.outer.vertices.shape)
-                                       ).astype(c.outer.vertices.dtype))
-    return replace(c, inner=inner, outer=outer)
+
+    def moved(t: LayerTemplate) -> LayerTemplate:
+        return replace(t, vertices=(t.vertices + rng.normal(0, PERTURB_M, t.vertices.shape)).astype(t.vertices.dtype))
+
+    return replace(c, inner=moved(c.inner), outer=moved(c.outer))
 
 
 def main() -> None:

@@ -167,7 +167,6 @@ def test_sim_run_command_writes_the_contract_and_renders(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-
 _KINEMATICS = """
 import hashlib
 from drape.assets.body import load_body
