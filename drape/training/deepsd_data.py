@@ -224,9 +224,14 @@ def repairs_flips(mocap: dict) -> bool:
     return mocap.get("flips") == "repair"
 
 
+POSTURE_SEED_OFFSET = 1300  # procedural_posture's seeds: clear of the plain (500 on) and legs-apart (900 on) ones
+
+
 def pose_pool(cfg: dict) -> np.ndarray:
     """(P, 24, 3) float32 training poses: procedural motions, legs-apart procedural motions
-    (`procedural_spread`: {"motions", "spread"}, if any; generate_motion's `spread`) + non-held-out clips +
+    (`procedural_spread`: {"motions", "spread"}, if any; generate_motion's `spread`), procedural motions with a
+    captured skeleton's upper-back and clavicle posture (`procedural_posture`: {"motions", "posture"}, if any;
+    generate_motion's `posture`, seeds seed + POSTURE_SEED_OFFSET on) + non-held-out clips +
     the config's real mocap clips (`mocap`: {"dir", "fps", "train": [names], "flips": "keep" (default) or
     "repair" (drape.assets.motion_flips)}, if any), root zeroed."""
     poses = []
@@ -236,6 +241,10 @@ def pose_pool(cfg: dict) -> np.ndarray:
     for i in range(wide.get("motions", 0)):
         poses.append(generate_motion(cfg["procedural_frames"], seed=cfg["seed"] + 900 + i,
                                      spread=float(wide["spread"])).poses)
+    posture: dict = cfg.get("procedural_posture") or {}
+    for i in range(posture.get("motions", 0)):
+        poses.append(generate_motion(cfg["procedural_frames"], seed=cfg["seed"] + POSTURE_SEED_OFFSET + i,
+                                     posture=float(posture["posture"])).poses)
     for name in list_clips():
         if name not in cfg["heldout_clips"]:
             poses.append(load_clip(name).poses)

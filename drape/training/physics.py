@@ -50,13 +50,42 @@ def lbs(rest: torch.Tensor, weights: torch.Tensor, transforms: torch.Tensor) -> 
     return (blended[..., :3] @ rest[..., None])[..., 0] + blended[..., 3]
 
 
-def vertex_normals(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    """(B, N, 3), (F, 3) -> (B, N, 3) area-weighted unit normals."""
+def face_incidence(faces: np.ndarray, num_vertices: int) -> torch.Tensor:
+    """(N, F) sparse CSR float32, 1 where vertex n is a corner of face f (drape.geometry.mesh.vertex_face_incidence
+    in torch): `vertex_normals`' sum of face normals as one sparse product, for a mesh posed many times."""
+    from drape.geometry.mesh import vertex_face_incidence
+
+    inc = vertex_face_incidence(faces, num_vertices)
+    return torch.sparse_csr_tensor(torch.as_tensor(inc.indptr, dtype=torch.int64),
+                                   torch.as_tensor(inc.indices, dtype=torch.int64),
+                                   torch.as_tensor(inc.data, dtype=torch.float32), size=inc.shape)
+
+
+def vertex_normals(v: torch.Tensor, faces: torch.Tensor, incidence: torch.Tensor | None = None) -> torch.Tensor:
+    """(B, N, 3), (F, 3) -> (B, N, 3) area-weighted unit normals. incidence: `face_incidence(faces, N)`, which
+    sums the face normals in one sparse product (3x faster on a 14k body than the three scatters; the same
+    normals up to float rounding); without it, scatters (differentiable on every device)."""
     fn = torch.cross(v[:, faces[:, 1]] - v[:, faces[:, 0]], v[:, faces[:, 2]] - v[:, faces[:, 0]], dim=-1)
-    vn = torch.zeros_like(v)
-    for c in range(3):
-        vn = vn.index_add(1, faces[:, c], fn)
+    if incidence is not None:
+        b, f = fn.shape[:2]
+        vn = (incidence @ fn.transpose(0, 1).reshape(f, b * 3)).reshape(-1, b, 3).transpose(0, 1)
+    else:
+        vn = torch.zeros_like(v)
+        for c in range(3):
+            vn = vn.index_add(1, faces[:, c], fn)
     return vn / vn.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def nearest_points(queries: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """queries (B, N, 3), points (B, G, 3) -> (B, N) int64: the index of each query's nearest point in its frame.
+    On the CPU a KD-tree per frame (scipy; ~6x faster than the (B, N, G) distance matrix at 2.4k x 1.2k);
+    elsewhere that matrix's argmin. Not differentiable."""
+    if queries.device.type != "cpu":
+        return torch.cdist(queries, points).argmin(dim=-1)
+    from scipy.spatial import cKDTree
+
+    q, p = queries.detach().numpy(), points.detach().numpy()
+    return torch.as_tensor(np.stack([cKDTree(p[i]).query(q[i], k=1)[1] for i in range(len(q))]), dtype=torch.int64)
 
 
 def edge_lengths(v: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
@@ -148,6 +177,7 @@ class BodyCollider:
         if triangles:
             self.vertex_faces = torch.as_tensor(vertex_faces(body.faces, len(body.vertices)))
         self.faces = torch.as_tensor(body.faces, dtype=torch.int64)
+        self.incidence = face_incidence(body.faces, len(body.vertices))
         self.rest = torch.as_tensor(body.vertices, dtype=torch.float32)
         self.weights = torch.as_tensor(body.weights, dtype=torch.float32)
         self.joints = torch.as_tensor(body.joints, dtype=torch.float32)
@@ -165,12 +195,12 @@ class BodyCollider:
         """garment (B, N, 3) posed; transforms (B, 24, 3, 4) -> (B, N) metres (negative inside)."""
         with torch.no_grad():
             body = lbs(self.rest, self.weights, transforms)
-            normals = vertex_normals(body, self.faces)
+            normals = vertex_normals(body, self.faces, self.incidence)
         if self.triangles:
             return self._to_triangles(garment, body, normals)
         with torch.no_grad():
             proxy = lbs(self.proxy_rest, self.proxy_weights, transforms)
-            near_proxy = torch.cdist(garment.detach(), proxy).argmin(dim=-1)  # (B, N)
+            near_proxy = nearest_points(garment.detach(), proxy)  # (B, N)
             cand = torch.cat([self.rest_cand.expand(garment.shape[0], -1, -1), self.proxy_nbrs[near_proxy]], dim=-1)
             bidx = torch.arange(garment.shape[0], device=garment.device)[:, None, None]
             d2 = ((body[bidx, cand] - garment.detach()[:, :, None]) ** 2).sum(-1)

@@ -141,3 +141,20 @@ def test_best_candidate_keeps_to_the_weights_limit():
     assert best_candidate(cands, 8.0) == "b"
     assert best_candidate(cands, 4.5) == "c"
     assert best_candidate(cands, 1.0) is None
+
+
+def test_posture_motions_join_the_pose_pool_after_the_procedural_ones(cfg):
+    from drape.assets.procedural import generate_motion
+    from drape.geometry.skeleton import JOINT_NAMES
+
+    without = deepsd_data.pose_pool(cfg)
+    pool = deepsd_data.pose_pool({**cfg, "procedural_posture": {"motions": 2, "posture": 1.0}})
+    frames = cfg["procedural_frames"]
+    upright = generate_motion(frames, seed=cfg["seed"] + deepsd_data.POSTURE_SEED_OFFSET + 1).poses
+    bent = generate_motion(frames, seed=cfg["seed"] + deepsd_data.POSTURE_SEED_OFFSET + 1, posture=1.0).poses
+    assert len(pool) == len(without) + 2 * frames
+    start = cfg["procedural_motions"] * frames + frames  # after the plain ones, the 2nd posture motion
+    assert np.allclose(pool[start:start + frames, 1:], bent[:, 1:])
+    assert np.array_equal(pool[start + frames:], without[cfg["procedural_motions"] * frames:])  # the rest as before
+    collars = [JOINT_NAMES.index(n) for n in ("left_collar", "right_collar", "spine3")]
+    assert np.abs(bent[:, collars] - upright[:, collars]).max() > 0.1  # the posture is what the motions add

@@ -53,3 +53,28 @@ def test_the_triangle_collider_answers_as_the_exact_measure_and_its_gradient_lea
     moved = np.stack([signed_distance_to_mesh(p + 5e-4 * d, b, faces) for p, d, b in zip(points, step, posed,
                                                                                           strict=True)])
     assert np.mean(moved[inside] > exact[inside] + 4e-4) > 0.95
+
+
+def test_the_sparse_normal_sum_gives_the_scattered_and_the_numpy_normals():
+    from drape.geometry.mesh import vertex_normals as normals_numpy
+
+    _, posed, _, faces = _posed_points()
+    v, f = torch.as_tensor(posed), torch.as_tensor(faces, dtype=torch.int64)
+    sparse = physics.vertex_normals(v, f, physics.face_incidence(faces, posed.shape[1])).numpy()
+    scattered = physics.vertex_normals(v, f).numpy()
+    want = normals_numpy(posed.astype(np.float64), faces)
+    assert sparse.shape == scattered.shape == posed.shape
+    assert np.abs(sparse - scattered).max() < 1e-5
+    assert np.abs(sparse - want).max() < 1e-5
+
+
+def test_nearest_points_is_the_brute_force_nearest_on_every_device_path():
+    rng = np.random.default_rng(2)
+    queries = torch.as_tensor(rng.normal(size=(3, 500, 3)), dtype=torch.float32)
+    points = torch.as_tensor(rng.normal(size=(3, 200, 3)), dtype=torch.float32)
+    d2 = ((queries.numpy()[:, :, None].astype(np.float64) - points.numpy()[:, None].astype(np.float64)) ** 2).sum(-1)
+    want = d2.argmin(-1)
+    got = physics.nearest_points(queries, points).numpy()  # the CPU's KD-tree
+    assert got.shape == (3, 500) and got.dtype == np.int64
+    assert (got == want).all()
+    assert (torch.cdist(queries, points).argmin(-1).numpy() == want).all()  # the path other devices take
