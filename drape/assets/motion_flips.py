@@ -58,6 +58,26 @@ def _angles(q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
     return 2.0 * np.arccos(np.abs(np.sum(q0 * q1, axis=-1)).clip(0.0, 1.0))
 
 
+def _first_returns(q: np.ndarray, step: np.ndarray, ts: np.ndarray, max_span: int) -> np.ndarray:
+    """For each jump ts[i] of one joint (q (T, 4) its quaternions, step (T - 1,) its turns, ts its jumps in
+    frame order): the index i' > i of the first later jump within max_span frames that returns (the joint at
+    ts[i'] + 1 less than RETURN_SHARE of the jump from where it jumped from), or -1.
+
+    Vectorised over the jumps, one pass per offset i' - i while some jump has a later one within max_span
+    (at most max_span passes): a file of a jump every frame that never returns costs T x max_span numbers,
+    not T^2 / 2 Python steps (80,000 such frames took hours)."""
+    n = len(ts)
+    returns = np.full(n, -1, dtype=np.int64)
+    for offset in range(1, n):
+        i = np.flatnonzero((ts[offset:] - ts[:n - offset] <= max_span) & (returns[:n - offset] < 0))
+        if not len(i):
+            break  # the frames between jumps only grow with the offset: none is left to look for
+        t, u = ts[i], ts[i + offset]
+        back = _angles(q[t], q[u + 1]) < RETURN_SHARE * step[t]
+        returns[i[back]] = i[back] + offset
+    return returns
+
+
 def find_flips(poses: np.ndarray, fps: float) -> list[Flip]:
     """poses: (T, J, 3) axis-angle, radians; fps: frames per second -> the flipped spans, merged over joints,
     in frame order. A span holds the frames after a jump up to and including the frame before its return.
@@ -73,16 +93,15 @@ def find_flips(poses: np.ndarray, fps: float) -> list[Flip]:
     for joint in np.flatnonzero(jump.any(axis=0)):
         j = int(joint)
         ts = np.flatnonzero(jump[:, j])
+        returns = _first_returns(q[:, j], step[:, j], ts, max_span)
         k = 0
         while k < len(ts):
-            t = int(ts[k])
-            back = next((int(u) for u in ts[k + 1:] if u - t <= max_span
-                         and _angles(q[t, j], q[u + 1, j]) < RETURN_SHARE * step[t, j]), None)
-            if back is None:
+            if returns[k] < 0:
                 k += 1
                 continue
+            t, back = int(ts[k]), int(ts[returns[k]])
             spans.append((t + 1, back, j, float(step[t:back + 1, j].max())))
-            k = int(np.searchsorted(ts, back, side="right"))
+            k = int(returns[k]) + 1  # the jump after the return
     spans.sort()
     merged: list[Flip] = []
     for first, last, jt, a in spans:

@@ -146,6 +146,16 @@ def _refine_options(given: dict) -> dict | None:
 
 # ---- the routes' bodies -------------------------------------------------------------------------
 
+def refine_choice(flag: bool | None, options: dict | None) -> bool | dict:
+    """refine given as a flag (None: not given) and/or the refine options (None: none; any of them turns refinement
+    on) -> False, True or the options. The flag false beside options is a contradiction, not a choice to make for
+    the client (the options were dropped): a 422 naming refine."""
+    if flag is False and options:
+        raise InvalidInput("false, but refine options (eps, max_iterations, relief_iterations) were given, which turn "
+                           "refinement on: leave refine out or set it true, or drop the options", "refine")
+    return options or bool(flag)
+
+
 def npz_flag(z: dict[str, np.ndarray], name: str) -> bool | None:
     """A boolean scalar member, or None when absent."""
     if name not in z:
@@ -288,11 +298,8 @@ def _animate_npz(data: bytes, settings: Settings, engine: Engine) -> dict:
     motion = {"clip": npz_text(z, "clip"), "fps": 30.0 if fps is None else float(fps),
               "poses": npz_numbers(z, "poses") if "poses" in z else None,
               "translation": npz_numbers(z, "translation") if "translation" in z else None}
-    refine: bool | dict | None = npz_options(z)
-    flag = npz_flag(z, "refine")
-    if flag is not None:
-        refine = refine if (flag and refine) else flag
-    request: dict[str, Any] = {"motion": motion, "body": npz_text(z, "body"), "refine": refine or False,
+    refine = refine_choice(npz_flag(z, "refine"), npz_options(z))
+    request: dict[str, Any] = {"motion": motion, "body": npz_text(z, "body"), "refine": refine,
                                "outfit_id": outfit_id, "outfit": None, "influences": npz_scalar(z, "influences"),
                                "fit": bool(npz_flag(z, "fit"))}
     if outfit_id is None:
@@ -425,11 +432,7 @@ def _animate_form(data: bytes, content_type: str, settings: Settings, engine: En
     body = _text(parts, "body")
     if body not in (None, outfit.body):
         raise InvalidInput(f"outfit {outfit_id} was rigged on body {outfit.body!r}", "body")
-    flag = _text(parts, "refine")
-    if flag not in (None, "true", "false", "1", "0"):
-        raise InvalidInput(f"expected true or false, got {quoted(flag, 40)}", "refine")
-    options = _form_options(parts)
-    refine: bool | dict = (options or True) if flag in ("true", "1") or (flag is None and options) else False
+    refine = refine_choice(_form_flag(parts, "refine"), _form_options(parts))
     return {"motion": _form_motion(parts, outfit.body, settings), "body": body, "refine": refine,
             "outfit_id": outfit_id, "outfit": None, "influences": _text(parts, "influences")}
 
@@ -565,11 +568,8 @@ def _garment_npz(route: str, data: bytes, settings: Settings) -> dict:
         if not keyframes:
             raise InvalidInput("give at least one keyframe: 'vertex_frames' with 'vertices' and/or 'latent_frames' "
                                "with 'latents'", "keyframes")
-        refine: bool | dict | None = npz_options(z)
-        flag = npz_flag(z, "refine")
-        if flag is not None:
-            refine = refine if (flag and refine) else flag
-        request.update(keyframes=keyframes, refine=refine or False)
+        refine = refine_choice(npz_flag(z, "refine"), npz_options(z))
+        request.update(keyframes=keyframes, refine=refine)
         match = npz_flag(z, "match_keyframes")
         if match is not None:
             request["match_keyframes"] = match

@@ -276,15 +276,17 @@ def fit_answer(result: FitResult, faces: np.ndarray) -> dict:
 
 
 def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str | None,
-        influences: Any = None, fit_first: bool = False, parts: list[dict] | None = None) -> RiggedOutfit:
+        influences: Any = None, fit_first: bool = False, parts: list[dict] | None = None,
+        field: str = "") -> RiggedOutfit:
     """Rig an outfit (fitted onto the body first with fit_first); the answer carries its placement
     diagnostics, with fit_first the fit (RiggedOutfit.fit: vertices, faces, transform, report), and the
-    mesh file's named parts (vertex ranges) when it has several."""
-    fitted = fit(settings, vertices, faces, body) if fit_first else None
-    v, f = check_mesh(vertices if fitted is None else fitted.vertices, faces, settings)
+    mesh file's named parts (vertex ranges) when it has several. field: the mesh's field prefix in errors
+    (e.g. "mesh" for an uploaded file: "mesh.faces")."""
+    fitted = fit(settings, vertices, faces, body, field=field) if fit_first else None
+    v, f = check_mesh(vertices if fitted is None else fitted.vertices, faces, settings, field)
     body_name = check_body(body)
     with computing_on(body_name):
-        diagnostics = check_on_body(v, body_name)
+        diagnostics = check_on_body(v, body_name, f"{field}.vertices" if field else "vertices")
         diagnostics["warnings"] += body_scale_warnings(engine, body_name)
         outfit = engine.rig(v, f, body_name, check_influences(influences))
     return replace(outfit, diagnostics=diagnostics, fit=None if fitted is None else fit_answer(fitted, f),

@@ -68,3 +68,41 @@ def test_the_npz_answer_gives_the_frame_rate_it_was_asked_for(http, fps):
     r = http.post("/v1/outfits/animate", json=req, headers={"accept": NPZ})
     assert r.status_code == 200, r.text
     assert float(np.load(io.BytesIO(r.content))["fps"]) == fps
+
+
+TINY = {"vertices": [[0, 1, 0.2], [0.1, 1, 0.2], [0, 1.1, 0.2]], "faces": [[0, 1, 2]]}
+
+
+def _npz(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def test_refine_false_beside_refine_options_is_refused_not_the_options_dropped(http):
+    """The options turn refinement on; `refine` false beside them answered 200 unrefined, the options dropped without
+    a word (npz and form animate, the garment's npz animate)."""
+    off = {"refine": np.array(False), "eps": np.array(0.01)}
+    r = http.post("/v1/outfits/animate", content=_npz(vertices=np.array(TINY["vertices"], float),
+                                                      faces=np.array(TINY["faces"]), poses=np.zeros((2, 72)), **off),
+                  headers={"content-type": NPZ, "accept": NPZ})
+    problem(r, 422, "refine", "eps")
+    r = http.post("/v1/garments/testskirt/animate", headers={"content-type": NPZ}, content=_npz(
+        poses=np.zeros((3, 72)), latent_frames=np.array([0]), latents=np.zeros((1, 100)), **off))
+    problem(r, 422, "refine", "eps")
+    rig = http.post("/v1/outfits/rig", json=TINY)
+    assert rig.status_code == 200, rig.text[:300]
+    motion = b"HIERARCHY\n"  # never read: the fields are checked first
+    r = http.post("/v1/outfits/animate", files={"motion_file": ("m.bvh", motion)},
+                  data={"outfit_id": rig.json()["outfit_id"], "refine": "false", "max_iterations": "5"})
+    problem(r, 422, "refine", "max_iterations")
+
+
+def test_errors_in_an_uploaded_mesh_name_the_mesh_field(http):
+    """A bad OBJ's faces or vertices were named 'faces' / 'vertices', fields the form does not have."""
+    bad = b"v 0 1 0.2\nv 0.1 1 0.2\nv 0 1.1 0.2\nf 1 1 2\n"  # a face repeating a vertex
+    problem(http.post("/v1/outfits/rig", files={"mesh": ("a.obj", bad)}), 422, "mesh.faces: ", "repeats")
+    problem(http.post("/v1/outfits/fit", files={"mesh": ("a.obj", bad)}), 422, "mesh.faces: ", "repeats")
+    far = b"v 50 1 0.2\nv 50.1 1 0.2\nv 50 1.1 0.2\nf 1 2 3\n"  # 50 m from the body
+    problem(http.post("/v1/outfits/rig", files={"mesh": ("a.obj", far)}), 422, "mesh.vertices: ", "within")
+

@@ -184,3 +184,43 @@ def test_a_body_gone_before_the_motion_file_is_read_is_a_404():
         motion_from_file(b"HIERARCHY\n", "user-0123456789abcdef", fps=30.0, up=None, max_frames=100,
                          max_decoded_bytes=10**6)
     assert info.value.field == "body" and "deleted" in info.value.detail
+
+
+def _jumping_without_return(frames: int) -> np.ndarray:
+    """(frames, 3) axis-angle rotations, each a 72-degree turn from the one before (a jump at 50 fps) that does not
+    come back within 0.5 s: a walk over the icosahedral rotation group, each step to the least recently visited of
+    the rotations 72 degrees away (a rotation comes back only 41 or more steps later)."""
+    from drape.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+
+    phi = (1 + 5**0.5) / 2
+    turns = [axis_angle_to_matrix(np.array(axis) / np.linalg.norm(axis) * angle)
+             for axis, angle in (([0.0, 1.0, phi], 2 * np.pi / 5), ([1.0, 1.0, 1.0], 2 * np.pi / 3))]
+    group = [np.eye(3)]
+    for g in group:  # grows while it is walked: the closure of the two turns, 60 rotations
+        for turn in turns:
+            if not any(np.allclose(g @ turn, h) for h in group):
+                group.append(g @ turn)
+    cos72 = 1 + 2 * np.cos(2 * np.pi / 5)  # the trace of a 72-degree turn
+    near = [[k for k, h in enumerate(group) if abs(np.trace(g.T @ h) - cos72) < 1e-6] for g in group]
+    visited = {0: 0}
+    walk = [0]
+    for t in range(1, frames):
+        walk.append(min(near[walk[-1]], key=lambda k: visited.get(k, -frames)))
+        visited[walk[-1]] = t
+    return matrix_to_axis_angle(np.stack([group[k] for k in walk]))
+
+
+def test_a_motion_file_jumping_every_frame_imports_in_linear_time(http, outfit_id, settings):
+    """Every joint turning 72 degrees a frame at 50 fps, never back: each jump is a possible flip that does not return.
+    Finding flips compared every jump with every later one (T^2 / 2 Python steps a joint): the 1,600 frames the test
+    limits allow took 14 s here; the 80,000 the default limits allow (23 MB), hours, holding a computing slot."""
+    import time
+
+    frames = 8 * settings.max_frames  # the most a file may hold (MOTION_SOURCE_FACTOR x max_frames)
+    poses = np.zeros((frames, 24, 3), np.float32)
+    poses[:, 1:] = _jumping_without_return(frames)[:, None]
+    data = _npz(poses=poses.reshape(frames, 72), mocap_framerate=np.array(50.0))
+    start = time.perf_counter()
+    r = animate(http, data, "jumps.npz", outfit_id=outfit_id, fps="1", up="y")
+    assert r.status_code == 200, r.text[:300]
+    assert time.perf_counter() - start < 5.0

@@ -101,7 +101,8 @@ async def rig_outfit(request: Request) -> Response:
 
     def work() -> Response:
         vertices, faces, body_name, influences, fit, parts = decode.rig_arguments(kind, content_type, data, settings)
-        outfit = handlers.rig(engine, settings, vertices, faces, body_name, influences, fit_first=fit, parts=parts)
+        outfit = handlers.rig(engine, settings, vertices, faces, body_name, influences, fit_first=fit, parts=parts,
+                              field=mesh_field(kind))
         if answer == GLB:
             return Response(handlers.outfit_glb(engine, outfit), media_type=GLB)
         return _rig_answer(answer, outfit, settings)
@@ -111,6 +112,12 @@ async def rig_outfit(request: Request) -> Response:
         return await run_in_threadpool(work)
     finally:
         slot.release()
+
+
+def mesh_field(kind: str) -> str:
+    """Where a rig or fit request of this body type gives its mesh, as errors name it: the form's file `mesh`
+    ("mesh.faces: ..."), else the request's own vertices and faces."""
+    return "mesh" if kind == "multipart/form-data" else ""
 
 
 def _rig_answer(answer: str, outfit: RiggedOutfit, settings: Settings) -> Response:
@@ -181,7 +188,7 @@ async def fit_outfit(request: Request) -> Response:
 
     def work() -> Response:
         args = decode.fit_arguments(kind, content_type, data, settings)
-        result = handlers.fit(settings, **args)
+        result = handlers.fit(settings, **args, field=mesh_field(kind))
         doc = handlers.fit_answer(result, np.asarray(args["faces"]))
         if answer == NPZ:
             return Response(encode_npz(_fit_members(doc)), media_type=NPZ)
