@@ -7,6 +7,7 @@ the models validate every number. Pure CPU work, no HTTP: the routers call these
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 import numpy as np
@@ -361,7 +362,7 @@ def refine_arguments(kind: str, data: bytes, settings: Settings, content_type: s
 
 ANIMATE_FORM = ("motion_file", "outfit_id", "fps", "body", "up", "influences", "refine", *REFINE_OPTIONS)
 REFINE_FORM = ("garment", "motion_file", "fps", "body", "up", *REFINE_OPTIONS)
-_OPTION_TYPES = {"eps": float, "max_iterations": int, "relief_iterations": int}
+_OPTION_TYPES: dict[str, type[float] | type[int]] = {"eps": float, "max_iterations": int, "relief_iterations": int}
 
 
 def _form(data: bytes, content_type: str, allowed: tuple[str, ...]) -> dict[str, Any]:
@@ -379,14 +380,22 @@ def _text(parts: dict[str, Any], name: str) -> str | None:
     return None if part is None else part.data.decode("utf-8", "replace").strip()
 
 
+_FORM_NUMBER = {float: re.compile(r"-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][-+]?[0-9]+)?"), int: re.compile(r"-?[0-9]+")}
+
+
+def _form_number(text: str, kind: type[float] | type[int], field: str) -> float | int:
+    """A form field's number as JSON writes one (an integer for int): Python's own float() and int() also read
+    "2_0" as 20, "nan" and "infinity", which are not numbers a client means."""
+    if not _FORM_NUMBER[kind].fullmatch(text):
+        raise InvalidInput(f"expected {'an integer' if kind is int else 'a number'}, got {quoted(text, 40)}", field)
+    return kind(text)
+
+
 def _form_fps(parts: dict[str, Any]) -> float:
     text = _text(parts, "fps")
     if text is None:
         return 30.0
-    try:
-        fps = float(text)
-    except ValueError:
-        raise InvalidInput(f"expected a number, got {quoted(text, 40)}", "fps") from None
+    fps = float(_form_number(text, float, "fps"))
     if not 0 < fps <= 1000:
         raise InvalidInput(f"must be in (0, 1000], got {fps}", "fps")
     return fps
@@ -404,10 +413,7 @@ def _form_options(parts: dict[str, Any]) -> dict | None:
     for key in REFINE_OPTIONS:
         text = _text(parts, key)
         if text is not None:
-            try:
-                given[key] = _OPTION_TYPES.get(key, float)(text)
-            except ValueError:
-                raise InvalidInput(f"expected a number, got {quoted(text, 40)}", key) from None
+            given[key] = _form_number(text, _OPTION_TYPES.get(key, float), key)
     return _refine_options(given)
 
 

@@ -106,3 +106,14 @@ def test_errors_in_an_uploaded_mesh_name_the_mesh_field(http):
     far = b"v 50 1 0.2\nv 50.1 1 0.2\nv 50 1.1 0.2\nf 1 2 3\n"  # 50 m from the body
     problem(http.post("/v1/outfits/rig", files={"mesh": ("a.obj", far)}), 422, "mesh.vertices: ", "within")
 
+
+
+@pytest.mark.parametrize(("field", "text"), [("fps", "2_0"), ("fps", "infinity"), ("eps", "nan"), ("eps", "1_0e-3"),
+                                             ("max_iterations", "1_0"), ("max_iterations", "5.0")])
+def test_form_numbers_are_json_numbers_not_what_python_reads(http, field, text):
+    """float() and int() read "2_0" as 20 and "nan" as a number: fps=2_0 animated at 20 fps."""
+    rig = http.post("/v1/outfits/rig", json=TINY)
+    assert rig.status_code == 200, rig.text[:300]
+    r = http.post("/v1/outfits/animate", files={"motion_file": ("m.bvh", b"HIERARCHY\n")},
+                  data={"outfit_id": rig.json()["outfit_id"], field: text})
+    problem(r, 422, field, "expected")
