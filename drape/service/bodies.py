@@ -120,6 +120,9 @@ def _check_shape(vertices: np.ndarray, joints: np.ndarray, field: str) -> None:
                                f"{field}joints")
 
 
+MIN_SURFACE_SHARE = 0.95  # of a body's vertices on its faces (the embedded bodies: all of them)
+
+
 def check_body_arrays(arrays: dict[str, Any], settings: Settings, *, field: str = "",
                       rest_pose: Any = None) -> Body:
     """The body contract's arrays (vertices, faces, weights, joints; optional parents, joint_names) -> a Body
@@ -127,6 +130,11 @@ def check_body_arrays(arrays: dict[str, Any], settings: Settings, *, field: str 
     the names). rest_pose (24, 3) radians: the pose the body is given in, un-posed to the T-pose."""
     pre = f"{field}." if field else ""
     v, f = check_mesh(arrays.get("vertices"), arrays.get("faces"), settings, field=field, max_abs=1e5)
+    on_faces = len(np.unique(f)) / len(v)
+    if on_faces < MIN_SURFACE_SHARE:
+        raise InvalidInput(f"only {on_faces:.1%} of the {len(v)} vertices lie on a face: a body is its surface (the "
+                           f"garment is kept out of it), so at least {MIN_SURFACE_SHARE:.0%} of them must",
+                           f"{pre}faces")
     w = _numbers(arrays.get("weights"), f"{pre}weights", (len(v), NUM_JOINTS), "(V, 24) weights,")
     j = _numbers(arrays.get("joints"), f"{pre}joints", (NUM_JOINTS, 3), "rest joint positions")
     if arrays.get("joint_names") is not None:

@@ -117,3 +117,16 @@ def test_form_numbers_are_json_numbers_not_what_python_reads(http, field, text):
     r = http.post("/v1/outfits/animate", files={"motion_file": ("m.bvh", b"HIERARCHY\n")},
                   data={"outfit_id": rig.json()["outfit_id"], field: text})
     problem(r, 422, field, "expected")
+
+
+def test_a_body_whose_faces_leave_its_vertices_off_the_surface_is_refused(http):
+    """The proxy's 1,229 vertices with one triangle registered (201), and rig, refine and export then ran against
+    that one triangle."""
+    from drape.assets.body import load_body
+
+    proxy = load_body("neutral", proxy=True)
+    arrays = {"vertices": proxy.vertices, "faces": proxy.faces[:1], "weights": proxy.weights, "joints": proxy.joints}
+    r = http.post("/v1/bodies", content=_npz(**arrays), headers={"content-type": NPZ})
+    problem(r, 422, "faces", "0.2% of the 1229 vertices")
+    r = http.post("/v1/bodies", files={"body_file": ("b.npz", _npz(**arrays))})
+    problem(r, 422, "body_file.faces", "lie on a face")
