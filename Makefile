@@ -36,14 +36,15 @@ test: $(VENV)/.dev-installed
 test-slow: $(VENV)/.dev-installed
 	$(BIN)/pytest -m slow
 
-# DeePSD from scratch in one command (drape/training/configs/deepsd_candidates_loose_prior_long.json, what ships
-# as 0.11.0: weights restricted to 4 joints of the body's skin near each vertex; generated outfits, procedural
-# motions, the DeepMimic clips and 31 real CMU clips of ../shared/data/mocap; the checkpoint chosen on the
-# validation split), exported into the package; then `drape eval deepsd --write` measures it once. The steps run
-# on a CUDA GPU when torch sees one (`drape train deepsd --device`; 438 s on an H200), else on the CPU (29,100
-# steps at ~0.39 s each on a 2-core machine: about 3 hours; the command resumes from its checkpoints)
-DEEPSD_CONFIG ?= drape/training/configs/deepsd_candidates_loose_prior_long.json
-DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_candidates_loose_prior_long
+# DeePSD from scratch in one command (drape/training/configs/deepsd_oversize_posture.json, what ships as 0.13.0:
+# weights restricted to 4 joints of the body's skin near each vertex; generated outfits, 80 of them oversize,
+# procedural motions, 8 of them with a captured skeleton's posture, the DeepMimic clips and 31 real CMU clips of
+# ../shared/data/mocap with their rotation flips repaired; the checkpoint chosen on the validation split), exported
+# into the package; then `drape eval deepsd --write` measures it once. The steps run on a CUDA GPU when torch sees
+# one (`drape train deepsd --device`), else on the CPU (29,100 steps in 4,761 s of training on a 2-core machine,
+# about 1 h 50 min with the outfits and the validation; the command resumes from its checkpoints)
+DEEPSD_CONFIG ?= drape/training/configs/deepsd_oversize_posture.json
+DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_oversize_posture
 deepsd-model: $(VENV)/.dev-installed
 	$(BIN)/drape train deepsd --config $(DEEPSD_CONFIG) --checkpoints $(DEEPSD_CHECKPOINTS)
 	$(BIN)/drape export deepsd --checkpoints $(DEEPSD_CHECKPOINTS) --out drape/assets/models/deepsd

@@ -159,4 +159,4 @@ def export_deepsd_from_checkpoints(ckpt_dir: str | Path, out_dir: str | Path, in
     return [paths["outfit"], paths["pose"], manifest]
 
 
-VERSION = "0.11.0"
+VERSION = "0.13.0"
