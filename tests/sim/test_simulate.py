@@ -199,3 +199,47 @@ def test_what_moves_the_body_in_the_simulation_does_not_depend_on_numpys_simd_pa
         out = subprocess.run([sys.executable, "-c", _KINEMATICS], env=env, capture_output=True, text=True, check=True)
         runs.append(out.stdout.strip())
     assert runs[0] == runs[1], f"numpy's SIMD targets {found} changed the bones' kinematics"
+
+
+_PIN_TARGETS = """
+import hashlib
+import numpy as np
+from drape.assets.body import load_body
+from drape.assets.motion import load_clip
+from drape.geometry.lbs import linear_blend_skinning
+from drape.geometry.queries import nearest_vertex_weights
+from drape.runtime.layers import LayerCatalog
+from drape.sim.simulate import bone_kinematics, float32_grid, settle_motion, top_boundary
+body, clip = load_body("neutral"), load_clip("dance_b")
+poses, trans = settle_motion(clip, 60, 15, 15)
+tr = bone_kinematics(body, poses, trans, clip.fps)[0]
+outer = next(iter(LayerCatalog().combinations())).outer
+v0 = np.asarray(outer.vertices, dtype=np.float64)
+pinned = top_boundary(v0, outer.faces)
+w = nearest_vertex_weights(v0[pinned], body.vertices, body.weights)
+print(hashlib.sha256(float32_grid(linear_blend_skinning(v0[pinned], w, tr)).tobytes()).hexdigest())
+"""
+
+
+@pytest.mark.xfail(strict=True, reason="known, not fixed yet (docs/layers.md, 2026-12-02): the pinned waistband's "
+                   "targets are skinned in float32 through BLAS, whose kernels OpenBLAS picks by CPU")
+def test_the_pinned_targets_do_not_depend_on_openblas_kernels():
+    """The held-out two-layer simulations of 2026-12-02 on a Sapphire Rapids machine were not those of the machine
+    before; `OPENBLAS_CORETYPE=Haswell` gives that machine's (the jacket's simulated H-Coll on dance_b 3.56%, against
+    4.40% with this machine's own kernels). Bones, hulls and drag areas are the same bytes under both kernels; the
+    pinned top boundary's targets are not. When this passes, the strict xfail fails: remove the mark and re-make
+    every simulation the tables read."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    if " avx512f" not in flags:
+        pytest.skip("OpenBLAS's SkylakeX kernels need AVX512")
+    runs = []
+    for core in ("Haswell", "SkylakeX"):
+        env = {**os.environ, "OPENBLAS_CORETYPE": core}
+        out = subprocess.run([sys.executable, "-c", _PIN_TARGETS], env=env, capture_output=True, text=True, check=True)
+        runs.append(out.stdout.strip())
+    assert runs[0] == runs[1], "OpenBLAS's kernels changed the pinned targets"
