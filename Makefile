@@ -42,7 +42,7 @@ test-slow: $(VENV)/.dev-installed
 # ../shared/data/mocap with their rotation flips repaired; the checkpoint chosen on the validation split), exported
 # into the package; then `drape eval deepsd --write` measures it once. The steps run on a CUDA GPU when torch sees
 # one (`drape train deepsd --device`), else on the CPU (29,100 steps in 4,761 s of training on a 2-core machine,
-# about 1 h 50 min with the outfits and the validation; the command resumes from its checkpoints)
+# about 1 h 40 min wall with the outfits and the validation; the command resumes from its checkpoints)
 DEEPSD_CONFIG ?= drape/training/configs/deepsd_oversize_posture.json
 DEEPSD_CHECKPOINTS ?= checkpoints/deepsd_oversize_posture
 deepsd-model: $(VENV)/.dev-installed
