@@ -210,12 +210,19 @@ def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
     """A motion as the request's arrays: clip (a name) or poses, fps and translation if given."""
     if isinstance(motion, str):
         return {"clip": np.array(motion)}
-    if isinstance(motion, np.ndarray):
+    if isinstance(motion, np.ndarray | list):
         return {"poses": np.asarray(motion, np.float64)}
     get = motion.get if isinstance(motion, Mapping) else (lambda k, d=None: getattr(motion, k, d))
+    poses = get("poses", None)
+    if poses is None and isinstance(get("clip", None), str):  # the wire's own motion object: {"clip": name}
+        return {"clip": np.array(get("clip"))}
+    if poses is None:
+        raise ValueError("motion: give a clip name, poses, a mapping or object with poses (or a clip), or a "
+                         f"MotionFile / Path of a motion file; got {type(motion).__name__} without poses")
     trans = get("translation", None)
     trans = get("trans", None) if trans is None else trans
-    out = {"poses": np.asarray(get("poses"), np.float64), "fps": np.array(float(get("fps", 30.0) or 30.0))}
+    fps = get("fps", None)  # None: the service's 30; any other value is sent as given (0 is the service's 422)
+    out = {"poses": np.asarray(poses, np.float64), "fps": np.array(30.0 if fps is None else float(fps))}
     if trans is not None:
         out["translation"] = np.asarray(trans, np.float64)
     return out

@@ -122,6 +122,100 @@ def encode_pc2_stream(src: FrameSource) -> Pieces:
 ENCODERS: dict[str, Callable[[FrameSource], Pieces]] = {
     JSON: encode_json, NPZ: encode_npz_stream, FRAMES: encode_frame_stream, PC2: encode_pc2_stream}
 
+LAYER_ROLES = ("inner", "outer")  # a two-layer source's layers, in order (POST /v1/layers/animate)
+
+
+def _layer_parts(src: FrameSource) -> list[tuple[str, str, int, int, np.ndarray]]:
+    """A two-layer source's layers: (role, name, start, stop, faces (Fl, 3) int32 indexing the layer's own
+    vertices), from its vertex ranges (`layers`) and the faces of the two as one mesh."""
+    assert src.layers is not None and len(src.layers) == len(LAYER_ROLES)
+    parts = []
+    for role, layer in zip(LAYER_ROLES, src.layers, strict=True):
+        start, stop = layer["start"], layer["stop"]
+        mine = ((src.faces >= start) & (src.faces < stop)).all(axis=1)
+        parts.append((role, layer["name"], start, stop, (src.faces[mine] - start).astype(np.int32)))
+    return parts
+
+
+def _layer_frames(src: FrameSource, parts: list) -> tuple[Iterator[np.ndarray], np.ndarray]:
+    """(the first layer's frames (n, N1, 3) chunk by chunk as computed, the array (T, N2, 3) float32 that keeps
+    the second layer's frames, filled as the first are taken): the second layer's member is written after the
+    first's, so its frames wait in memory, the first's do not."""
+    (_, _, s1, e1, _), (_, _, s2, e2, _) = parts
+    outer = np.empty((src.num_frames, e2 - s2, 3), np.float32)
+
+    def first() -> Iterator[np.ndarray]:
+        t = 0
+        for chunk in src.chunks():
+            outer[t:t + len(chunk)] = chunk[:, s2:e2]
+            t += len(chunk)
+            yield chunk[:, s1:e1]
+
+    return first(), outer
+
+
+def encode_layers_npz(src: FrameSource) -> Pieces:
+    """POST /v1/layers/animate's npz answer (inner, outer (text), fps (float64), inner_vertices (T, Ni, 3),
+    inner_faces, outer_vertices (T, No, 3), outer_faces), written as the frames are computed: the inner layer's
+    frames chunk by chunk, then the outer layer's (kept until then)."""
+    parts = _layer_parts(src)
+    sink = _Pieces()
+    inner, outer = _layer_frames(src, parts)
+    with zipfile.ZipFile(sink, "w", zipfile.ZIP_STORED) as zf:
+        small = [(role, np.array(name)) for role, name, *_ in parts] + [("fps", np.array(src.fps, np.float64))]
+        small += [(f"{role}_faces", faces) for role, _, _, _, faces in parts]
+        for name, arr in small:
+            with zf.open(name + ".npy", "w") as f:
+                np.lib.format.write_array(f, np.asarray(arr), allow_pickle=False)
+        yield from sink.take()
+        for i, (role, _, start, stop, _) in enumerate(parts):
+            size = src.num_frames * (stop - start) * 12
+            with zf.open(f"{role}_vertices.npy", "w", force_zip64=size > 2**30) as f:
+                np.lib.format.write_array_header_1_0(
+                    f, {"descr": "<f4", "fortran_order": False, "shape": (src.num_frames, stop - start, 3)})
+                if i == 0:
+                    for frames in inner:
+                        f.write(_frames32(frames).data.cast("B"))
+                        yield from sink.take()
+                else:
+                    f.write(outer.data.cast("B"))
+                    yield from sink.take()
+    yield from sink.take()
+
+
+def encode_layers_json(src: FrameSource) -> Pieces:
+    """POST /v1/layers/animate's JSON answer (LayersAnimateResponse), the inner layer's frames written chunk by
+    chunk as computed, then the outer layer's (kept until then)."""
+    parts = _layer_parts(src)
+    (inner_role, iname, *_), (outer_role, oname, *_) = parts
+    head = {inner_role: iname, outer_role: oname, "fps": src.fps,
+            **{f"{role}_faces": faces.tolist() for role, _, _, _, faces in parts}}
+    yield (json.dumps(head)[:-1] + f', "{inner_role}_vertices": [').encode()
+    inner, outer = _layer_frames(src, parts)
+    first, step = True, 1
+    for frames in inner:
+        step = max(step, len(frames))
+        text = json.dumps(frames.tolist())[1:-1]
+        if text:
+            yield (text if first else "," + text).encode()
+            first = False
+    yield f'], "{outer_role}_vertices": ['.encode()
+    for t in range(0, len(outer), step):
+        text = json.dumps(outer[t:t + step].tolist())[1:-1]
+        yield (text if t == 0 else "," + text).encode()
+    yield b"]}"
+
+
+LAYER_ENCODERS: dict[str, Callable[[FrameSource], Pieces]] = {JSON: encode_layers_json, NPZ: encode_layers_npz}
+
+
+def encoder(answer: str, src: FrameSource) -> Callable[[FrameSource], Pieces]:
+    """The answer's encoder: a two-layer source's JSON and npz answers hold each layer apart (the frame stream,
+    PC2: the two as one mesh, the ranges in the stream's header)."""
+    if src.layers is not None and answer in LAYER_ENCODERS:
+        return LAYER_ENCODERS[answer]
+    return ENCODERS[answer]
+
 
 def first_chunk_ahead(src: FrameSource) -> FrameSource:
     """`src` with its first chunk computed now (every encoder's first piece is a header, before any frame):
@@ -158,7 +252,7 @@ async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: flo
     except BaseException:
         slot.release()
         raise
-    pieces = ENCODERS[answer](src)
+    pieces = encoder(answer, src)(src)
 
     def next_piece() -> bytes | memoryview | None:
         return next(pieces, None)

@@ -401,9 +401,11 @@ def check_inner(inner: dict, frames: int, settings: Settings) -> InnerStream:
 
 def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, body: str | None,
                 options: dict | None, max_posed: int | None, inner: dict | None = None,
-                rest_vertices: Any = None) -> RefinePlan:
+                rest_vertices: Any = None, motion_field: str = "motion") -> RefinePlan:
     """Validate a refine request: the stream's shape, the faces, the motion (same frame count), the inner
-    layer if any (the same frames), the rest shape if any (the stream's vertex count; not with an inner layer)."""
+    layer if any (the same frames), the rest shape if any (the stream's vertex count; not with an inner layer).
+    motion_field: where the request gives its motion, as a frame count that differs from the stream's names it
+    ("motion"; a form's "motion_file", imported at its fps)."""
     v = _array(vertices, "vertices", np.float64, 3)
     if v.shape[0] < 1 or v.shape[2] != 3 or v.shape[1] < 3:
         raise InvalidInput(f"expected (T, N, 3) with T >= 1 and N >= 3, got {v.shape}", "vertices")
@@ -415,7 +417,7 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
                         "vertices")
     poses, trans, fps = check_motion(motion, settings)
     if len(poses) != len(v):
-        raise InvalidInput(f"the motion has {len(poses)} frames, the stream {len(v)}", "motion")
+        raise InvalidInput(f"the motion has {len(poses)} frames (at {fps:g} fps), the stream {len(v)}", motion_field)
     check_answer_size(v.shape[0], v.shape[1], max_posed, "vertices")
     opts = check_refine(options or True)
     assert opts is not None

@@ -4,9 +4,12 @@ client and the frame stream, bad inputs."""
 import asyncio
 import io
 import json
+import time
 
+import httpx
 import numpy as np
-from svc_env import problem
+import pytest
+from svc_env import live_server, problem
 
 import drape
 from drape.assets.body import load_body
@@ -14,8 +17,9 @@ from drape.assets.motion import load_clip
 from drape.assets.outfits import split_outfit
 from drape.geometry.layers import refine_layers
 from drape.runtime.deepsd import pose_outfit
+from drape.runtime.engine import Engine
 from drape.runtime.layers import LayerCatalog
-from drape.schemas.binary import FRAMES, FrameDecoder
+from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, decode_npz
 
 CLIP = load_clip("dance_b")
 MOTION = {"poses": CLIP.poses[:40:8].reshape(5, 72), "translation": CLIP.trans[:40:8], "fps": 30.0}
@@ -92,6 +96,43 @@ def test_the_frame_stream_names_the_layer_ranges(http):
     js = http.post("/v1/layers/animate", json=body).json()
     assert np.allclose(frames[:, : ranges[0]["stop"]], js["inner_vertices"], atol=1e-6)
     assert np.allclose(frames[:, ranges[1]["start"]:], js["outer_vertices"], atol=1e-6)
+
+
+@pytest.mark.parametrize("accept", [NPZ, "application/json"])
+def test_a_layers_answer_streams_and_stops_when_the_client_goes_away(settings, monkeypatch, accept):
+    """The npz and JSON answers are written as the frames are computed, as animate's are: the first bytes come
+    after the first chunk (not after every frame), and a client that goes away stops the work within a chunk and
+    gives the computing slot back (they were made whole first: every frame computed, the slot held, whoever
+    waited; past DRAPE_REQUEST_BUDGET_S too)."""
+    made = []
+    layer_chunks = Engine.layer_chunks
+
+    def slow(self, *args, **kwargs):
+        for pair in layer_chunks(self, *args, **kwargs):
+            time.sleep(0.15)
+            made.append(len(pair[0]))
+            yield pair
+
+    monkeypatch.setattr(Engine, "layer_chunks", slow)
+    small = settings.model_copy(update={"stream_chunk_frames": 4, "refine_workers": 1})
+    body = {"inner": "tanktop", "outer": "longsleeve", "motion": {"poses": np.zeros((48, 72)).tolist()}}
+    with live_server(small) as url:
+        whole = httpx.post(f"{url}/v1/layers/animate", json={**body, "motion": {"poses": [[0.0] * 72] * 6}},
+                           headers={"accept": accept}, timeout=60)
+        assert whole.status_code == 200 and whole.headers["content-type"].startswith(accept)
+        got = decode_npz(whole.content) if accept == NPZ else whole.json()
+        assert np.shape(got["inner_vertices"])[:2] == (6, 1466) and np.shape(got["outer_vertices"])[:2] == (6, 2546)
+        assert np.array_equal(got["outer_faces"], LayerCatalog().template("longsleeve").faces)
+        made.clear()
+        with httpx.Client() as c, c.stream("POST", f"{url}/v1/layers/animate", json=body,
+                                             headers={"accept": accept}) as r:
+            assert r.status_code == 200
+            next(r.iter_raw())
+        time.sleep(1.0)
+        assert 1 <= len(made) <= 4, made  # 12 chunks asked; stopped within one of the disconnect
+        metrics = httpx.get(f"{url}/metrics").text
+        assert 'drape_answers_cut_total{reason="disconnected"} 1.0' in metrics
+        assert "drape_inflight_requests 0.0" in metrics  # the slot came back
 
 
 def test_layers_bad_inputs(http):

@@ -90,7 +90,7 @@ def test_refine_takes_a_motion_file(http, outfit_id):
     assert r.status_code == 200, r.text
     assert decode_npz(r.content)["vertices"].shape == frames["vertices"].shape
     short = http.post("/v1/refine", files={"garment": ("g.npz", garment), "motion_file": ("m.bvh", cmu_bvh(61))})
-    problem(short, 422, "motion", "16 frames")
+    problem(short, 422, "motion_file:", "16 frames (at 30 fps)")  # the form's field: it has no `motion`
     problem(http.post("/v1/refine", files={"motion_file": ("m.bvh", cmu_bvh(61))}), 422, "garment")
 
 

@@ -108,6 +108,46 @@ def test_error_answers_that_are_not_problems_still_raise_the_typed_error():
                 assert (e.status, e.type, e.title, e.detail) == (502, "", "Bad Gateway", body.decode()), path
 
 
+def test_the_client_sends_a_motion_as_given():
+    """A motion mapping or object as the wire writes one ({"clip": name}) is sent as that clip, and its fps as
+    given (0 reaches the service's 422 naming motion.fps): they were sent as poses of NaN (a 422 about the
+    poses' shape; animate_layers: a TypeError in the client) and as 30 fps. One without poses or a clip is a
+    ValueError before any request."""
+    import json
+    from types import SimpleNamespace
+
+    import httpx
+
+    from drape.schemas.binary import decode_npz
+
+    sent = []
+
+    def answer(request):
+        kind = request.headers.get("content-type", "")
+        sent.append(decode_npz(request.content) if "npz" in kind else json.loads(request.content)["motion"])
+        return httpx.Response(422, json={"type": "t", "title": "Invalid input", "status": 422, "detail": "d"})
+
+    still = {"poses": np.zeros((2, 72)), "fps": 0}
+    with drape.Client("http://drape.test", transport=httpx.MockTransport(answer)) as client:
+        for motion in ({"clip": "kick"}, SimpleNamespace(clip="kick"), still, [[0.0] * 72] * 2):
+            for call in (lambda m: client.animate(outfit_id="x", motion=m),
+                         lambda m: client.animate_layers(inner="tshirt", outer="jacket", motion=m),
+                         lambda m: client.sample_designs("g", count=1, motion=m)):
+                with pytest.raises(drape.DrapeAPIError):
+                    call(motion)
+                got = sent.pop()
+                if isinstance(motion, list):
+                    assert np.shape(got["poses"]) == (2, 72) and float(got.get("fps", 30.0)) == 30.0
+                elif motion is still:
+                    assert float(got["fps"]) == 0.0 and "clip" not in got
+                else:
+                    assert str(got["clip"]) == "kick" and "poses" not in got
+        for motion in ({"trans": np.zeros((2, 3))}, b"not a motion", SimpleNamespace(fps=30.0)):
+            with pytest.raises(ValueError, match="motion"):
+                client.animate(outfit_id="x", motion=motion)
+    assert sent == []
+
+
 def test_an_unknown_format_is_refused_before_any_request(tmp_path):
     """animate(outfit=<a mesh file>, format=...) rigs the file first: an unknown format is a ValueError before
     that upload, not after the rig's work on the server."""

@@ -12,9 +12,8 @@ from collections.abc import Iterator
 
 import numpy as np
 from fastapi import APIRouter, Request, Response
-from fastapi.responses import JSONResponse
 
-from drape.schemas.binary import FRAMES, NPZ, encode_npz
+from drape.schemas.binary import FRAMES, NPZ
 from drape.schemas.gltf import GLB
 from drape.schemas.layers import LayerList
 from drape.schemas.pc2 import PC2
@@ -89,24 +88,6 @@ async def animate_layers(request: Request) -> Response:
     def pairs(p: handlers.LayersPlan) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         return engine.layer_chunks(p.combination, p.thickness, p.poses, p.translation,
                                    settings.stream_chunk_frames, refine=p.refine, fps=p.fps)
-
-    if answer in (JSON, NPZ):
-        def whole() -> Response:
-            p = plan()
-            chunks = list(pairs(p))
-            inner = np.concatenate([c[0] for c in chunks])
-            outer = np.concatenate([c[1] for c in chunks])
-            c = p.combination
-            if answer == NPZ:
-                return Response(encode_npz({
-                    "inner": np.array(c.inner.name), "outer": np.array(c.outer.name), "fps": np.array(p.fps),
-                    "inner_vertices": inner, "inner_faces": c.inner.faces, "outer_vertices": outer,
-                    "outer_faces": c.outer.faces}), media_type=NPZ)
-            return JSONResponse({"inner": c.inner.name, "outer": c.outer.name, "fps": p.fps,
-                                 "inner_vertices": inner.tolist(), "inner_faces": c.inner.faces.tolist(),
-                                 "outer_vertices": outer.tolist(), "outer_faces": c.outer.faces.tolist()})
-
-        return await whole_answer(request, whole)
 
     def source() -> FrameSource:
         p = plan()

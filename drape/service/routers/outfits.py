@@ -208,6 +208,11 @@ def fps_field(kind: str) -> str:
     return "fps" if kind == "multipart/form-data" else "motion.fps"
 
 
+def motion_file_field(kind: str) -> str:
+    """Where a request of this body type gives its motion: the form's motion_file, else the motion."""
+    return "motion_file" if kind == "multipart/form-data" else "motion"
+
+
 def vertex_animation_answer(src: FrameSource, settings: Settings, kind: str, field: str,
                             name: str = "garment") -> Response:
     """A stream's GLB (one morph target a frame), its frame rate and per-frame weights checked before the
@@ -368,7 +373,7 @@ async def refine_stream(request: Request) -> Response:
         vertices, faces, motion, body, options, inner, rest = decode.refine_arguments(kind, data, settings,
                                                                                      content_type)
         p = handlers.plan_refine(settings, vertices, faces, motion, body, options, max_posed(answer, settings), inner,
-                                 rest)
+                                 rest, motion_field=motion_file_field(kind))
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.refine_chunks(p.vertices, p.faces, p.body, p.poses, p.translation, p.options,
