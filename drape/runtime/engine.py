@@ -419,11 +419,13 @@ class Engine:
 
     def export_animation(self, outfit: RiggedOutfit, poses: np.ndarray, translation: np.ndarray,
                          refine: RefineSettings | None = None, chunk: int = 32, body: Body | None = None,
+                         progress: Callable[[int], None] | None = None,
                          ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]] | None]:
         """What an engine needs to replay `pose_chunks`: the pose keys (T, P) float32 (the morph-target
         weights) and, with `refine`, per frame what refinement moved, in the outfit's rest space (so a
         morph target before skinning reproduces it): (vertex indices (k,) int64, offsets (k, 3) float32 m).
-        body: the outfit's body as the request resolved it (default: looked up by name, once)."""
+        body: the outfit's body as the request resolved it (default: looked up by name, once). progress: called
+        with the frames refined so far before each chunk (it may raise to stop the work)."""
         keys = np.concatenate([self.model.pose_keys(poses[s : s + POSE_BLOCK])
                                for s in range(0, len(poses), POSE_BLOCK)]) if len(poses) else np.zeros((0, 0))
         if refine is None:
@@ -436,6 +438,8 @@ class Engine:
             frames = pose_outfit(outfit.vertices, outfit.rig, keys[start : start + POSE_BLOCK], joints, p, tr)
             rotations = forward_kinematics(p, joints, PARENTS, tr)[0][:, :, :3, :3]
             for s in range(0, len(frames), chunk):
+                if progress is not None:
+                    progress(len(corrections))
                 part = frames[s : s + chunk]
                 refined = self.refine_pool.refine(part, outfit.faces, body, p[s : s + chunk], tr[s : s + chunk],
                                                   refine, rest=outfit.vertices)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import lru_cache
@@ -332,6 +333,23 @@ def check_glb_frame_targets(frames: int, max_values: int, field: str) -> None:
             f"the limit of {max_values}; ask for fewer frames or another format (npz, the frame stream, PC2)", field)
 
 
+def whole_answer_budget(budget_s: float, frames: int, field: str) -> Callable[[int], None]:
+    """For an answer made whole before it is sent (GLB): a check to call with the frames done so far, which
+    raises a 413 naming `field` once `budget_s` (DRAPE_REQUEST_BUDGET_S) has passed since this call. A streamed
+    answer is cut at the budget and keeps what was sent; a whole one has sent nothing, so it says so instead of
+    holding its computing slot past the budget."""
+    deadline = time.monotonic() + budget_s
+
+    def check(done: int) -> None:
+        if done < frames and time.monotonic() > deadline:
+            raise LimitExceeded(
+                f"the request's time budget of {budget_s:g} s ran out after {done} of {frames} frames; ask for "
+                "fewer frames or a streamed format (npz, JSON, the frame stream, PC2), which sends what is done",
+                field)
+
+    return check
+
+
 def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed: int | None) -> AnimationPlan:
     """Validate an animate request (a dict shaped like AnimateRequest) into a plan; `max_posed` bounds
     frames x vertices for the answer's format (None: no bound)."""
@@ -438,10 +456,12 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
     return RefinePlan(v.astype(np.float32), f, held_body(check_body(body)), poses, trans, fps, opts, layer, rest)
 
 
-def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None = None) -> bytes:
+def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None = None,
+               progress: Callable[[int], None] | None = None) -> bytes:
     """The rig as a GLB: the outfit skinned to the body's skeleton with its blend shapes as morph targets
     (`psd_<p>`), the body skinned beside it; with a plan, its motion as an animation whose morph weights
-    are the pose keys (and, with refinement, one sparse correction target per frame)."""
+    are the pose keys (and, with refinement, one sparse correction target per frame; `progress` is called
+    with the frames refined so far, e.g. `whole_answer_budget`'s check)."""
     body = plan.body if plan is not None and plan.body is not None else held_body(outfit.body)
     rig = outfit.rig
     meshes = [SkinnedMesh("outfit", outfit.vertices, outfit.faces, rig.weights, rig.blend_shapes,
@@ -449,7 +469,8 @@ def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None 
               SkinnedMesh("body", body.vertices, body.faces, body.weights)]
     animation = None
     if plan is not None:
-        keys, corrections = engine.export_animation(outfit, plan.poses, plan.translation, plan.refine, body=body)
+        keys, corrections = engine.export_animation(outfit, plan.poses, plan.translation, plan.refine, body=body,
+                                                    progress=progress)
         animation = Animation(plan.poses, plan.translation, plan.fps, keys, corrections)
     extras = {"drape": {"outfit_id": outfit.outfit_id, "influences": outfit.influences,
                         **({"diagnostics": outfit.diagnostics} if outfit.diagnostics else {})}}

@@ -174,3 +174,33 @@ def test_read_pc2_refuses_what_is_not_one():
     with pytest.raises(ValueError, match="declares"):
         read_pc2(io.BytesIO(b"POINTCACHE2\0" + np.array([1, 5], "<i4").tobytes() +
                             np.array([0, 1], "<f4").tobytes() + np.array([2], "<i4").tobytes()).getvalue())
+
+
+@pytest.fixture
+def spent_budget(app):
+    """The served settings with a request budget (DRAPE_REQUEST_BUDGET_S) that has run out by the first check."""
+    served = app.state.settings
+    app.state.settings = served.model_copy(update={"request_budget_s": 1e-9})
+    yield
+    app.state.settings = served
+
+
+def test_the_request_budget_stops_glb_answers_with_a_problem(http, outfit, spent_budget):
+    """A GLB is made whole before it is sent, so past DRAPE_REQUEST_BUDGET_S it stops with a 413 naming the frames'
+    field and saying what to do (it held its computing slot for as long as the work took: a refined GLB of ~4,400
+    frames for minutes); a streamed answer of the same request is cut instead (its client sees an incomplete
+    answer), and the cut is counted."""
+    refined = http.post("/v1/outfits/animate", content=encode_npz(animate_body(outfit, True)),
+                        headers={"content-type": NPZ, "accept": GLB})
+    problem(refined, 413, "motion", "time budget", "streamed format")
+    layers = {"inner": "tshirt", "outer": "jacket", "motion": {"poses": [[0.0] * 72] * 60}}
+    problem(http.post("/v1/layers/animate", json=layers, headers={"accept": GLB}), 413, "motion", "time budget",
+            "32 of 60 frames")
+    cut = 'drape_answers_cut_total{reason="time_budget"}'
+    before = next((line for line in http.get("/metrics").text.splitlines() if line.startswith(cut)), f"{cut} 0.0")
+    streamed = http.post("/v1/layers/animate", json=layers, headers={"accept": NPZ})
+    assert streamed.status_code == 200
+    with pytest.raises(Exception):  # noqa: B017 - cut: not a whole npz
+        decode_npz(streamed.content)
+    after = next(line for line in http.get("/metrics").text.splitlines() if line.startswith(cut))
+    assert float(after.split()[-1]) == float(before.split()[-1]) + 1

@@ -219,7 +219,12 @@ def vertex_animation_answer(src: FrameSource, settings: Settings, kind: str, fie
     frames are computed (`kind`: the request's body type, for the fps field's name; `field`: the frames' limit)."""
     handlers.check_glb_fps(src.num_frames, src.fps, fps_field(kind))
     handlers.check_glb_frame_targets(src.num_frames, settings.max_posed_values, field)
-    frames = np.concatenate(list(src.chunks()))
+    check = handlers.whole_answer_budget(settings.request_budget_s, src.num_frames, field)
+    chunks: list[np.ndarray] = []
+    for chunk in src.chunks():
+        chunks.append(chunk)
+        check(sum(map(len, chunks)))
+    frames = np.concatenate(chunks)
     return Response(vertex_animation_glb(frames, src.faces, src.fps, name=name), media_type=GLB)
 
 
@@ -306,7 +311,8 @@ async def animate_outfit(request: Request) -> Response:
             handlers.check_glb_fps(p.num_frames, p.fps, fps_field(kind))
             if p.refine is not None:
                 handlers.check_glb_frame_targets(p.num_frames, settings.max_posed_values, "motion")
-            return Response(handlers.outfit_glb(engine, p.outfit, p), media_type=GLB)
+            check = handlers.whole_answer_budget(settings.request_budget_s, p.num_frames, "motion")
+            return Response(handlers.outfit_glb(engine, p.outfit, p, progress=check), media_type=GLB)
 
         return await whole_answer(request, glb)
 
