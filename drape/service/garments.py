@@ -42,6 +42,17 @@ def find(engine: Engine, name: str) -> IntrinsicGarment:
     return garment
 
 
+def find_template(engine: Engine, name: str):  # noqa: ANN201 (an IntrinsicGarment or a layer template)
+    """The template named `name` (GET /v1/garments/{name}: an intrinsic garment or a layer template), or a 404
+    naming it and listing every served template."""
+    template = engine.layers.template(name) or engine.garments.get(name)
+    if template is None:
+        known = [*engine.garments.names(), *(t.name for t in engine.layers.templates())]
+        served = f"the served templates: {', '.join(known)}" if known else "no templates are served"
+        raise NotFound(f"unknown garment {quoted(name, 80)}; {served} (GET /v1/garments)", "name")
+    return template
+
+
 def garment_list(engine: Engine) -> GarmentList:
     """The intrinsic templates, then the layer templates (GET /v1/layers)."""
     return GarmentList(garments=[*(GarmentInfo(**g.info()) for g in engine.garments),

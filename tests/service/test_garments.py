@@ -276,7 +276,7 @@ def test_bad_inputs_name_their_field(http, garment, shape):
     # unknown garment: a 404 naming it and listing the served ones, on every route
     for route in ROUTES:
         problem(http.post(f"/v1/garments/nope/{route}", json={"motion": kick}), 404, "name", "'nope'", NAME)
-    problem(http.get("/v1/garments/nope"), 404, "name", NAME)
+    problem(http.get("/v1/garments/nope"), 404, "name", NAME, "tshirt", "longsleeve")  # the layer templates too
     # wrong vertex count
     problem(post("encode", vertices=v[:-1], motion=kick, frame=0), 422, "vertices", f"({N}, 3)", f"({N - 1}, 3)")
     problem(post("animate", motion=kick, keyframes=[{"frame": 0, "vertices": v[:10]}]), 422,

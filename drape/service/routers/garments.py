@@ -121,7 +121,7 @@ def get_garment(request: Request, name: str = NAME) -> Response:
     """The template mesh: vertices (N, 3) metres in rest pose on its body, faces (F, 3); JSON or npz by Accept."""
     answer = choose(request.headers.get("accept"), [JSON, NPZ])
     engine = engine_of(request)
-    g = engine.layers.template(name) or handlers.find(engine, name)
+    g = handlers.find_template(engine, name)
     if answer == NPZ:
         return Response(encode_npz({"name": np.array(g.name), "body": np.array(g.body), "vertices": g.vertices,
                                     "faces": g.faces}), media_type=NPZ)
