@@ -58,10 +58,12 @@ def check_finite_within(a: np.ndarray, bound: float, beyond: str, field: str) ->
 
 
 def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "",
-               max_abs: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+               max_abs: float = 100.0, prefix: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """-> (vertices (N, 3) float32, faces (F, 3) int32), or a domain error naming the field; coordinates
-    beyond `max_abs` are refused (100: metres; a mesh to fit may be in millimetres)."""
-    pre = f"{field}." if field else ""
+    beyond `max_abs` are refused (100: metres; a mesh to fit may be in millimetres). The errors name
+    `<field>.vertices` / `<field>.faces`, or `<prefix>vertices` / `<prefix>faces` where a prefix is given (an npz's
+    members: "inner_")."""
+    pre = prefix if prefix is not None else f"{field}." if field else ""
     if isinstance(faces, np.ndarray) and faces.dtype.kind not in "iu":
         raise InvalidInput(f"must be integer indices, got dtype {faces.dtype}", f"{pre}faces")
     v = _array(vertices, f"{pre}vertices", np.float64, 2)
@@ -402,28 +404,37 @@ class RefinePlan:
     rest: np.ndarray | None = None  # (N, 3) float64 m, the garment at rest: edges kept near their rest lengths
 
 
-def check_inner(inner: dict, frames: int, settings: Settings) -> InnerStream:
-    """An inner layer {"vertices" (T, Ni, 3), "faces" (Fi, 3), "thickness" m} over `frames` frames."""
-    v = _array(inner.get("vertices"), "inner.vertices", np.float64, 3)
+INNER_JSON_FIELDS = ("inner.", "inner.thickness")  # a JSON refine request's inner layer: {"inner": {...}}
+INNER_NPZ_FIELDS = ("inner_", "thickness")  # an npz's (or a form's garment npz's) members inner_vertices, ...
+
+
+def check_inner(inner: dict, frames: int, settings: Settings,
+                fields: tuple[str, str] = INNER_JSON_FIELDS) -> InnerStream:
+    """An inner layer {"vertices" (T, Ni, 3), "faces" (Fi, 3), "thickness" m} over `frames` frames; the errors
+    name the request's own fields: `fields` = (the prefix of vertices and faces, the thickness's name)."""
+    pre, thickness = fields
+    v = _array(inner.get("vertices"), f"{pre}vertices", np.float64, 3)
     if v.shape[0] != frames or v.shape[1] < 3 or v.shape[2] != 3:
         raise InvalidInput(f"expected ({frames}, Ni, 3) with Ni >= 3 (the stream's frames), got {v.shape}",
-                           "inner.vertices")
+                           f"{pre}vertices")
     check_finite_within(v, MAX_WORLD_M, f"coordinates beyond {MAX_WORLD_M:g} m: the stream must be in metres",
-                        "inner.vertices")
-    _, f = check_mesh(v[0], inner.get("faces"), settings, field="inner")
+                        f"{pre}vertices")
+    _, f = check_mesh(v[0], inner.get("faces"), settings, prefix=pre)
     t = inner.get("thickness")
     if isinstance(t, bool) or not isinstance(t, int | float) or not 0 < t <= 0.05:
-        raise InvalidInput(f"expected a thickness in metres in (0, 0.05], got {str(t)[:40]}", "inner.thickness")
+        raise InvalidInput(f"expected a thickness in metres in (0, 0.05], got {str(t)[:40]}", thickness)
     return InnerStream(v.astype(np.float32), f, float(t))
 
 
 def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, body: str | None,
                 options: dict | None, max_posed: int | None, inner: dict | None = None,
-                rest_vertices: Any = None, motion_field: str = "motion") -> RefinePlan:
+                rest_vertices: Any = None, motion_field: str = "motion",
+                inner_fields: tuple[str, str] = INNER_JSON_FIELDS) -> RefinePlan:
     """Validate a refine request: the stream's shape, the faces, the motion (same frame count), the inner
     layer if any (the same frames), the rest shape if any (the stream's vertex count; not with an inner layer).
     motion_field: where the request gives its motion, as a frame count that differs from the stream's names it
-    ("motion"; a form's "motion_file", imported at its fps)."""
+    ("motion"; a form's "motion_file", imported at its fps); inner_fields: how the request names the inner
+    layer's parts (`check_inner`)."""
     v = _array(vertices, "vertices", np.float64, 3)
     if v.shape[0] < 1 or v.shape[2] != 3 or v.shape[1] < 3:
         raise InvalidInput(f"expected (T, N, 3) with T >= 1 and N >= 3, got {v.shape}", "vertices")
@@ -441,7 +452,7 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
     assert opts is not None
     layer = None
     if inner is not None:
-        layer = check_inner(inner, len(v), settings)
+        layer = check_inner(inner, len(v), settings, inner_fields)
         # the inner layer is refined too: its frames count against the same bound as the answer's
         check_answer_size(v.shape[0], v.shape[1] + layer.vertices.shape[1], max_posed, "inner.vertices")
     rest = None

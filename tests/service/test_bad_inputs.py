@@ -217,7 +217,7 @@ def test_refine_inner_layer_bad_inputs(http):
 
     bad = np.array(frames, np.float32)
     bad[1, 0, 0] = np.nan
-    problem(post(inner_vertices=bad, inner_faces=np.array(F)), 422, "inner.vertices", "NaN")
+    problem(post(inner_vertices=bad, inner_faces=np.array(F)), 422, "inner_vertices", "NaN")  # the npz member's name
     problem(post(inner_vertices=np.array(frames, np.float32)), 422, "inner_faces")
     problem(post(thickness=np.array(0.004)), 422, "inner_vertices")
     problem(post(inner_vertices=np.array(frames, np.float32), inner_faces=np.array(F), thickness=np.array(-1.0)),

@@ -379,7 +379,9 @@ async def refine_stream(request: Request) -> Response:
         vertices, faces, motion, body, options, inner, rest = decode.refine_arguments(kind, data, settings,
                                                                                      content_type)
         p = handlers.plan_refine(settings, vertices, faces, motion, body, options, max_posed(answer, settings), inner,
-                                 rest, motion_field=motion_file_field(kind))
+                                 rest, motion_field=motion_file_field(kind),
+                                 inner_fields=handlers.INNER_JSON_FIELDS if kind in (JSON, "") else
+                                 handlers.INNER_NPZ_FIELDS)
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.refine_chunks(p.vertices, p.faces, p.body, p.poses, p.translation, p.options,
