@@ -206,10 +206,9 @@ import hashlib
 import numpy as np
 from drape.assets.body import load_body
 from drape.assets.motion import load_clip
-from drape.geometry.lbs import linear_blend_skinning
 from drape.geometry.queries import nearest_vertex_weights
 from drape.runtime.layers import LayerCatalog
-from drape.sim.simulate import bone_kinematics, float32_grid, settle_motion, top_boundary
+from drape.sim.simulate import bone_kinematics, pin_targets, settle_motion, top_boundary
 body, clip = load_body("neutral"), load_clip("dance_b")
 poses, trans = settle_motion(clip, 60, 15, 15)
 tr = bone_kinematics(body, poses, trans, clip.fps)[0]
@@ -217,29 +216,49 @@ outer = next(iter(LayerCatalog().combinations())).outer
 v0 = np.asarray(outer.vertices, dtype=np.float64)
 pinned = top_boundary(v0, outer.faces)
 w = nearest_vertex_weights(v0[pinned], body.vertices, body.weights)
-print(hashlib.sha256(float32_grid(linear_blend_skinning(v0[pinned], w, tr)).tobytes()).hexdigest())
+print(hashlib.sha256(pin_targets(v0[pinned], w, tr).tobytes()).hexdigest())
 """
 
 
-@pytest.mark.xfail(strict=True, reason="known, not fixed yet (docs/layers.md, 2026-12-02): the pinned waistband's "
-                   "targets are skinned in float32 through BLAS, whose kernels OpenBLAS picks by CPU")
-def test_the_pinned_targets_do_not_depend_on_openblas_kernels():
-    """The held-out two-layer simulations of 2026-12-02 on a Sapphire Rapids machine were not those of the machine
-    before; `OPENBLAS_CORETYPE=Haswell` gives that machine's (the jacket's simulated H-Coll on dance_b 3.56%, against
-    4.40% with this machine's own kernels). Bones, hulls and drag areas are the same bytes under both kernels; the
-    pinned top boundary's targets are not. When this passes, the strict xfail fails: remove the mark and re-make
-    every simulation the tables read."""
+def test_the_pinned_targets_do_not_depend_on_the_cpus_kernels():
+    """The pinned top boundary's targets are the same bytes under OpenBLAS's AVX2 and AVX512 kernels and with
+    numpy's SIMD loops turned off. Skinned in float32 through BLAS (`linear_blend_skinning`) they were not, and the
+    held-out two-layer simulations differed between machines (the jacket's simulated H-Coll on dance_b 3.56% under
+    `OPENBLAS_CORETYPE=Haswell`, 4.40% under this Sapphire Rapids machine's own kernels, 2026-12-02);
+    `pin_targets` skins them in float64 by elementwise products (docs/sim.md)."""
     import os
     import subprocess
     import sys
     from pathlib import Path
 
+    from numpy._core import _multiarray_umath as m
+
     flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
     if " avx512f" not in flags:
         pytest.skip("OpenBLAS's SkylakeX kernels need AVX512")
+    found = " ".join(f for f in m.__cpu_dispatch__ if m.__cpu_features__.get(f))
     runs = []
-    for core in ("Haswell", "SkylakeX"):
-        env = {**os.environ, "OPENBLAS_CORETYPE": core}
-        out = subprocess.run([sys.executable, "-c", _PIN_TARGETS], env=env, capture_output=True, text=True, check=True)
+    for env in ({"OPENBLAS_CORETYPE": "Haswell"}, {"OPENBLAS_CORETYPE": "SkylakeX"},
+                {"OPENBLAS_CORETYPE": "Haswell", "NPY_DISABLE_CPU_FEATURES": found}):
+        out = subprocess.run([sys.executable, "-c", _PIN_TARGETS], env={**os.environ, **env}, capture_output=True,
+                             text=True, check=True)
         runs.append(out.stdout.strip())
-    assert runs[0] == runs[1], "OpenBLAS's kernels changed the pinned targets"
+    assert runs[0] == runs[1] == runs[2], "the CPU's kernels changed the pinned targets"
+
+
+def test_pin_targets_are_linear_blend_skinning():
+    """`pin_targets` against `linear_blend_skinning` (float32 GEMMs): the same points within float32 rounding, on
+    weights mixing up to four joints."""
+    from drape.sim.simulate import pin_targets
+
+    body = load_body("neutral")
+    rng = np.random.default_rng(3)
+    poses = rng.normal(0, 0.4, (5, 24, 3))
+    tr, _ = forward_kinematics(poses, body.joints, body.parents, rng.normal(0, 0.2, (5, 3)))
+    idx = rng.choice(len(body.vertices), 50, replace=False)
+    got = pin_targets(body.vertices[idx], body.weights[idx], tr)
+    want = linear_blend_skinning(body.vertices[idx], body.weights[idx], tr)
+    assert got.dtype == np.float64 and got.shape == (5, 50, 3)
+    assert np.array_equal(got, got.astype(np.float32).astype(np.float64))
+    assert np.abs(got - want).max() < 1e-6
+    assert (np.count_nonzero(body.weights[idx], axis=1) > 1).sum() > 10
