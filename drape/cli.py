@@ -178,13 +178,28 @@ def _outfits_fit(args: argparse.Namespace) -> None:
         Path(args.report).write_text(json.dumps({"transform": result.transform.tolist(), "report": r}, indent=1))
 
 
-def _frames_arg(text: str, num_frames: int) -> list[int]:
-    """A comma list of frame indices, each checked against 0..num_frames - 1."""
-    frames = [int(f) for f in text.split(",")]
+def _frames_arg(text: str, num_frames: int, option: str = "--frames") -> list[int]:
+    """A comma list of frame indices, each checked against 0..num_frames - 1; a ValueError naming the option
+    otherwise (main's one line, exit 2; '0,x' printed int()'s "invalid literal for int() with base 10")."""
+    try:
+        frames = [int(f) for f in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{option}: expected a comma list of frame indices, got {text!r}") from None
     bad = [f for f in frames if not 0 <= f < num_frames]
     if bad:
-        raise SystemExit(f"frames {bad} outside 0..{num_frames - 1}")
+        raise ValueError(f"{option}: frames {bad} outside 0..{num_frames - 1}")
     return frames
+
+
+def _finite_float(text: str) -> float:
+    """An argparse type: a finite float (an --azimuth of nan or inf drew every panel blank)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not np.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
 
 
 def _render(args: argparse.Namespace) -> None:
@@ -266,7 +281,7 @@ def _render_sim(args: argparse.Namespace) -> None:
         from drape.runtime.intrinsic import INTRINSIC_DIR, IntrinsicGarment
 
         garment = IntrinsicGarment(args.garment_model or INTRINSIC_DIR / str(seq["garment"]))
-        keys = _frames_arg(args.keyframes, T)
+        keys = _frames_arg(args.keyframes, T, "--keyframes")
         keyed = garment.keyframed(seq["vertices"][keys], keys, seq["poses"], seq["trans"], float(seq["fps"]),
                                   match_keyframes=not args.unmatched)[frames]
         side = 0.45 * view_matrix(args.azimuth)[0]  # screen x in world space
@@ -745,7 +760,8 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--vertices", type=int, default=4000)
     o.add_argument("--seed", type=int, default=0)
     o.add_argument("--body", default="neutral")
-    o.add_argument("--looseness", type=float, default=None, help="0 (tight) .. 1 (loose); random if omitted")
+    o.add_argument("--looseness", type=float, default=None,
+                   help="0 (tight) .. 1 (loose), up to 3 for an oversize garment; random if omitted")
     o.add_argument("--length", type=float, default=None, help="0 (short) .. 1 (long); random if omitted")
     o.add_argument("--out", required=True)
     o.set_defaults(func=_outfits_generate)
@@ -917,7 +933,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--garment-model", help="with --keyframes: the model folder (default the shipped one of the "
                                            "sequence's garment)")
     r.add_argument("--frames", default=None, help="comma list (default 0,10,20,30; six spread frames with --sim)")
-    r.add_argument("--azimuth", type=float, default=25.0, help="view angle about +Y from the front, degrees")
+    r.add_argument("--azimuth", type=_finite_float, default=25.0, help="view angle about +Y from the front, degrees")
     r.add_argument("--smooth", type=_int_in(0), default=40, help="weight diffusion steps for the outfit's skinning")
     r.add_argument("--out", required=True)
     r.set_defaults(func=_render)

@@ -79,6 +79,8 @@ def render_frames(
         fig.suptitle(caption, fontsize=9, y=0.04)
     fig.tight_layout()
     out = Path(out)
+    if not out.suffix:  # matplotlib appends .png itself: return the file it writes, not `out`
+        out = out.with_name(out.name + ".png")
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)

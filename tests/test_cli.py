@@ -261,3 +261,102 @@ def test_a_config_that_is_not_a_json_object_is_named_in_one_line(command, text, 
                                                         if command[0] == "train" else [])])
     err = capsys.readouterr().err.strip()
     assert exc.value.code == 2 and err.startswith(f"drape: error: {config}: {said}") and "\n" not in err, err
+
+
+def _refused(capsys, *args):
+    """cli.main(args) -> (exit code, its one line of stderr); no traceback."""
+    from drape import cli
+
+    with pytest.raises(SystemExit) as exc:
+        cli.main(list(args))
+    err = exc.value.code if isinstance(exc.value.code, str) else capsys.readouterr().err
+    assert exc.value.code != 0 and len(err.strip().splitlines()) == 1, err
+    return (1 if isinstance(exc.value.code, str) else exc.value.code), err.strip().splitlines()[-1]
+
+
+def test_a_mesh_that_is_not_a_triangle_mesh_is_named_in_one_line(tmp_path, capsys):
+    """outfits fit, render --outfit and sim run read meshes through load_mesh: a mesh without faces printed numpy's
+    'zero-size array to reduction operation maximum' (and `render --outfit` drew the body alone, exit 0), faces past
+    the vertices and a .bvh raised trimesh's IndexError / NotImplementedError as tracebacks, NaN vertices 'arange:
+    cannot compute length', a missing file trimesh's 'string is not a file'."""
+    files = {"nofaces.obj": "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "empty.stl": "solid x\nendsolid x\n",
+             "oob.obj": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "nan.obj": "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+             "bad.ply": "hello\n", "walk.bvh": "HIERARCHY\n"}
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    out = tmp_path / "fitted.obj"
+    for name, code, said in (("nofaces.obj", 2, "the mesh has no triangle faces"),
+                             ("empty.stl", 2, "the mesh has no triangle faces"),
+                             ("oob.obj", 2, "not a readable OBJ mesh (IndexError"),
+                             ("nan.obj", 2, "vertices hold NaN or infinite values"),
+                             ("bad.ply", 2, "not a readable PLY mesh"),
+                             ("walk.bvh", 2, "unsupported mesh suffix '.bvh'"),
+                             ("missing.obj", 1, "No such file or directory")):
+        got = _refused(capsys, "outfits", "fit", str(tmp_path / name), "--out", str(out))
+        assert got[0] == code and got[1].startswith(f"drape: error: {tmp_path / name}: {said}"), got
+    assert not out.exists()
+    png = tmp_path / "look.png"
+    got = _refused(capsys, "render", "--outfit", str(tmp_path / "nofaces.obj"), "--out", str(png))
+    assert got == (2, f"drape: error: {tmp_path / 'nofaces.obj'}: the mesh has no triangle faces (0 vertices)")
+    assert not png.exists()
+
+
+@pytest.mark.parametrize(("option", "value", "said"), [
+    ("--looseness", "nan", "looseness must be within [0, 3], got nan"),  # printed 'cannot convert float NaN to integer'
+    ("--looseness", "-0.5", "looseness must be within [0, 3], got -0.5"),  # negative ease: cloth inside the body
+    ("--looseness", "5", "looseness must be within [0, 3], got 5.0"),
+    ("--length", "inf", "length must be within [0, 1], got inf"),  # an OverflowError traceback
+    ("--length", "-3", "length must be within [0, 1], got -3.0"),  # an extrapolated hem, written as if fine
+])
+def test_outfit_looseness_and_length_out_of_range_are_refused(option, value, said, tmp_path, capsys):
+    out = tmp_path / "o.obj"
+    assert _refused(capsys, "outfits", "generate", "--type", "trousers", "--vertices", "300", option, value,
+                    "--out", str(out)) == (2, f"drape: error: {said}")
+    assert not out.exists()
+
+
+def test_a_motion_file_that_is_not_a_clip_is_named_in_one_line(tmp_path, capsys):
+    """render --motion (and sim run --clip FILE.npz) read clips through load_motion_npz: an empty or truncated file
+    raised EOFError / BadZipFile tracebacks, a lone .npy a TypeError, a text file numpy's pickle advice, a clip whose
+    members disagree a message without the file."""
+    good = np.zeros((5, 24, 3))
+    (tmp_path / "empty.npz").write_bytes(b"")
+    (tmp_path / "text.npz").write_text("HIERARCHY\n")
+    np.save(tmp_path / "one.npy", good)
+    (tmp_path / "one.npy").rename(tmp_path / "one.npz")
+    np.savez(tmp_path / "clip.npz", poses=good, trans=np.zeros((5, 3)), fps=np.float32(30))
+    data = (tmp_path / "clip.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[:len(data) // 2])
+    np.savez(tmp_path / "short_trans.npz", poses=good, trans=np.zeros((3, 3)))
+    np.savez(tmp_path / "no_frames.npz", poses=good[:0])
+    np.savez(tmp_path / "fps_list.npz", poses=good, fps=np.zeros(0))
+    png = tmp_path / "look.png"
+    for name, said in (("empty.npz", "not a readable npz file"), ("cut.npz", "not a readable npz file"),
+                       ("text.npz", "not an npz file"), ("one.npz", "holds one .npy array"),
+                       ("short_trans.npz", "trans has 3 frames, poses 5"), ("no_frames.npz", "the clip has no frames"),
+                       ("fps_list.npz", "'fps' must be one number")):
+        code, line = _refused(capsys, "render", "--motion", str(tmp_path / name), "--frames", "0", "--out", str(png))
+        assert code == 2 and line.startswith(f"drape: error: {tmp_path / name}: {said}"), line
+    assert not png.exists()
+
+
+def test_render_options_are_checked_and_the_written_file_is_named(tmp_path, capsys):
+    """--azimuth nan drew every panel blank (exit 0); --frames 0,x printed int()'s 'invalid literal'; an --out
+    without a suffix printed that path while matplotlib wrote OUT.png."""
+    from drape import cli
+
+    png = tmp_path / "look.png"
+    with pytest.raises(SystemExit) as exc:  # argparse's usage and its one-line error
+        cli.main(["render", "--azimuth", "nan", "--out", str(png)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and err[-1].endswith("error: argument --azimuth: must be a finite number, got 'nan'")
+    motion = tmp_path / "m.npz"
+    np.savez(motion, poses=np.zeros((5, 24, 3)))
+    assert _refused(capsys, "render", "--motion", str(motion), "--frames", "0,x", "--out", str(png)) == \
+        (2, "drape: error: --frames: expected a comma list of frame indices, got '0,x'")
+    assert _refused(capsys, "render", "--motion", str(motion), "--frames", "0,5", "--out", str(png)) == \
+        (2, "drape: error: --frames: frames [5] outside 0..4")
+    assert not png.exists()
+    cli.main(["render", "--out", str(tmp_path / "rest")])
+    assert capsys.readouterr().out.strip() == str(tmp_path / "rest.png")
+    assert (tmp_path / "rest.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -89,14 +89,39 @@ def load_motion_npz(path: str | Path, name: str | None = None) -> Motion:
     ValueError pointing at `drape motions import`, which turns it Y-up, maps its layout's joints (SMPL-H's
     values 66-71 are left-hand fingers, not SMPL's hands) and puts its feet on the floor; read here as they
     are, such a clip was simulated lying on its side.
+
+    A file that is not an npz (text, empty, truncated, one .npy array), members that disagree (trans and poses
+    of different lengths, NaN, a rate <= 0) or no frames: a ValueError naming the file.
     """
+    import zipfile
+
     from drape.assets.amass import AMASS_KEYS
 
-    with np.load(path, allow_pickle=False) as z:
+    try:
+        motion = _read_motion_npz(path, name, AMASS_KEYS)
+    except (EOFError, zipfile.BadZipFile) as exc:  # empty or truncated
+        raise ValueError(f"{path}: not a readable npz file ({exc})") from exc
+    except ValueError as exc:
+        if str(exc).startswith(f"{path}: "):
+            raise
+        raise ValueError(f"{path}: {exc}") from exc
+    if motion.num_frames == 0:
+        raise ValueError(f"{path}: the clip has no frames")
+    return motion
+
+
+def _read_motion_npz(path: str | Path, name: str | None, amass_keys_known: tuple[str, ...]) -> Motion:
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except ValueError as exc:  # neither the npy nor the zip magic: numpy's message is about pickles
+        raise ValueError(f"{path}: not an npz file (a zip of .npy arrays)") from exc
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: holds one .npy array, not an npz of poses, trans and fps")
+    with archive as z:
         if "poses" not in z:
             raise ValueError(f"{path}: no 'poses' array")
         raw = z["poses"]
-        amass_keys = [k for k in AMASS_KEYS if k in z]
+        amass_keys = [k for k in amass_keys_known if k in z]
         if amass_keys or not (raw.ndim == 3 and raw.shape[1:] == (NUM_JOINTS, 3)
                               or raw.ndim == 2 and raw.shape[1] == 3 * NUM_JOINTS):
             why = f"AMASS keys {amass_keys}" if amass_keys else f"poses {raw.shape}"
@@ -107,7 +132,10 @@ def load_motion_npz(path: str | Path, name: str | None = None) -> Motion:
         fps = 30.0
         for key in ("fps", "mocap_framerate", "mocap_frame_rate"):
             if key in z:
-                fps = float(np.asarray(z[key]).reshape(-1)[0])
+                given = np.asarray(z[key]).reshape(-1)
+                if given.size != 1 or given.dtype.kind not in "fiu":
+                    raise ValueError(f"{path}: '{key}' must be one number, got {given.shape} {given.dtype}")
+                fps = float(given[0])
                 break
     return Motion(poses, trans, fps, name or Path(path).stem)
 

@@ -473,6 +473,9 @@ def _build(body: Body, kinds: list[str], spacing: float, seed: int, looseness: f
     return np.concatenate(verts), np.concatenate(faces), np.concatenate(labels), params
 
 
+MAX_LOOSENESS = 3.0  # above 1: oversize (docs/deepsd_experiments.md); the generator is tested up to 3
+
+
 def generate_outfit(
     types: str | list[str],
     vertices: int = 4000,
@@ -486,7 +489,9 @@ def generate_outfit(
     types: a garment type or a list (or comma-separated string) of them;
     vertices: target total vertex count (met within ~10%); seed: drives the
     random choices (looseness, length when not given, vertex order);
-    looseness, length: in [0, 1] (tight..loose, short..long), random when None.
+    looseness, length: in [0, 1] (tight..loose, short..long), random when None; looseness up to
+    MAX_LOOSENESS makes garments for a larger body (DeePSD's oversize outfits). Outside: ValueError (NaN made
+    a float-to-int error, infinity an OverflowError, other values extrapolated hems and negative ease).
     """
     kinds = [t.strip() for t in types.split(",")] if isinstance(types, str) else list(types)
     for k in kinds:
@@ -496,6 +501,9 @@ def generate_outfit(
         raise ValueError("each garment type may appear once per outfit")
     if not 200 <= vertices <= 60000:
         raise ValueError(f"vertices must be in [200, 60000], got {vertices}")
+    for name, value, high in (("looseness", looseness, MAX_LOOSENESS), ("length", length, 1.0)):
+        if value is not None and not 0.0 <= value <= high:
+            raise ValueError(f"{name} must be within [0, {high:g}], got {value}")
     kinds.sort(key=lambda k: LAYER[k])
     b = load_body(body) if isinstance(body, str) else body
     spacing = 0.05 * np.sqrt(2000 / vertices)

@@ -15,11 +15,33 @@ MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 
 
 def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a triangle mesh; several meshes in one file (glTF scenes) are concatenated."""
+    """Read a triangle mesh; several meshes in one file (glTF scenes) are concatenated.
+
+    A file that is not there or cannot be opened: OSError naming it. A suffix trimesh does not read, a file it
+    cannot parse, one without a triangle, faces indexing past the vertices or vertices that are not finite:
+    ValueError naming the file (not trimesh's IndexError, nor an empty mesh that draws nothing)."""
     import trimesh
 
-    mesh = cast(trimesh.Trimesh, trimesh.load(str(path), process=False, force="mesh", maintain_order=True))
-    return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.int32)
+    path = Path(path)
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise ValueError(f"{path}: unsupported mesh suffix {path.suffix!r}; use one of {MESH_SUFFIXES}")
+    with open(path, "rb"):  # FileNotFoundError / IsADirectoryError / PermissionError, with the path
+        pass
+    try:
+        mesh = cast(trimesh.Trimesh, trimesh.load(str(path), process=False, force="mesh", maintain_order=True))
+    except Exception as exc:  # noqa: BLE001 - trimesh's parsers raise anything (IndexError, KeyError, ...)
+        raise ValueError(f"{path}: not a readable {path.suffix.lower()[1:].upper()} mesh "
+                         f"({type(exc).__name__}: {exc})") from exc
+    vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float32)
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+    if len(faces) == 0:
+        raise ValueError(f"{path}: the mesh has no triangle faces ({len(vertices)} vertices)")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise ValueError(f"{path}: faces index vertices {faces.min()}..{faces.max()}; the mesh has "
+                         f"{len(vertices)}")
+    if not np.isfinite(vertices).all():
+        raise ValueError(f"{path}: vertices hold NaN or infinite values (or values beyond float32)")
+    return vertices, faces.astype(np.int32)
 
 
 def save_mesh(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
