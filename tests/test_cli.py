@@ -32,7 +32,7 @@ def test_outfits_fit_puts_a_z_up_centimetre_garment_on_the_body(tmp_path):
     v, f = load_mesh(made)
     foreign = tmp_path / "foreign.obj"
     save_mesh(foreign, v @ np.array([[100.0, 0, 0], [0, 0, -100.0], [0, 100.0, 0]]).T, f)  # Z-up, cm
-    out, report = tmp_path / "fitted.obj", tmp_path / "fit.json"
+    out, report = tmp_path / "fitted.obj", tmp_path / "new" / "fit.json"  # a folder to make, as for the mesh
     text = drape("outfits", "fit", str(foreign), "--body", "neutral", "--out", str(out), "--report", str(report))
     assert "units cm (inferred), up z (inferred)" in text, text
     import json
