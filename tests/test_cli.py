@@ -356,6 +356,13 @@ def test_render_options_are_checked_and_the_written_file_is_named(tmp_path, caps
         (2, "drape: error: --frames: expected a comma list of frame indices, got '0,x'")
     assert _refused(capsys, "render", "--motion", str(motion), "--frames", "0,5", "--out", str(png)) == \
         (2, "drape: error: --frames: frames [5] outside 0..4")
+    # options that would be ignored without a word
+    assert _refused(capsys, "render", "--clip", "walk", "--motion", str(motion), "--out", str(png)) == \
+        (2, "drape: error: --clip, --motion: give one motion, not both")
+    assert _refused(capsys, "render", "--clip", "walk", "--keyframes", "0,5", "--out", str(png)) == \
+        (2, "drape: error: --keyframes: not used without --sim")
+    assert _refused(capsys, "render", "--sim", str(motion), "--outfit", "x.obj", "--out", str(png)) == \
+        (2, "drape: error: --outfit: not used with --sim")
     assert not png.exists()
     cli.main(["render", "--out", str(tmp_path / "rest")])
     assert capsys.readouterr().out.strip() == str(tmp_path / "rest.png")
