@@ -32,3 +32,22 @@ def problem(r, status: int, *words: str) -> dict:
     for w in words:
         assert w in p["detail"], p["detail"]
     return p
+
+
+def assert_a_disconnect_stops_the_work(url: str, path: str, body: dict, accept: str, made: list) -> None:
+    """POST `body` to a live server, read the first bytes of the answer and go away: the work (each chunk made
+    appends to `made`) stops within a chunk of the disconnect, the cut is counted and the computing slot comes
+    back (the route must ask for many more than 4 chunks)."""
+    import time
+
+    import httpx
+
+    made.clear()
+    with httpx.Client() as c, c.stream("POST", f"{url}{path}", json=body, headers={"accept": accept}) as r:
+        assert r.status_code == 200
+        next(r.iter_raw())
+    time.sleep(1.0)
+    assert 1 <= len(made) <= 4, made
+    metrics = httpx.get(f"{url}/metrics").text
+    assert 'drape_answers_cut_total{reason="disconnected"} 1.0' in metrics
+    assert "drape_inflight_requests 0.0" in metrics  # the slot came back
