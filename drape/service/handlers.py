@@ -405,7 +405,8 @@ class RefinePlan:
 
 
 INNER_JSON_FIELDS = ("inner.", "inner.thickness")  # a JSON refine request's inner layer: {"inner": {...}}
-INNER_NPZ_FIELDS = ("inner_", "thickness")  # an npz's (or a form's garment npz's) members inner_vertices, ...
+INNER_NPZ_FIELDS = ("inner_", "thickness")  # an npz's members inner_vertices, ...
+INNER_FORM_FIELDS = ("garment.inner_", "garment.thickness")  # a form's garment npz's
 
 
 def check_inner(inner: dict, frames: int, settings: Settings,
@@ -429,41 +430,43 @@ def check_inner(inner: dict, frames: int, settings: Settings,
 def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, body: str | None,
                 options: dict | None, max_posed: int | None, inner: dict | None = None,
                 rest_vertices: Any = None, motion_field: str = "motion",
-                inner_fields: tuple[str, str] = INNER_JSON_FIELDS) -> RefinePlan:
+                inner_fields: tuple[str, str] = INNER_JSON_FIELDS, stream_prefix: str = "") -> RefinePlan:
     """Validate a refine request: the stream's shape, the faces, the motion (same frame count), the inner
     layer if any (the same frames), the rest shape if any (the stream's vertex count; not with an inner layer).
     motion_field: where the request gives its motion, as a frame count that differs from the stream's names it
     ("motion"; a form's "motion_file", imported at its fps); inner_fields: how the request names the inner
-    layer's parts (`check_inner`)."""
-    v = _array(vertices, "vertices", np.float64, 3)
+    layer's parts (`check_inner`); stream_prefix: before the stream's own fields (vertices, faces, rest_vertices:
+    a form's garment npz names them "garment.vertices", ...)."""
+    pre = stream_prefix
+    v = _array(vertices, f"{pre}vertices", np.float64, 3)
     if v.shape[0] < 1 or v.shape[2] != 3 or v.shape[1] < 3:
-        raise InvalidInput(f"expected (T, N, 3) with T >= 1 and N >= 3, got {v.shape}", "vertices")
+        raise InvalidInput(f"expected (T, N, 3) with T >= 1 and N >= 3, got {v.shape}", f"{pre}vertices")
     if v.shape[0] > settings.max_frames:
-        raise LimitExceeded(f"{v.shape[0]} frames exceed the limit of {settings.max_frames}", "vertices")
-    _, f = check_mesh(v[0], faces, settings)
+        raise LimitExceeded(f"{v.shape[0]} frames exceed the limit of {settings.max_frames}", f"{pre}vertices")
+    _, f = check_mesh(v[0], faces, settings, prefix=pre)
     # frame 0 is within 100 m (check_mesh); later frames may travel
     check_finite_within(v, MAX_WORLD_M, f"coordinates beyond {MAX_WORLD_M:g} m: the stream must be in metres",
-                        "vertices")
+                        f"{pre}vertices")
     poses, trans, fps = check_motion(motion, settings)
     if len(poses) != len(v):
         raise InvalidInput(f"the motion has {len(poses)} frames (at {fps:g} fps), the stream {len(v)}", motion_field)
-    check_answer_size(v.shape[0], v.shape[1], max_posed, "vertices")
+    check_answer_size(v.shape[0], v.shape[1], max_posed, f"{pre}vertices")
     opts = check_refine(options or True)
     assert opts is not None
     layer = None
     if inner is not None:
         layer = check_inner(inner, len(v), settings, inner_fields)
         # the inner layer is refined too: its frames count against the same bound as the answer's
-        check_answer_size(v.shape[0], v.shape[1] + layer.vertices.shape[1], max_posed, "inner.vertices")
+        check_answer_size(v.shape[0], v.shape[1] + layer.vertices.shape[1], max_posed, f"{inner_fields[0]}vertices")
     rest = None
     if rest_vertices is not None:
         if inner is not None:
-            raise InvalidInput("not with inner: the refinement between layers keeps no rest lengths", "rest_vertices")
-        rest = _array(rest_vertices, "rest_vertices", np.float64, 2)
+            raise InvalidInput("not with inner: the refinement between layers keeps no rest lengths", f"{pre}rest_vertices")
+        rest = _array(rest_vertices, f"{pre}rest_vertices", np.float64, 2)
         if rest.shape != (v.shape[1], 3):
-            raise InvalidInput(f"expected ({v.shape[1]}, 3), the stream's vertices, got {rest.shape}", "rest_vertices")
+            raise InvalidInput(f"expected ({v.shape[1]}, 3), the stream's vertices, got {rest.shape}", f"{pre}rest_vertices")
         check_finite_within(rest, 100.0, "coordinates beyond 100 m: the rest shape must be in metres",
-                            "rest_vertices")
+                            f"{pre}rest_vertices")
     return RefinePlan(v.astype(np.float32), f, held_body(check_body(body)), poses, trans, fps, opts, layer, rest)
 
 

@@ -92,6 +92,20 @@ def test_refine_takes_a_motion_file(http, outfit_id):
     short = http.post("/v1/refine", files={"garment": ("g.npz", garment), "motion_file": ("m.bvh", cmu_bvh(61))})
     problem(short, 422, "motion_file:", "16 frames (at 30 fps)")  # the form's field: it has no `motion`
     problem(http.post("/v1/refine", files={"motion_file": ("m.bvh", cmu_bvh(61))}), 422, "garment")
+    # the garment npz's members are named as the form's: garment.<member> (they said vertices, faces, ...)
+    bad = frames["vertices"].copy()
+    bad[3, 0, 0] = np.nan
+
+    def refine(**members):
+        return http.post("/v1/refine", files={"garment": ("g.npz", encode_npz(members)),
+                                              "motion_file": ("m.bvh", cmu_bvh(121))})
+
+    problem(refine(vertices=bad, faces=frames["faces"]), 422, "garment.vertices:")
+    problem(refine(vertices=frames["vertices"], faces=frames["faces"] + 10**6), 422, "garment.faces:")
+    problem(refine(vertices=frames["vertices"], faces=frames["faces"], inner_vertices=bad,
+                   inner_faces=frames["faces"], thickness=np.array(0.004)), 422, "garment.inner_vertices:")
+    problem(refine(vertices=frames["vertices"], faces=frames["faces"], rest_vertices=frames["vertices"][0, :5]),
+            422, "garment.rest_vertices:")
 
 
 def test_refine_with_the_rest_shape_is_animates_refinement(http, outfit_id):

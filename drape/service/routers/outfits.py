@@ -380,8 +380,9 @@ async def refine_stream(request: Request) -> Response:
                                                                                      content_type)
         p = handlers.plan_refine(settings, vertices, faces, motion, body, options, max_posed(answer, settings), inner,
                                  rest, motion_field=motion_file_field(kind),
-                                 inner_fields=handlers.INNER_JSON_FIELDS if kind in (JSON, "") else
-                                 handlers.INNER_NPZ_FIELDS)
+                                 inner_fields={JSON: handlers.INNER_JSON_FIELDS, "": handlers.INNER_JSON_FIELDS,
+                                               NPZ: handlers.INNER_NPZ_FIELDS}.get(kind, handlers.INNER_FORM_FIELDS),
+                                 stream_prefix="garment." if kind == "multipart/form-data" else "")
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.refine_chunks(p.vertices, p.faces, p.body, p.poses, p.translation, p.options,
