@@ -213,10 +213,11 @@ def _render(args: argparse.Namespace) -> None:
     from drape.geometry.skeleton import forward_kinematics
     from drape.render import Layer, render_frames
 
-    given = {opt: getattr(args, opt.lstrip("-").replace("-", "_")) for opt in
-             ("--outfit", "--clip", "--motion", "--keyframes", "--unmatched", "--served", "--garment-model")}
-    clash = [o for o in ("--outfit", "--clip", "--motion") if given[o]] if args.sim else \
-        [o for o in ("--keyframes", "--unmatched", "--served", "--garment-model") if given[o]]
+    def given(*options: str) -> list[str]:
+        return [o for o in options if getattr(args, o[2:].replace("-", "_"))]
+
+    clash = given("--outfit", "--clip", "--motion") if args.sim else \
+        given("--keyframes", "--unmatched", "--served", "--garment-model")
     if clash:  # they were ignored without a word
         raise ValueError(f"{', '.join(clash)}: not used {'with' if args.sim else 'without'} --sim")
     if args.clip and args.motion:

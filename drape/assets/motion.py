@@ -95,10 +95,8 @@ def load_motion_npz(path: str | Path, name: str | None = None) -> Motion:
     """
     import zipfile
 
-    from drape.assets.amass import AMASS_KEYS
-
     try:
-        motion = _read_motion_npz(path, name, AMASS_KEYS)
+        motion = _read_motion_npz(path, name)
     except (EOFError, zipfile.BadZipFile) as exc:  # empty or truncated
         raise ValueError(f"{path}: not a readable npz file ({exc})") from exc
     except ValueError as exc:
@@ -110,7 +108,10 @@ def load_motion_npz(path: str | Path, name: str | None = None) -> Motion:
     return motion
 
 
-def _read_motion_npz(path: str | Path, name: str | None, amass_keys_known: tuple[str, ...]) -> Motion:
+def _read_motion_npz(path: str | Path, name: str | None) -> Motion:
+    """`load_motion_npz` without its last checks: ValueErrors that may not name the file yet."""
+    from drape.assets.amass import AMASS_KEYS
+
     try:
         archive = np.load(path, allow_pickle=False)
     except ValueError as exc:  # neither the npy nor the zip magic: numpy's message is about pickles
@@ -121,7 +122,7 @@ def _read_motion_npz(path: str | Path, name: str | None, amass_keys_known: tuple
         if "poses" not in z:
             raise ValueError(f"{path}: no 'poses' array")
         raw = z["poses"]
-        amass_keys = [k for k in amass_keys_known if k in z]
+        amass_keys = [k for k in AMASS_KEYS if k in z]
         if amass_keys or not (raw.ndim == 3 and raw.shape[1:] == (NUM_JOINTS, 3)
                               or raw.ndim == 2 and raw.shape[1] == 3 * NUM_JOINTS):
             why = f"AMASS keys {amass_keys}" if amass_keys else f"poses {raw.shape}"

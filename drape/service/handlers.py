@@ -404,16 +404,28 @@ class RefinePlan:
     rest: np.ndarray | None = None  # (N, 3) float64 m, the garment at rest: edges kept near their rest lengths
 
 
-INNER_JSON_FIELDS = ("inner.", "inner.thickness")  # a JSON refine request's inner layer: {"inner": {...}}
-INNER_NPZ_FIELDS = ("inner_", "thickness")  # an npz's members inner_vertices, ...
-INNER_FORM_FIELDS = ("garment.inner_", "garment.thickness")  # a form's garment npz's
+@dataclass(frozen=True)
+class RefineFieldNames:
+    """How a refine request names its parts, for its errors: the stream's (`stream` + vertices, faces,
+    rest_vertices), the inner layer's (`inner` + vertices, faces; `thickness`) and the motion's."""
+
+    stream: str = ""
+    inner: str = "inner."
+    thickness: str = "inner.thickness"
+    motion: str = "motion"
+
+
+REFINE_JSON_NAMES = RefineFieldNames()  # {"vertices", ..., "inner": {"vertices", "faces", "thickness"}, "motion"}
+REFINE_NPZ_NAMES = RefineFieldNames(inner="inner_", thickness="thickness")  # members inner_vertices, ..., thickness
+REFINE_FORM_NAMES = RefineFieldNames(stream="garment.", inner="garment.inner_", thickness="garment.thickness",
+                                     motion="motion_file")  # the garment npz's members; the motion_file imported
 
 
 def check_inner(inner: dict, frames: int, settings: Settings,
-                fields: tuple[str, str] = INNER_JSON_FIELDS) -> InnerStream:
+                names: RefineFieldNames = REFINE_JSON_NAMES) -> InnerStream:
     """An inner layer {"vertices" (T, Ni, 3), "faces" (Fi, 3), "thickness" m} over `frames` frames; the errors
-    name the request's own fields: `fields` = (the prefix of vertices and faces, the thickness's name)."""
-    pre, thickness = fields
+    name the request's own fields (`names`)."""
+    pre = names.inner
     v = _array(inner.get("vertices"), f"{pre}vertices", np.float64, 3)
     if v.shape[0] != frames or v.shape[1] < 3 or v.shape[2] != 3:
         raise InvalidInput(f"expected ({frames}, Ni, 3) with Ni >= 3 (the stream's frames), got {v.shape}",
@@ -423,21 +435,17 @@ def check_inner(inner: dict, frames: int, settings: Settings,
     _, f = check_mesh(v[0], inner.get("faces"), settings, prefix=pre)
     t = inner.get("thickness")
     if isinstance(t, bool) or not isinstance(t, int | float) or not 0 < t <= 0.05:
-        raise InvalidInput(f"expected a thickness in metres in (0, 0.05], got {str(t)[:40]}", thickness)
+        raise InvalidInput(f"expected a thickness in metres in (0, 0.05], got {str(t)[:40]}", names.thickness)
     return InnerStream(v.astype(np.float32), f, float(t))
 
 
 def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, body: str | None,
                 options: dict | None, max_posed: int | None, inner: dict | None = None,
-                rest_vertices: Any = None, motion_field: str = "motion",
-                inner_fields: tuple[str, str] = INNER_JSON_FIELDS, stream_prefix: str = "") -> RefinePlan:
+                rest_vertices: Any = None, names: RefineFieldNames = REFINE_JSON_NAMES) -> RefinePlan:
     """Validate a refine request: the stream's shape, the faces, the motion (same frame count), the inner
     layer if any (the same frames), the rest shape if any (the stream's vertex count; not with an inner layer).
-    motion_field: where the request gives its motion, as a frame count that differs from the stream's names it
-    ("motion"; a form's "motion_file", imported at its fps); inner_fields: how the request names the inner
-    layer's parts (`check_inner`); stream_prefix: before the stream's own fields (vertices, faces, rest_vertices:
-    a form's garment npz names them "garment.vertices", ...)."""
-    pre = stream_prefix
+    The errors name the request's own fields (`names`: a JSON body's, an npz's members, a form's)."""
+    pre = names.stream
     v = _array(vertices, f"{pre}vertices", np.float64, 3)
     if v.shape[0] < 1 or v.shape[2] != 3 or v.shape[1] < 3:
         raise InvalidInput(f"expected (T, N, 3) with T >= 1 and N >= 3, got {v.shape}", f"{pre}vertices")
@@ -449,15 +457,15 @@ def plan_refine(settings: Settings, vertices: Any, faces: Any, motion: dict, bod
                         f"{pre}vertices")
     poses, trans, fps = check_motion(motion, settings)
     if len(poses) != len(v):
-        raise InvalidInput(f"the motion has {len(poses)} frames (at {fps:g} fps), the stream {len(v)}", motion_field)
+        raise InvalidInput(f"the motion has {len(poses)} frames (at {fps:g} fps), the stream {len(v)}", names.motion)
     check_answer_size(v.shape[0], v.shape[1], max_posed, f"{pre}vertices")
     opts = check_refine(options or True)
     assert opts is not None
     layer = None
     if inner is not None:
-        layer = check_inner(inner, len(v), settings, inner_fields)
+        layer = check_inner(inner, len(v), settings, names)
         # the inner layer is refined too: its frames count against the same bound as the answer's
-        check_answer_size(v.shape[0], v.shape[1] + layer.vertices.shape[1], max_posed, f"{inner_fields[0]}vertices")
+        check_answer_size(v.shape[0], v.shape[1] + layer.vertices.shape[1], max_posed, f"{names.inner}vertices")
     rest = None
     if rest_vertices is not None:
         if inner is not None:

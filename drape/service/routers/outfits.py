@@ -208,9 +208,10 @@ def fps_field(kind: str) -> str:
     return "fps" if kind == "multipart/form-data" else "motion.fps"
 
 
-def motion_file_field(kind: str) -> str:
-    """Where a request of this body type gives its motion: the form's motion_file, else the motion."""
-    return "motion_file" if kind == "multipart/form-data" else "motion"
+def refine_field_names(kind: str) -> handlers.RefineFieldNames:
+    """How a refine request of this body type names its parts (JSON fields, npz members, a form's)."""
+    return {NPZ: handlers.REFINE_NPZ_NAMES, "multipart/form-data": handlers.REFINE_FORM_NAMES}.get(
+        kind, handlers.REFINE_JSON_NAMES)
 
 
 def vertex_animation_answer(src: FrameSource, settings: Settings, kind: str, field: str,
@@ -221,9 +222,11 @@ def vertex_animation_answer(src: FrameSource, settings: Settings, kind: str, fie
     handlers.check_glb_frame_targets(src.num_frames, settings.max_posed_values, field)
     check = handlers.whole_answer_budget(settings.request_budget_s, src.num_frames, field)
     chunks: list[np.ndarray] = []
+    done = 0
     for chunk in src.chunks():
         chunks.append(chunk)
-        check(sum(map(len, chunks)))
+        done += len(chunk)
+        check(done)
     frames = np.concatenate(chunks)
     return Response(vertex_animation_glb(frames, src.faces, src.fps, name=name), media_type=GLB)
 
@@ -379,10 +382,7 @@ async def refine_stream(request: Request) -> Response:
         vertices, faces, motion, body, options, inner, rest = decode.refine_arguments(kind, data, settings,
                                                                                      content_type)
         p = handlers.plan_refine(settings, vertices, faces, motion, body, options, max_posed(answer, settings), inner,
-                                 rest, motion_field=motion_file_field(kind),
-                                 inner_fields={JSON: handlers.INNER_JSON_FIELDS, "": handlers.INNER_JSON_FIELDS,
-                                               NPZ: handlers.INNER_NPZ_FIELDS}.get(kind, handlers.INNER_FORM_FIELDS),
-                                 stream_prefix="garment." if kind == "multipart/form-data" else "")
+                                 rest, refine_field_names(kind))
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.refine_chunks(p.vertices, p.faces, p.body, p.poses, p.translation, p.options,
