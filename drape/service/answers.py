@@ -80,25 +80,32 @@ class _Pieces(io.RawIOBase):
         return out
 
 
-def encode_npz_stream(src: FrameSource) -> Pieces:
-    """The npz answer (vertices (T, N, 3) float32, faces, fps float64 (as asked: a float32 read 29.97 as 29.969999),
-    outfit_id), as numpy's uncompressed npz written while the frames are computed: stored zip members, CRCs in data
-    descriptors (np.load reads it)."""
+def _npz_pieces(small: list[tuple[str, np.ndarray]],
+                frames: list[tuple[str, tuple[int, int, int], Iterator[np.ndarray]]]) -> Pieces:
+    """numpy's uncompressed npz written as it goes (stored zip members, CRCs in data descriptors; np.load reads
+    it): the `small` members (name, array) first, then each `frames` member (name, its shape (T, N, 3), its frames
+    (n, N, 3) chunk by chunk), float32, each chunk sent as it is written."""
     sink = _Pieces()
     with zipfile.ZipFile(sink, "w", zipfile.ZIP_STORED) as zf:
-        for name, arr in (("faces", src.faces), ("fps", np.array(src.fps, np.float64)),
-                          ("outfit_id", np.array(src.outfit_id))):
+        for name, arr in small:
             with zf.open(name + ".npy", "w") as f:
                 np.lib.format.write_array(f, np.asarray(arr), allow_pickle=False)
         yield from sink.take()
-        size = src.num_frames * src.num_vertices * 12
-        with zf.open("vertices.npy", "w", force_zip64=size > 2**30) as f:
-            np.lib.format.write_array_header_1_0(
-                f, {"descr": "<f4", "fortran_order": False, "shape": (src.num_frames, src.num_vertices, 3)})
-            for chunk in src.chunks():
-                f.write(_frames32(chunk).data.cast("B"))
-                yield from sink.take()
+        for name, shape, chunks in frames:
+            with zf.open(name + ".npy", "w", force_zip64=int(np.prod(shape)) * 4 > 2**30) as f:
+                np.lib.format.write_array_header_1_0(f, {"descr": "<f4", "fortran_order": False, "shape": shape})
+                for chunk in chunks:
+                    f.write(_frames32(chunk).data.cast("B"))
+                    yield from sink.take()
     yield from sink.take()
+
+
+def encode_npz_stream(src: FrameSource) -> Pieces:
+    """The npz answer (vertices (T, N, 3) float32, faces, fps float64 (as asked: a float32 read 29.97 as 29.969999),
+    outfit_id), written while the frames are computed (`_npz_pieces`)."""
+    return _npz_pieces([("faces", src.faces), ("fps", np.array(src.fps, np.float64)),
+                        ("outfit_id", np.array(src.outfit_id))],
+                       [("vertices", (src.num_frames, src.num_vertices, 3), src.chunks())])
 
 
 def encode_json(src: FrameSource) -> Pieces:
@@ -159,28 +166,12 @@ def encode_layers_npz(src: FrameSource) -> Pieces:
     inner_faces, outer_vertices (T, No, 3), outer_faces), written as the frames are computed: the inner layer's
     frames chunk by chunk, then the outer layer's (kept until then)."""
     parts = _layer_parts(src)
-    sink = _Pieces()
     inner, outer = _layer_frames(src, parts)
-    with zipfile.ZipFile(sink, "w", zipfile.ZIP_STORED) as zf:
-        small = [(role, np.array(name)) for role, name, *_ in parts] + [("fps", np.array(src.fps, np.float64))]
-        small += [(f"{role}_faces", faces) for role, _, _, _, faces in parts]
-        for name, arr in small:
-            with zf.open(name + ".npy", "w") as f:
-                np.lib.format.write_array(f, np.asarray(arr), allow_pickle=False)
-        yield from sink.take()
-        for i, (role, _, start, stop, _) in enumerate(parts):
-            size = src.num_frames * (stop - start) * 12
-            with zf.open(f"{role}_vertices.npy", "w", force_zip64=size > 2**30) as f:
-                np.lib.format.write_array_header_1_0(
-                    f, {"descr": "<f4", "fortran_order": False, "shape": (src.num_frames, stop - start, 3)})
-                if i == 0:
-                    for frames in inner:
-                        f.write(_frames32(frames).data.cast("B"))
-                        yield from sink.take()
-                else:
-                    f.write(outer.data.cast("B"))
-                    yield from sink.take()
-    yield from sink.take()
+    small = [(role, np.array(name)) for role, name, *_ in parts] + [("fps", np.array(src.fps, np.float64))]
+    small += [(f"{role}_faces", faces) for role, _, _, _, faces in parts]
+    (first, _, s1, e1, _), (second, _, s2, e2, _) = parts
+    return _npz_pieces(small, [(f"{first}_vertices", (src.num_frames, e1 - s1, 3), inner),
+                               (f"{second}_vertices", (src.num_frames, e2 - s2, 3), iter([outer]))])
 
 
 def encode_layers_json(src: FrameSource) -> Pieces:
