@@ -127,6 +127,10 @@ def _motions_import(args: argparse.Namespace) -> None:
     if src.suffix.lower() not in (".bvh", ".npz"):
         raise SystemExit(f"drape: error: {src}: expected a .bvh (CMU joint names) or an AMASS-style .npz file")
     _check_fps_option(args.fps)
+    out_path = Path(args.out if str(args.out).endswith(".npz") else f"{args.out}.npz")
+    if out_path.exists() and src.exists() and out_path.resolve() == src.resolve():
+        raise SystemExit(f"drape: error: --out {args.out} is the input file: choose another path (the import would "
+                         "replace the original mocap)")
     start = time.perf_counter()
     try:
         data = src.read_bytes()

@@ -61,9 +61,11 @@ class Motion:
         return len(self.poses)
 
     def save(self, path: str | Path) -> Path:
-        """Write the clip npz; -> the file written (numpy adds .npz to a path without it)."""
+        """Write the clip npz, making its folder as `drape outfits` makes a mesh's; -> the file written (numpy
+        adds .npz to a path without it)."""
         out = Path(path)
         out = out if str(out).endswith(".npz") else out.with_name(out.name + ".npz")
+        out.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(out, poses=self.poses, trans=self.trans, fps=np.float32(self.fps))
         return out
 

@@ -167,6 +167,23 @@ def test_cli_imports_a_bvh_and_prints_the_foot_floor_error(tmp_path, capsys):
         assert z["poses"].shape == (30, 24, 3) and float(z["fps"]) == 30.0
 
 
+def test_cli_import_makes_the_out_folder_and_never_replaces_its_input(tmp_path):
+    """--out in a folder that does not exist is made (as `drape outfits` makes a mesh's); --out naming the input
+    npz itself is refused before anything is read or written, so the original mocap is never lost."""
+    from drape.cli import main
+
+    src = tmp_path / "take.bvh"
+    src.write_bytes(cmu_bvh(12))
+    out = tmp_path / "new" / "folder" / "take.npz"
+    main(["motions", "import", str(src), "--out", str(out)])
+    original = out.read_bytes()
+    for same in (str(out), str(out)[:-len(".npz")], str(tmp_path / "new" / "folder" / ".." / "folder" / "take.npz")):
+        with pytest.raises(SystemExit) as exc:
+            main(["motions", "import", str(out), "--out", same])
+        assert str(exc.value.code).startswith(f"drape: error: --out {same} is the input file"), exc.value
+        assert out.read_bytes() == original
+
+
 def test_cli_fps_names_the_option_and_out_names_the_file_written(tmp_path, capsys):
     """--fps out of [0.1, 1000] is refused naming --fps (not the input file, whose rate is fine), before the file
     is read: a clip stores its rate as float32, so --fps 1e-300 wrote one frame at 0 fps that no loader reads.
