@@ -380,6 +380,7 @@ def _text(parts: dict[str, Any], name: str) -> str | None:
     return None if part is None else part.data.decode("utf-8", "replace").strip()
 
 
+MAX_FORM_NUMBER_CHARS = 64  # a form field's number as text, sign and exponent included
 _FORM_NUMBER = {float: re.compile(r"-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][-+]?[0-9]+)?"), int: re.compile(r"-?[0-9]+")}
 
 
@@ -388,6 +389,8 @@ def _form_number(text: str, kind: type[float] | type[int], field: str) -> float 
     "2_0" as 20, "nan" and "infinity", which are not numbers a client means."""
     if not _FORM_NUMBER[kind].fullmatch(text):
         raise InvalidInput(f"expected {'an integer' if kind is int else 'a number'}, got {quoted(text, 40)}", field)
+    if len(text) > MAX_FORM_NUMBER_CHARS:  # int() refuses over 4,300 digits (a ValueError, was a 500)
+        raise InvalidInput(f"expected a number of at most {MAX_FORM_NUMBER_CHARS} characters, got {len(text)}", field)
     return kind(text)
 
 

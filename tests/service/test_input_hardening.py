@@ -109,9 +109,12 @@ def test_errors_in_an_uploaded_mesh_name_the_mesh_field(http):
 
 
 @pytest.mark.parametrize(("field", "text"), [("fps", "2_0"), ("fps", "infinity"), ("eps", "nan"), ("eps", "1_0e-3"),
-                                             ("max_iterations", "1_0"), ("max_iterations", "5.0")])
+                                             ("max_iterations", "1_0"), ("max_iterations", "5.0"),
+                                             ("max_iterations", "9" * 5000), ("relief_iterations", "1" * 4301),
+                                             ("fps", "3" * 400)])
 def test_form_numbers_are_json_numbers_not_what_python_reads(http, field, text):
-    """float() and int() read "2_0" as 20 and "nan" as a number: fps=2_0 animated at 20 fps."""
+    """float() and int() read "2_0" as 20 and "nan" as a number: fps=2_0 animated at 20 fps. int() refuses a
+    number of over 4,300 digits with a ValueError: max_iterations of 5,000 nines was a 500."""
     rig = http.post("/v1/outfits/rig", json=TINY)
     assert rig.status_code == 200, rig.text[:300]
     r = http.post("/v1/outfits/animate", files={"motion_file": ("m.bvh", b"HIERARCHY\n")},
