@@ -5,8 +5,8 @@ Steps, each reported:
 1. units: `m`, `cm` or `mm`; inferred from the garment's largest extent when not given (a garment is
    0.05-3 m across: up to 3 units is metres, up to 300 centimetres, beyond that millimetres).
 2. up axis: `y` (drape's) or `z` (turned a quarter turn about +X, as motion import turns Z-up clips);
-   inferred when not given: a garment is thinnest front to back, so the thinnest axis is the depth axis
-   (Z for a Y-up garment, Y for a Z-up one).
+   inferred when not given (`infer_up`): the axis the garment's upper half clearly wraps around, else the
+   thinner of Y and Z is its depth (a garment is thinnest front to back).
 3. placement, rigid (a garment keeps its size: one made for a larger body stays loose): the garment's
    centre is searched along the body's height, facing +Z or -Z (a garment may face either way), its
    horizontal centre on the body's centre at that height, scored on a subsample by how closely it hugs
@@ -43,6 +43,7 @@ INSIDE_COST = 1.0  # an inside vertex costs this many times its depth
 SAMPLE = 400  # vertices scored during the placement search
 HEIGHT_STEP_M = 0.03
 A_POSE_DEG = 45.0  # the "a" pose: both shoulders lowered this far from the T-pose
+UP_WRAP_MARGIN = 0.15  # infer_up: the wrap coverages of Y and Z further apart than this decide
 LEFT_SHOULDER, RIGHT_SHOULDER = 16, 17  # SMPL joint order
 
 
@@ -72,8 +73,38 @@ def infer_units(vertices: np.ndarray) -> str:
 
 
 def infer_up(vertices: np.ndarray) -> str:
-    """'z' when the thinnest bounding-box axis is Y (a Z-up garment's depth axis), else 'y'."""
-    return "z" if int(np.argmin(np.ptp(vertices, axis=0))) == 1 else "y"
+    """'y' or 'z': which axis of a garment (N, 3) is up (X is left to right either way).
+
+    First the axis the garment's upper half wraps around (`wrap_coverage`), where one of Y and Z clearly wins
+    (by more than UP_WRAP_MARGIN): slices across the true up axis go round the body, slices across the depth
+    axis cut a front and a back strip. Otherwise (unsewn panels, tops whose sleeves fill the slices both ways)
+    the thinner of the two is the depth (a garment is thinnest front to back). The thinnest-axis rule alone
+    took a flared skirt, deeper than it is tall, for Z-up."""
+    v = np.asarray(vertices, dtype=np.float64)
+    wrap_y, wrap_z = wrap_coverage(v, 1), wrap_coverage(v, 2)
+    if abs(wrap_y - wrap_z) > UP_WRAP_MARGIN:
+        return "y" if wrap_y > wrap_z else "z"
+    extent = np.ptp(v, axis=0)
+    return "z" if extent[1] < extent[2] else "y"
+
+
+def wrap_coverage(vertices: np.ndarray, axis: int, slices: int = 9, bins: int = 24) -> float:
+    """How far a garment's upper half (N, 3) goes round `axis` (1: Y, 2: Z), in [0, 1]: over `slices` thin
+    slices across the axis, from 50% to 90% of its extent (the hips of trousers, not their two legs), the share
+    of `bins` directions about the slice's centre that hold a vertex, averaged."""
+    v = np.asarray(vertices, dtype=np.float64)
+    across = [a for a in range(3) if a != axis]
+    h = v[:, axis]
+    lo, hi = float(h.min()), float(h.max())
+    covered = []
+    for s in np.linspace(0.5, 0.9, slices):
+        p = v[np.abs(h - (lo + s * (hi - lo))) < 0.03 * (hi - lo) + 0.005][:, across]
+        if len(p) < 3:
+            continue
+        c = (p.min(0) + p.max(0)) / 2
+        angle = np.arctan2(p[:, 1] - c[1], p[:, 0] - c[0])
+        covered.append(len(np.unique(((angle + np.pi) / (2 * np.pi) * bins).astype(int) % bins)) / bins)
+    return float(np.mean(covered)) if covered else 0.0
 
 
 def a_pose(degrees: float = A_POSE_DEG) -> np.ndarray:

@@ -40,6 +40,18 @@ def test_units_and_up_are_inferred_from_the_size_and_the_thinnest_axis(female_ts
     assert infer_up(v) == "y" and infer_up(v @ Z_UP.T) == "z"
 
 
+@pytest.mark.parametrize("kind", ["skirt", "long_skirt", "shorts", "dress", "trousers", "tanktop", "tshirt,trousers"])
+def test_up_is_inferred_for_garments_as_deep_as_they_are_tall(kind):
+    """A flared skirt is deeper than it is tall (0.65 m against 0.49 m), so the thinnest-axis rule alone took drape's
+    own skirt for Z-up and fit turned it on its side (its longest edge stretched 168 mm). Garments whose Y and Z
+    extents are close are judged by the axis they wrap around; each Y-up and each Z-up copy is read right."""
+    v = generate_outfit(kind, vertices=1500, seed=1).vertices.astype(np.float64)
+    assert (infer_up(v), infer_up(v @ Z_UP.T)) == ("y", "z")
+    extent = np.ptp(v, axis=0)
+    if kind in ("skirt", "long_skirt"):  # the case the rule is for: not thinnest along Z
+        assert extent[2] > extent[1]
+
+
 @needs_data
 @pytest.mark.parametrize("path", GARMENTS, ids=lambda p: p.stem)
 def test_real_garments_made_for_no_body_of_ours_fit_with_nothing_inside(path):
