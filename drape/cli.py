@@ -108,6 +108,28 @@ def _check_fps_option(fps: float | None) -> None:
         raise SystemExit(f"drape: error: --fps must be within [{MIN_FILE_FPS:g}, {MAX_FILE_FPS:g}] fps, got {fps:g}")
 
 
+BODY_FILE_SUFFIXES = (".glb", ".gltf", ".npz")
+
+
+def _body_arg(text: str):  # noqa: ANN202 (a drape.assets.body.Body)
+    """--body: a preset's name, or a body file (a skinned GLB / glTF with SMPL joint names, or an npz of the body's
+    arrays), read and checked as POST /v1/bodies reads one; a bad file is one line naming it."""
+    from drape.assets.body import load_body
+
+    if not text.lower().endswith(BODY_FILE_SUFFIXES):
+        return load_body(text)
+    from drape.service.bodies import read_body_file
+    from drape.service.errors import DrapeError
+    from drape.service.settings import Settings
+
+    path = Path(text)
+    data = path.read_bytes()  # OSError: main's one line with the path
+    try:
+        return read_body_file(data, path.name, Settings(), field="body")
+    except DrapeError as exc:
+        raise SystemExit(f"drape: error: --body {text}: {exc.detail}") from None
+
+
 def _motions_generate(args: argparse.Namespace) -> None:
     from drape.assets.procedural import generate_motion
 
@@ -120,7 +142,6 @@ def _motions_generate(args: argparse.Namespace) -> None:
 def _motions_import(args: argparse.Namespace) -> None:
     import time
 
-    from drape.assets.body import load_body
     from drape.assets.motion import MotionFileError, import_motion
 
     src = Path(args.file)
@@ -131,10 +152,11 @@ def _motions_import(args: argparse.Namespace) -> None:
     if out_path.exists() and src.exists() and out_path.resolve() == src.resolve():
         raise SystemExit(f"drape: error: --out {args.out} is the input file: choose another path (the import would "
                          "replace the original mocap)")
+    body = _body_arg(args.body)
     start = time.perf_counter()
     try:
         data = src.read_bytes()
-        imported = import_motion(data, load_body(args.body), fps=args.fps, up=args.up, floor=not args.no_floor,
+        imported = import_motion(data, body, fps=args.fps, up=args.up, floor=not args.no_floor,
                                  flips=not args.keep_flips, name=src.stem)
     except OSError as exc:
         raise SystemExit(f"drape: error: {src}: {exc.strerror or exc}") from exc
@@ -160,14 +182,14 @@ def _outfits_fit(args: argparse.Namespace) -> None:
     import json
     import time
 
-    from drape.assets.body import load_body
     from drape.geometry.fitting import FitError, fit_garment
     from drape.geometry.mesh_io import load_mesh, save_mesh
 
     vertices, faces = load_mesh(args.mesh)
+    body = _body_arg(args.body)
     start = time.perf_counter()
     try:
-        result = fit_garment(vertices, faces, load_body(args.body), units=args.units, up=args.up, pose=args.pose)
+        result = fit_garment(vertices, faces, body, units=args.units, up=args.up, pose=args.pose)
     except FitError as exc:
         raise SystemExit(f"{args.mesh}: {exc}") from None
     save_mesh(args.out, result.vertices, faces)
@@ -757,7 +779,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("file", help="a .bvh with CMU joint names, or an npz: drape's clip, AMASS (SMPL-H (T, 156) or "
                    "(T, 52, 3)), SMPL (T, 72) or (T, 24, 3), SMPL-X (T, 165)")
     i.add_argument("--fps", type=float, default=None, help="resample to this frame rate (slerp; default: the file's)")
-    i.add_argument("--body", default="neutral", help="body preset to retarget onto and to put on the floor")
+    i.add_argument("--body", default="neutral", help="body to retarget onto and to put on the floor: a preset, or a "
+                   "body file (skinned GLB / glTF with SMPL joint names, or npz of the body's arrays)")
     i.add_argument("--up", choices=["y", "z"], default=None,
                    help="the file's up axis (default: detected; AMASS is Z-up, CMU BVH Y-up)")
     i.add_argument("--no-floor", action="store_true", help="keep the file's heights (no floor step)")
@@ -782,9 +805,11 @@ def build_parser() -> argparse.ArgumentParser:
     of = outfits.add_parser("fit", help="fit a garment made for another body (any units, Y- or Z-up, T- or A-pose) "
                             "onto a body at rest")
     of.add_argument("mesh", help="OBJ, PLY, GLB or glTF")
-    of.add_argument("--body", default="neutral")
+    of.add_argument("--body", default="neutral", help="a preset, or a body file (skinned GLB / glTF with SMPL "
+                    "joint names, or npz of the body's arrays; as POST /v1/bodies reads it)")
     of.add_argument("--units", choices=["m", "cm", "mm"], default=None, help="default: inferred from the size")
-    of.add_argument("--up", choices=["y", "z"], default=None, help="default: inferred (the thinnest axis is depth)")
+    of.add_argument("--up", choices=["y", "z"], default=None, help="default: inferred (the axis the garment wraps "
+                    "around, else the thinner of Y and Z is its depth)")
     of.add_argument("--pose", choices=["t", "a"], default="t", help="the pose the garment was made in")
     of.add_argument("--out", required=True, help="the fitted mesh (OBJ, PLY, ...)")
     of.add_argument("--report", default=None, help="also write the transform and the report as JSON here")
@@ -954,10 +979,23 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# packages that only some commands need, and the extra that installs each (pyproject.toml)
+OPTIONAL_PACKAGES = {"torch": "train", "onnx": "train", "onnxscript": "train", "tqdm": "train", "mujoco": "sim",
+                     "matplotlib": "tools", "anny": "assets", "pybullet": "assets", "ray": "cluster"}
+
+
 def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
+    except ModuleNotFoundError as exc:  # `make serve`'s venv has none of the training tools: one line, not a traceback
+        package = (exc.name or "").split(".")[0]
+        if package not in OPTIONAL_PACKAGES:
+            raise
+        command = " ".join(x for x in (args.command, getattr(args, "what", None)) if x)
+        print(f"drape: error: `drape {command}` needs {package}, which is not installed (it is not in [serve]): "
+              f"pip install 'drape[{OPTIONAL_PACKAGES[package]}]'", file=sys.stderr)
+        raise SystemExit(1) from exc
     except OSError as exc:  # a file that is not there, a folder given as a file, an --out that cannot be written
         where = f"{exc.filename}: " if exc.filename is not None else ""
         print(f"drape: error: {where}{exc.strerror or exc}", file=sys.stderr)

@@ -162,6 +162,25 @@ def test_cli_names_the_extra_when_a_tool_package_is_missing(monkeypatch, module,
     assert module in str(exc.value.code)
 
 
+@pytest.mark.parametrize(("module", "extra", "importer", "argv"), [
+    ("torch", "train", "drape.export.deepsd", ["export", "deepsd", "--init", "--out", "x"]),
+    ("torch", "train", "drape.training.deepsd", ["train", "deepsd"]),
+])
+def test_cli_commands_that_import_a_training_package_name_its_extra(monkeypatch, capsys, module, extra, importer,
+                                                                     argv):
+    """`drape export deepsd --init` in `make serve`'s venv (no torch) ended in a ModuleNotFoundError traceback;
+    every optional package the serving install lacks is one line naming the command and the extra, exit 1."""
+    from drape.cli import main
+
+    monkeypatch.setitem(sys.modules, module, None)
+    monkeypatch.delitem(sys.modules, importer, raising=False)  # imported by an earlier test: import it again
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 1 and len(err.strip().splitlines()) == 1, err
+    assert f"`drape {' '.join(argv[:2])}` needs {module}" in err and f"pip install 'drape[{extra}]'" in err, err
+
+
 def test_dockerignore_keeps_local_state_out_of_the_context():
     ignored = {line.strip().rstrip("/") for line in (ROOT / ".dockerignore").read_text().splitlines()}
     assert {"data", "cache", "checkpoints", ".venv"} <= ignored

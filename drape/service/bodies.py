@@ -182,8 +182,6 @@ def _form_json(parts: dict[str, Any], name: str) -> Any:
 
 def read_upload(kind: str, content_type: str, data: bytes, settings: Settings) -> Body:
     """A POST /v1/bodies body (kind: its media type) -> the checked Body (not yet stored)."""
-    from drape.service.body_files import body_from_glb
-
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
         unknown = sorted(set(parts) - set(FORM_FIELDS))
@@ -199,18 +197,28 @@ def read_upload(kind: str, content_type: str, data: bytes, settings: Settings) -
                                           and all(isinstance(k, str) and isinstance(x, str)
                                                   for k, x in joint_map.items())):
             raise InvalidInput("expected a JSON object from the file's joint names to SMPL's", "joint_map")
-        name = (part.filename or "").lower()
-        if part.data[:4] == b"glTF" or name.endswith((".glb", ".gltf")):
-            arrays = body_from_glb(part.data, joint_map=joint_map, max_vertices=settings.max_vertices,
-                                   max_faces=settings.max_faces)
-            return check_body_arrays(arrays, settings, field=FILE_FIELD, rest_pose=rest_pose)
-        if part.data[:2] == b"PK" or name.endswith(".npz"):
-            if joint_map is not None:
-                raise InvalidInput("joint_map applies to GLB / glTF files; an npz names its joints in joint_names",
-                                   "joint_map")
-            return _npz_body(part.data, settings, FILE_FIELD, rest_pose)
-        raise InvalidInput("expected a GLB / glTF file or an npz archive", FILE_FIELD)
+        return read_body_file(part.data, part.filename or "", settings, joint_map=joint_map, rest_pose=rest_pose)
     return _npz_body(data, settings, "", None)
+
+
+def read_body_file(data: bytes, filename: str, settings: Settings, *, joint_map: dict[str, str] | None = None,
+                   rest_pose: Any = None, field: str = FILE_FIELD) -> Body:
+    """A body file's bytes (a skinned GLB / glTF, or an npz of the body's arrays; told apart by their first bytes,
+    else by the file name) -> the checked Body (not yet stored); what POST /v1/bodies' `body_file` and the
+    command line's `--body FILE` read. Errors name `field`."""
+    from drape.service.body_files import body_from_glb
+
+    name = filename.lower()
+    if data[:4] == b"glTF" or name.endswith((".glb", ".gltf")):
+        arrays = body_from_glb(data, joint_map=joint_map, max_vertices=settings.max_vertices,
+                               max_faces=settings.max_faces)
+        return check_body_arrays(arrays, settings, field=field, rest_pose=rest_pose)
+    if data[:2] == b"PK" or name.endswith(".npz"):
+        if joint_map is not None:
+            raise InvalidInput("joint_map applies to GLB / glTF files; an npz names its joints in joint_names",
+                               "joint_map")
+        return _npz_body(data, settings, field, rest_pose)
+    raise InvalidInput("expected a GLB / glTF file or an npz archive", field)
 
 
 def _npz_body(data: bytes, settings: Settings, field: str, rest_pose: Any) -> Body:

@@ -6,6 +6,7 @@ a restart only with DRAPE_BODY_DIR.
 The uploaded body is the neutral preset's collision proxy (1.2k vertices, the neutral skeleton): small enough
 for the test limits, and different from every preset's full mesh, so a wrong body would show."""
 
+import dataclasses
 import io
 import json
 
@@ -380,3 +381,37 @@ def test_the_client_animates_a_user_body_with_a_mocap_file(server_url, proxy, sh
         again = client.animate(outfit=shirt, motion=path, body=me)  # an in-memory outfit is rigged first
         assert again.shape == frames.shape
         client.delete_body(me)
+
+
+def test_the_command_line_fits_and_imports_onto_a_body_file(proxy, shirt, tmp_path, capsys):
+    """`drape outfits fit --body me.glb` and `drape motions import --body me.npz` read the file as POST /v1/bodies
+    does (the README's bring-your-own-data steps on the command line; both took presets only); a bad body file is
+    one line naming --body and the problem."""
+    from drape.cli import main
+    from drape.geometry.mesh_io import save_mesh
+
+    tall = {"vertices": proxy.vertices * 1.05, "faces": proxy.faces, "weights": proxy.weights,
+            "joints": proxy.joints * 1.05}
+    glb, body_npz = tmp_path / "me.glb", tmp_path / "me.npz"
+    glb.write_bytes(_glb(dataclasses.replace(proxy, vertices=tall["vertices"], joints=tall["joints"]),
+                         proxy.joint_names))
+    body_npz.write_bytes(npz(**tall))
+    mesh = tmp_path / "shirt.obj"
+    save_mesh(mesh, *shirt)
+    main(["outfits", "fit", str(mesh), "--body", str(glb), "--out", str(tmp_path / "fit.obj"),
+          "--report", str(tmp_path / "fit.json")])
+    assert json.loads((tmp_path / "fit.json").read_text())["report"]["inside_after"] <= 0.001
+    bvh = tmp_path / "walk.bvh"
+    bvh.write_bytes(cmu_bvh(frames=12))
+    main(["motions", "import", str(bvh), "--body", str(body_npz), "--out", str(tmp_path / "walk.npz")])
+    on_preset = tmp_path / "preset.npz"
+    main(["motions", "import", str(bvh), "--out", str(on_preset)])
+    with np.load(tmp_path / "walk.npz") as mine, np.load(on_preset) as preset:  # the floor step sees the taller legs
+        assert mine["poses"].shape == preset["poses"].shape and not np.allclose(mine["trans"], preset["trans"])
+    capsys.readouterr()
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(_bad(proxy, weights=proxy.weights * 2))
+    with pytest.raises(SystemExit) as exc:
+        main(["outfits", "fit", str(mesh), "--body", str(bad), "--out", str(tmp_path / "x.obj")])
+    assert str(exc.value.code).startswith(f"drape: error: --body {bad}: body.weights: "), exc.value
+    assert not (tmp_path / "x.obj").exists()
