@@ -27,14 +27,15 @@ class ModelFile(BaseModel):
 
 
 class ModelInfo(BaseModel):
-    """A loaded model: 'deepsd' (outfit rigging), then 'intrinsic-<template>' per garment template."""
+    """A loaded model: 'deepsd' (outfit rigging), then 'intrinsic-<template>' per garment template, then the served
+    layer networks, 'mgn_inner-<inner>' and 'mgn_outer-<inner>_<outer>'."""
 
     name: str = Field(description="what GET /v1/models/{name} takes")
     version: str = Field(description="the manifest's version")
     trained: bool = Field(description="whether the weights come from training (false: exported untrained, "
                                       "e.g. a test build)")
     files: dict[str, ModelFile] = Field(description="the model's ONNX files by role (DeePSD: 'outfit', "
-                                                 "'pose')")
+                                                 "'pose'; MGN: 'pose' (inner), 'outer')")
     evaluation: dict[str, Any] | None = Field(None, description="the manifest's evaluation tables as recorded "
                                               "(settings and metrics); null when none was run")
 
@@ -43,4 +44,4 @@ class ModelList(BaseModel):
     """Every loaded model (GET /v1/models)."""
 
     models: list[ModelInfo] = Field(description="the DeePSD model first, then one intrinsic model per garment "
-                                                "template")
+                                                "template, then the served layer networks")

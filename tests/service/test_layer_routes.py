@@ -49,6 +49,28 @@ def test_layers_are_listed_and_their_templates_served(http):
                                                           "motion": {"clip": "kick"}}), 404, "layer template")
 
 
+def test_models_lists_the_served_layer_networks(http):
+    """GET /v1/models named DeePSD and the intrinsic spaces but not the layer networks /v1/layers/animate runs:
+    each served one is listed ('mgn_inner-<inner>', 'mgn_outer-<inner>_<outer>') with its manifest's version
+    and ONNX files, and GET /v1/models/{name} answers it."""
+    listed = {m["name"]: m for m in http.get("/v1/models").json()["models"]}
+    served = LayerCatalog()
+    expected = {}
+    for c in served.combinations():
+        if c.inner.network is not None:
+            expected[f"mgn_inner-{c.inner.name}"] = c.inner.network
+        if c.outer.network is not None:
+            expected[f"mgn_outer-{c.inner.name}_{c.outer.name}"] = c.outer.network
+    assert expected, "no layer network is served"
+    assert {n for n in listed if n.startswith("mgn_")} == set(expected)
+    for name, network in expected.items():
+        info = http.get(f"/v1/models/{name}").json()
+        assert info == listed[name] and info["version"] == network.manifest["version"]
+        onnx = {k: f for k, f in network.manifest["files"].items() if f["file"].endswith(".onnx")}
+        assert set(info["files"]) == set(onnx) and info["trained"] is True
+        assert all(info["files"][k]["sha256"] == f["sha256"] for k, f in onnx.items())
+
+
 def test_animate_layers_through_the_client(server_url):
     """Both layers' frames from the client (sync and async), the refined ones equal to the library's post step on
     the unrefined ones; GLB and PC2 of the two as one mesh; the frame stream names the layer ranges."""

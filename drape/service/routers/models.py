@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Path, Request
 
+from drape.runtime.engine import Engine
+from drape.runtime.layers import InnerModel, OuterModel
 from drape.schemas.models import ModelInfo, ModelList
 from drape.service.errors import NotFound
 from drape.service.http import engine_of
@@ -22,7 +24,25 @@ def _info(request: Request) -> list[ModelInfo]:
         onnx = {k: f for k, f in g["files"].items() if str(f["file"]).endswith(".onnx")}
         models.append(ModelInfo(name=f"intrinsic-{garment.name}", version=g["version"], trained="training" in g,
                                 files=onnx, evaluation=g.get("evaluation")))
+    for name, network in _layer_networks(engine):
+        lm = network.manifest
+        onnx = {k: f for k, f in lm["files"].items() if str(f["file"]).endswith(".onnx")}
+        models.append(ModelInfo(name=name, version=lm["version"], trained="training" in lm, files=onnx,
+                                evaluation=lm.get("evaluation")))
     return models
+
+
+def _layer_networks(engine: Engine) -> list[tuple[str, InnerModel | OuterModel]]:
+    """The layer networks served now (GET /v1/layers), once each: 'mgn_inner-<inner>' per inner template and
+    'mgn_outer-<inner>_<outer>' per combination (an outer network reads its inner network's keys); a layer that
+    DeePSD's rig poses has none."""
+    found: dict[str, InnerModel | OuterModel] = {}
+    for c in engine.layers.combinations():
+        if c.inner.network is not None:
+            found.setdefault(f"{c.inner.network.name}-{c.inner.name}", c.inner.network)
+        if c.outer.network is not None:
+            found.setdefault(f"{c.outer.network.name}-{c.inner.name}_{c.outer.name}", c.outer.network)
+    return list(found.items())
 
 
 @router.get("/models", response_model=ModelList)
@@ -32,8 +52,9 @@ def list_models(request: Request) -> ModelList:
 
 
 @router.get("/models/{name}", response_model=ModelInfo, responses=problem_responses(404))
-def get_model(request: Request, name: str = Path(description="a model's name (GET /v1/models): 'deepsd' or "
-                                                            "'intrinsic-<template>'")) -> ModelInfo:
+def get_model(request: Request, name: str = Path(description="a model's name (GET /v1/models): 'deepsd', "
+                                                            "'intrinsic-<template>', 'mgn_inner-<inner>' or "
+                                                            "'mgn_outer-<inner>_<outer>'")) -> ModelInfo:
     """One loaded model by name."""
     for info in _info(request):
         if info.name == name:
