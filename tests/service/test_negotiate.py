@@ -18,12 +18,16 @@ OFFERED = [JSON, NPZ, GLB]
     (f"{GLB};q=2, {NPZ};q=0.1", NPZ),
     ("text/*, */*;q=0.1", JSON),
     (f"{JSON};Q=0, {NPZ}", NPZ),  # parameter names are case-insensitive (Q=0 was read as q=1)
+    # the most specific matching range sets an offer's q (JSON was chosen for both: ranked by q alone)
+    (f"application/*, {JSON};q=0", NPZ), (f"*/*, {JSON};q=0.5", NPZ), (f"*/*;q=0.9, {GLB}", GLB),
+    (f"*/*, application/*;q=0.1", GLB),
 ])
 def test_accept_chooses_what_it_prefers(accept, chosen):
     assert choose(accept, OFFERED) == chosen
 
 
-@pytest.mark.parametrize("accept", ["text/csv", "text/*", "model/*", f"{GLB};q=0", "*/*;q=0"])
+@pytest.mark.parametrize("accept", ["text/csv", "text/*", "model/*", f"{GLB};q=0", "*/*;q=0",
+                                    f"*/*, {JSON};q=0, {NPZ};q=0"])
 def test_nothing_acceptable_is_a_406_naming_accept(accept):
     with pytest.raises(NotAcceptable) as info:
         choose(accept, [JSON, NPZ])
