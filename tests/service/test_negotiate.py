@@ -20,7 +20,7 @@ OFFERED = [JSON, NPZ, GLB]
     (f"{JSON};Q=0, {NPZ}", NPZ),  # parameter names are case-insensitive (Q=0 was read as q=1)
     # the most specific matching range sets an offer's q (JSON was chosen for both: ranked by q alone)
     (f"application/*, {JSON};q=0", NPZ), (f"*/*, {JSON};q=0.5", NPZ), (f"*/*;q=0.9, {GLB}", GLB),
-    (f"*/*, application/*;q=0.1", GLB),
+    ("*/*, application/*;q=0.1", GLB),
 ])
 def test_accept_chooses_what_it_prefers(accept, chosen):
     assert choose(accept, OFFERED) == chosen
