@@ -6,12 +6,26 @@ stored (no merging or reordering), so per-vertex results map back to the file.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
-from typing import cast
+from typing import BinaryIO, cast
 
 import numpy as np
 
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
+
+
+def read_trimesh(source: str | BinaryIO, file_type: str | None = None):  # noqa: ANN201 (a trimesh.Trimesh)
+    """trimesh's reader as drape uses it (one mesh, vertices in the file's order, nothing merged), without the
+    numpy RuntimeWarnings ("All-NaN slice encountered") trimesh's texture code prints on OBJ files whose faces
+    name texture coordinates the file lacks (the ArcSim tops of ../shared/data/external): the geometry is read
+    and checked all the same. Raises whatever trimesh raises on a broken file."""
+    import trimesh
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return cast(trimesh.Trimesh, trimesh.load(source, file_type=file_type, process=False, force="mesh",
+                                                  maintain_order=True))
 
 
 def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -20,7 +34,6 @@ def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     A file that is not there or cannot be opened: OSError naming it. A suffix trimesh does not read, a file it
     cannot parse, one without a triangle, faces indexing past the vertices or vertices that are not finite:
     ValueError naming the file (not trimesh's IndexError, nor an empty mesh that draws nothing)."""
-    import trimesh
 
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -28,7 +41,7 @@ def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     with open(path, "rb"):  # FileNotFoundError / IsADirectoryError / PermissionError, with the path
         pass
     try:
-        mesh = cast(trimesh.Trimesh, trimesh.load(str(path), process=False, force="mesh", maintain_order=True))
+        mesh = read_trimesh(str(path))
     except Exception as exc:  # noqa: BLE001 - trimesh's parsers raise anything (IndexError, KeyError, ...)
         raise ValueError(f"{path}: not a readable {path.suffix.lower()[1:].upper()} mesh "
                          f"({type(exc).__name__}: {exc})") from exc

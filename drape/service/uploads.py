@@ -136,11 +136,10 @@ def mesh_parts(data: bytes, filename: str, num_vertices: int) -> list[dict] | No
 
 
 def _load(data: bytes, file_type: str, suffix: str) -> tuple[np.ndarray, np.ndarray]:
-    import trimesh
+    from drape.geometry.mesh_io import read_trimesh
 
     try:
-        mesh = cast(trimesh.Trimesh, trimesh.load(io.BytesIO(data), file_type=file_type,
-                                                  process=False, force="mesh", maintain_order=True))
+        mesh = read_trimesh(io.BytesIO(data), file_type=file_type)
         v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     except Exception as exc:  # trimesh raises many kinds on broken files
         raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: {exc})",

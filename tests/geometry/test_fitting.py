@@ -132,3 +132,19 @@ def test_the_search_s_fast_score_picks_the_placement_the_exact_score_picks(kind)
     exact, fast = _scores(candidates, distance), _scores(candidates, distance, exact=False)
     assert np.argmin(fast) == np.argmin(exact)
     assert np.abs(fast - exact).max() < 5e-5, np.abs(fast - exact).max()
+
+
+@needs_data
+@pytest.mark.parametrize("path", GARMENTS, ids=lambda p: p.stem)
+def test_real_obj_files_without_texture_coordinates_load_without_numpy_warnings(path):
+    """The ArcSim tops' faces name texture coordinates (f 1/1/1) the files lack; trimesh's texture code printed
+    numpy's "All-NaN slice encountered" twice on every `drape outfits fit` and upload of them."""
+    import warnings
+
+    from drape.service.uploads import mesh_from_file
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        v, f = load_mesh(path)
+        upload = mesh_from_file(path.read_bytes(), path.name, max_vertices=100_000, max_faces=200_000)
+    assert len(v) == len(upload[0]) and np.array_equal(f, upload[1])
