@@ -384,6 +384,12 @@ class Engine:
             return None
         return outfit
 
+    def missing_body_of(self, outfit_id: str) -> str | None:
+        """The body an outfit was rigged on when it is still cached but that body is no longer held (`lookup`
+        gives None for it), else None."""
+        outfit = self.cache.get(outfit_id)
+        return outfit.body if outfit is not None and not has_body(outfit.body) else None
+
     def pose_chunks(self, outfit: RiggedOutfit, poses: np.ndarray, translation: np.ndarray,
                     chunk: int = 32, refine: RefineSettings | None = None,
                     pose_keys: Callable[[np.ndarray], np.ndarray] | None = None,

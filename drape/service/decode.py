@@ -31,7 +31,8 @@ from drape.schemas.outfits import (
     RigRequest,
 )
 from drape.service import uploads
-from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, NotFound, quoted
+from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, quoted
+from drape.service.handlers import unknown_outfit
 from drape.service.http import parse_form, parse_json
 from drape.service.settings import Settings
 
@@ -276,8 +277,7 @@ def animate_request(kind: str, data: bytes, settings: Settings, engine: Engine, 
 
 def _known(outfit_id: str, engine: Engine) -> None:
     if engine.lookup(outfit_id) is None:
-        raise NotFound(f"unknown outfit_id {quoted(outfit_id)}: rig the outfit again (ids expire from the cache)",
-                       "outfit_id")
+        raise unknown_outfit(engine, outfit_id)
 
 
 ANIMATE_NPZ = ("outfit_id", "vertices", "faces", "poses", "translation", "fps", "clip", "body", "influences", "refine", "fit",

@@ -352,6 +352,18 @@ def whole_answer_budget(budget_s: float, frames: int, field: str) -> Callable[[i
     return check
 
 
+def unknown_outfit(engine: Engine, outfit_id: str) -> NotFound:
+    """The 404 for an outfit_id `engine.lookup` does not find: expired from the cache, or rigged on a user body
+    deleted since (then it says so: rigging again on that body fails too)."""
+    body = engine.missing_body_of(outfit_id)
+    if body is not None:
+        return NotFound(f"outfit_id {quoted(outfit_id)} was rigged on user body {body!r}, which was deleted: "
+                        "register the body again (the same file gives the same id) or rig on another body",
+                        "outfit_id")
+    return NotFound(f"unknown outfit_id {quoted(outfit_id)}: rig the outfit again (ids expire from the cache)",
+                    "outfit_id")
+
+
 def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed: int | None) -> AnimationPlan:
     """Validate an animate request (a dict shaped like AnimateRequest) into a plan; `max_posed` bounds
     frames x vertices for the answer's format (None: no bound)."""
@@ -363,8 +375,7 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
             raise InvalidInput("fit applies to an outfit mesh; an outfit_id is already rigged", "fit")
         outfit = engine.lookup(outfit_id)
         if outfit is None:
-            raise NotFound(f"unknown outfit_id {quoted(outfit_id)}: rig the outfit again (ids expire from the cache)",
-                           "outfit_id")
+            raise unknown_outfit(engine, outfit_id)
         if request.get("body") not in (None, outfit.body):
             raise InvalidInput(f"outfit {outfit_id} was rigged on body {outfit.body!r}", "body")
         if request.get("influences") is not None and check_influences(request["influences"]) != outfit.influences:

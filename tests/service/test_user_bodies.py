@@ -107,7 +107,15 @@ def test_a_user_body_rigs_fits_animates_and_refines(http, registered, proxy, shi
 
 def test_deleting_forgets_the_body_and_presets_stay(http, registered, shirt):
     v, f = shirt
+    rig = http.post("/v1/outfits/rig", json={"vertices": v.tolist(), "faces": f.tolist(), "body": registered})
+    assert rig.status_code == 200, rig.text[:300]
     assert http.delete(f"/v1/bodies/{registered}").status_code == 204
+    # an outfit rigged on it: the 404 says the body went (it said "rig the outfit again", which fails too)
+    for request in ({"json": {"outfit_id": rig.json()["outfit_id"], "motion": {"clip": "walk"}}},
+                    {"files": {"motion_file": ("m.bvh", cmu_bvh(frames=4))},
+                     "data": {"outfit_id": rig.json()["outfit_id"]}}):
+        problem(http.post("/v1/outfits/animate", **request), 404, "outfit_id", registered, "deleted",
+                "register the body again")
     problem(http.post("/v1/outfits/rig", json={"vertices": v.tolist(), "faces": f.tolist(), "body": registered}),
             404, "body", "POST /v1/bodies")
     problem(http.get(f"/v1/bodies/{registered}"), 404, "name")
