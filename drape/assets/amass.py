@@ -16,7 +16,7 @@ is Z-up, along +Y is Y-up; otherwise (a clip lying down) AMASS's keys (`mocap_fr
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +26,10 @@ from drape.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 AMASS_KEYS = ("mocap_framerate", "mocap_frame_rate", "gender", "betas", "dmpls")
 FPS_KEYS = ("fps", "mocap_framerate", "mocap_frame_rate")
-NPZ_MEMBERS = ("poses", "trans", "root_orient", "pose_body", *FPS_KEYS, "gender", "betas", "dmpls")
+NPZ_MEMBERS = ("poses", "trans", "root_orient", "pose_body", *FPS_KEYS)  # the members whose values are read
+# AMASS's own members whose presence marks the file and whose values are never read (an AMASS gender is often a
+# pickled object array: decoding it refused the whole file)
+MARKER_KEYS = ("gender", "betas", "dmpls")
 # joints per layout -> (name, joints kept from the start of the array)
 LAYOUTS = {24: ("SMPL", 24), 52: ("SMPL-H", 22), 55: ("SMPL-X", 22), 22: ("SMPL body", 22)}
 EXPECTED = ("axis-angle poses (T, 24, 3) or (T, 72) [SMPL], (T, 52, 3) or (T, 156) [SMPL-H, AMASS], "
@@ -75,8 +78,9 @@ def to_pose24(p: np.ndarray, key: str = "poses") -> tuple[np.ndarray, str]:
     return out, f"{name} {shape}"
 
 
-def read_pose_arrays(z: Mapping[str, np.ndarray]) -> PoseClip:
-    """npz members (drape's clip npz, AMASS's, or any SMPL-family one) -> a PoseClip, not yet turned Y-up."""
+def read_pose_arrays(z: Mapping[str, np.ndarray], names: Collection[str] = ()) -> PoseClip:
+    """npz members (drape's clip npz, AMASS's, or any SMPL-family one) -> a PoseClip, not yet turned Y-up;
+    names: every member the archive holds (those not read too: MARKER_KEYS), for telling AMASS files apart."""
     if "poses" in z:
         poses, layout = to_pose24(_numbers(z, "poses"))
     elif "root_orient" in z and "pose_body" in z:
@@ -105,7 +109,7 @@ def read_pose_arrays(z: Mapping[str, np.ndarray]) -> PoseClip:
             break
     if not (np.isfinite(poses).all() and np.isfinite(trans).all()):
         raise PoseArrayError("the poses or trans contain NaN or inf")
-    return PoseClip(poses, trans, fps, layout, any(k in z for k in AMASS_KEYS))
+    return PoseClip(poses, trans, fps, layout, any(k in z or k in names for k in AMASS_KEYS))
 
 
 def detect_up(clip: PoseClip) -> tuple[str, str]:

@@ -400,21 +400,26 @@ def _import_bvh(data: bytes, body: Body, fps: float | None, up: str | None, floo
 def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, flips: bool, name: str,
                 max_frames: int | None, max_source_frames: int | None,
                 max_decoded_bytes: int | None) -> ImportedMotion:
+    import io
+    import zipfile
+
     from drape.assets import amass
     from drape.schemas.binary import NpzTooLarge, decode_npz
 
     try:
         z = decode_npz(data, amass.NPZ_MEMBERS, max_bytes=max_decoded_bytes)
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:  # read by decode_npz already: its names, not the values
+            names = {n[:-len(".npy")] for n in archive.namelist() if n.endswith(".npy")}
     except NpzTooLarge as exc:
         raise MotionTooLong(str(exc)) from exc
-    except ValueError as exc:
+    except (ValueError, zipfile.BadZipFile) as exc:
         raise MotionFileError(f"not a readable npz ({exc})") from exc
     # the frames from the pose array's length first: read_pose_arrays widens it to float64 and copies it
     rows = next((z[k].shape[0] for k in ("poses", "root_orient") if k in z and z[k].ndim), None)
     if rows is not None:
         _check_frames(rows, max_source_frames, "in the file")
     try:
-        clip = amass.read_pose_arrays(z)
+        clip = amass.read_pose_arrays(z, names)
     except amass.PoseArrayError as exc:
         raise MotionFileError(str(exc)) from exc
     if np.abs(clip.poses).max() > MAX_POSE_RAD:

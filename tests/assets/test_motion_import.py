@@ -239,6 +239,21 @@ def test_amass_z_up_npz_turns_y_up():
     assert kept.up == "y" and np.allclose(kept.motion.trans, trans, atol=1e-5)
 
 
+def test_an_amass_npz_whose_unused_members_are_pickled_imports_without_unpickling():
+    """AMASS files often store `gender` as a pickled object array. drape never unpickles, and it decoded gender,
+    betas and dmpls only to learn that they are there: such a file was refused whole. Their presence still marks
+    the file as AMASS (Z-up when the root does not say); their values are not read."""
+    poses = np.zeros((4, 72))
+    poses[:, 0:3] = [0.0, 0.0, np.pi / 2]  # lying on its side: no clear up axis from the root, the AMASS members decide
+    buf = io.BytesIO()
+    np.savez(buf, poses=poses, trans=np.zeros((4, 3)), gender=np.array(["male"], dtype=object),
+             betas=np.zeros(16), fps=np.array(60.0))  # fps: drape's key, so only gender and betas mark AMASS
+    with pytest.raises(ValueError):  # the gender member is a pickle
+        np.load(io.BytesIO(buf.getvalue()), allow_pickle=False)["gender"]
+    r = import_motion(buf.getvalue(), BODY, floor=False)
+    assert r.up == "z" and "AMASS" in r.up_reason and r.motion.num_frames == 4
+
+
 def test_a_known_rotation_z_up_standing_is_y_up_standing():
     """A body standing in a Z-up world (root = +90 deg about X) stands with no root rotation in drape's;
     the Z-up translation (x, y, z) of its pelvis becomes (x, z, -y)."""
