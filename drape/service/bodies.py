@@ -58,7 +58,10 @@ def _numbers(value: Any, field: str, shape: tuple[int, ...], what: str) -> np.nd
 def _joint_order(names: Any) -> np.ndarray:
     """joint_names (24,) in any order -> the index of each SMPL joint among them."""
     if not isinstance(names, np.ndarray) or names.dtype.kind != "U" or names.shape != (NUM_JOINTS,):
-        shape = getattr(names, "shape", None)
+        shape, dtype = getattr(names, "shape", None), getattr(names, "dtype", None)
+        if shape == (NUM_JOINTS,):  # the count is right: the type is not (bytes, numbers)
+            raise InvalidInput(f"expected {NUM_JOINTS} joint names as unicode text (numpy dtype <U), got dtype "
+                               f"{dtype}", "joint_names")
         raise InvalidInput(f"expected {NUM_JOINTS} joint names (text), got shape {shape}", "joint_names")
     given = [str(n) for n in names]
     unknown = [n for n in given if n not in JOINT_INDEX]

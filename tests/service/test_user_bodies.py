@@ -257,6 +257,11 @@ def test_joint_names_in_another_order_are_reordered(http, proxy):
     z = np.load(io.BytesIO(http.get(f"/v1/bodies/{r.json()['body_id']}", headers={"Accept": NPZ}).content))
     np.testing.assert_allclose(z["joints"], proxy.joints, atol=1e-6)
     http.delete(f"/v1/bodies/{r.json()['body_id']}")
+    # 24 names stored as bytes: the message names the dtype (it said "got shape (24,)", the right shape)
+    as_bytes = np.array([n.encode() for n in proxy.joint_names])
+    r = http.post("/v1/bodies", content=npz(vertices=proxy.vertices, faces=proxy.faces, weights=proxy.weights,
+                                            joints=proxy.joints, joint_names=as_bytes), headers={"Content-Type": NPZ})
+    problem(r, 422, "joint_names", "unicode", "|S")
 
 
 def _bad(proxy, **change):
