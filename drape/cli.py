@@ -200,6 +200,8 @@ def _outfits_fit(args: argparse.Namespace) -> None:
     print(f"inside the body at rest: {100 * r['inside_before']:.2f}% before the push-out, "
           f"{100 * r['inside_after']:.2f}% after; moves {r['mean_move_mm']:.1f} mm mean, {r['max_move_mm']:.1f} mm "
           f"max; largest edge lengthening {r['max_stretch_mm']:.1f} mm")
+    for warning in r["warnings"]:
+        print(f"warning: {warning}")
     if args.report:  # its folder made as the mesh's is (a missing one failed after the mesh was written)
         Path(args.report).parent.mkdir(parents=True, exist_ok=True)
         Path(args.report).write_text(json.dumps({"transform": result.transform.tolist(), "report": r}, indent=1))

@@ -61,7 +61,7 @@ class FitResult:
     """A garment fitted onto a body at rest: vertices (N, 3) float32 m, Y-up; faces (F, 3) int32; transform
     (4, 4): the similarity applied before the push-out (units, up axis, facing, translation); report: units and
     up (given or inferred), inside_before / inside_after (shares at rest), max_move_mm, mean_move_mm,
-    max_stretch_mm."""
+    max_stretch_mm, warnings (sentences: units or up given against what the mesh says)."""
 
     vertices: np.ndarray
     faces: np.ndarray

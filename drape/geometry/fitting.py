@@ -186,11 +186,19 @@ def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: s
     Raises FitError when the garment sits nowhere on the body. -> FitResult (report: units, up, whether
     each was inferred, pose, inside_before / inside_after (shares of vertices inside the body at rest,
     before and after the push-out), max_move_mm / mean_move_mm (the push-out's moves), max_stretch_mm (its
-    largest edge lengthening)). exact_search: `place`'s.
+    largest edge lengthening), warnings (sentences: units or up given against what the mesh's size or shape
+    says)). exact_search: `place`'s.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     report: dict = {"units_inferred": units is None, "up_inferred": up is None}
+    warnings = []
+    size = float(np.ptp(v, axis=0).max())
+    if units is not None and units in UNITS and units != infer_units(v):
+        warnings.append(f"the mesh is {size:.4g} units across: in {units} that is {size * UNITS[units]:.3g} m, "
+                        f"where a garment is 0.05-3 m; its size says {infer_units(v)}")
+    if up is not None and up in ("y", "z") and up != infer_up(v):
+        warnings.append(f"its shape says {infer_up(v).upper()}-up, not {up.upper()}-up as given")
     units = units or infer_units(v)
     up = up or infer_up(v)
     if units not in UNITS:
@@ -237,5 +245,6 @@ def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: s
         "inside_before": inside_before, "inside_after": inside_after,
         "max_move_mm": 1e3 * float(move.max()), "mean_move_mm": 1e3 * float(move.mean()),
         "max_stretch_mm": 1e3 * float(max(0.0, (after_len - before_len).max())),
+        "warnings": warnings,
     })
     return FitResult(fitted.astype(np.float32), transform, report)

@@ -63,6 +63,8 @@ class FitReport(BaseModel):
     max_move_mm: float = Field(description="largest move of the push-out, mm")
     mean_move_mm: float = Field(description="mean move of the push-out, mm")
     max_stretch_mm: float = Field(description="largest edge lengthening by the push-out, mm")
+    warnings: list[str] = Field(default_factory=list, description="sentences: units or up given against what the "
+                                "mesh's size or shape says (e.g. units cm on a mesh 0.7 units across)")
 
 
 class FitResponse(BaseModel):

@@ -17,7 +17,7 @@ from drape.geometry.fitting import fit_garment
 Z_UP_CM = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]) * 100.0  # Y-up metres -> Z-up centimetres
 NPZ = "application/x-npz"
 REPORT = {"units", "units_inferred", "up", "up_inferred", "pose", "placement_score_mm", "inside_before",
-          "inside_after", "max_move_mm", "mean_move_mm", "max_stretch_mm"}
+          "inside_after", "max_move_mm", "mean_move_mm", "max_stretch_mm", "warnings"}
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +52,13 @@ def test_fit_takes_a_mesh_file_and_an_npz(http, foreign, tmp_path):
                   data={"body": "male", "units": "cm", "up": "z"})
     assert r.status_code == 200, r.text[:300]
     assert not r.json()["report"]["units_inferred"] and not r.json()["report"]["up_inferred"]
+    assert r.json()["report"]["warnings"] == []  # given as the mesh says
+    # units given against the mesh's size: fitted as asked, and the report says so (it was silent)
+    wrong = http.post("/v1/outfits/fit", json={"vertices": (v / 100.0).tolist(), "faces": f.tolist(), "body": "male",
+                                               "units": "cm", "up": "z"})
+    assert wrong.status_code == 200, wrong.text[:300]
+    assert [w for w in wrong.json()["report"]["warnings"] if "in cm" in w and "its size says m" in w], \
+        wrong.json()["report"]["warnings"]
     buf = io.BytesIO()
     np.savez(buf, vertices=v, faces=f, body=np.array("male"), pose=np.array("t"))
     r2 = http.post("/v1/outfits/fit", content=buf.getvalue(), headers={"Content-Type": NPZ})
