@@ -261,6 +261,24 @@ class IntrinsicGarment:
             out.append(self._encode_local(local.astype(np.float32), motion.windows(s, e, self.window)))
         return np.concatenate(out)
 
+    def keyframe_placement(self, vertices_world: np.ndarray, poses: np.ndarray, trans: np.ndarray,
+                           frame: int) -> tuple[float, float]:
+        """How a keyframe shape sits against the template, both in character space (its frame's root frame; the
+        template's at rest): (distance between their centroids, m; the shape's RMS spread about its centroid over
+        the template's). A garment in world space at its frame gives a few cm and about 1; one left at the origin
+        or kilometres away, or collapsed to a point, does not.
+
+        vertices_world (N, 3) m; poses (T, 24, 3) rad and trans (T, 3) m: the motion; 0 <= frame < T."""
+        motion = self.motion_frames(np.asarray(poses)[frame: frame + 1], np.asarray(trans)[frame: frame + 1])
+        local = character_space_numpy(np.asarray(vertices_world, dtype=np.float64)[None], motion.root_position,
+                                      motion.root_rotation)[0]
+        rest = self.motion_frames(np.zeros((1, 24, 3)), np.zeros((1, 3)))
+        template = character_space_numpy(self.vertices.astype(np.float64)[None], rest.root_position,
+                                         rest.root_rotation)[0]
+        spread = float(np.sqrt(((local - local.mean(0)) ** 2).sum(1).mean()))
+        template_spread = float(np.sqrt(((template - template.mean(0)) ** 2).sum(1).mean()))
+        return float(np.linalg.norm(local.mean(0) - template.mean(0))), spread / template_spread
+
     def encode(self, vertices_world: np.ndarray, poses: np.ndarray, trans: np.ndarray, frame: int) -> np.ndarray:
         """A keyframe shape -> its latent (Z,) float32 (`encode_at`'s: pulled toward the mean by keyframe_shrink).
 

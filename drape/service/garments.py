@@ -101,6 +101,26 @@ def check_encoded(z: np.ndarray, field: str) -> np.ndarray:
     return z
 
 
+MAX_KEYFRAME_OFFSET_M = 0.5  # a keyframe's centroid from the template's, both in character space
+KEYFRAME_SPREAD = (1 / 3, 3.0)  # a keyframe's RMS spread over the template's
+
+
+def check_on_body(vertices: np.ndarray, garment: IntrinsicGarment, poses: np.ndarray, trans: np.ndarray, frame: int,
+                  field: str) -> None:
+    """A keyframe shape must be the garment in world space at its frame: its centroid within MAX_KEYFRAME_OFFSET_M
+    of the template's and its spread within KEYFRAME_SPREAD of the template's, both in the character space of the
+    frame (a shape 99 m off, or every vertex at one point, encoded to a junk latent and answered 200)."""
+    offset, spread = garment.keyframe_placement(vertices, poses, trans, frame)
+    if offset > MAX_KEYFRAME_OFFSET_M:
+        raise InvalidInput(f"the shape's centre lies {offset:.2f} m from where the garment sits on the body at frame "
+                           f"{frame} (at most {MAX_KEYFRAME_OFFSET_M:g} m): give the vertices in metres, world space at "
+                           "that frame of the motion", field)
+    if not KEYFRAME_SPREAD[0] <= spread <= KEYFRAME_SPREAD[1]:
+        raise InvalidInput(f"the shape spreads {spread:.2f}x as far about its centre as the template does (allowed "
+                           f"{KEYFRAME_SPREAD[0]:.2f}x to {KEYFRAME_SPREAD[1]:g}x): it is not this garment at this "
+                           "scale", field)
+
+
 def check_int(value: Any, low: int, high: int, field: str) -> int:
     """An integer in [low, high] (an npz or form scalar; the JSON models check theirs)."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
@@ -115,6 +135,7 @@ def encode(settings: Settings, garment: IntrinsicGarment, request: dict) -> np.n
     poses, trans, _ = check_motion(request["motion"], settings)
     frame = check_frame(request.get("frame"), len(poses), "frame")
     vertices = check_shape(request.get("vertices"), garment, "vertices")
+    check_on_body(vertices, garment, poses, trans, frame, "vertices")
     return check_encoded(garment.encode(vertices, poses, trans, frame), "vertices")
 
 
@@ -169,7 +190,9 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
         if given_z:
             latent_keys.append((frame, check_latent(key["latent"], garment, f"{field}.latent")))
         else:
-            shapes.append((frame, check_shape(key["vertices"], garment, f"{field}.vertices")))
+            shape = check_shape(key["vertices"], garment, f"{field}.vertices")
+            check_on_body(shape, garment, poses, trans, frame, f"{field}.vertices")
+            shapes.append((frame, shape))
             shape_fields.append(f"{field}.vertices")
     match = request.get("match_keyframes", True)
     if not isinstance(match, bool):

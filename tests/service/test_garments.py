@@ -210,6 +210,7 @@ def test_a_motion_file_upload(http, garment, shape):
     poses, trans, _ = motion_from_file(bvh, "neutral", fps=30.0, up=None, max_frames=200,
                                        max_decoded_bytes=2**26)
     frame = len(poses) - 1
+    shape = garment.sample(1, 3, frame, poses, trans)[1][0]  # the garment where the file's body is at that frame
     r = http.post(f"/v1/garments/{NAME}/encode", files={"motion_file": ("clip.bvh", bvh)},
                   data={"request": json.dumps({"vertices": shape.tolist(), "frame": frame})})
     assert r.status_code == 200, r.text[:300]
@@ -237,6 +238,7 @@ def test_the_client_sends_a_motion_file_path(server_url, garment, shape, tmp_pat
     poses, trans, _ = motion_from_file(path.read_bytes(), "neutral", fps=30.0, up=None, max_frames=200,
                                        max_decoded_bytes=2**26)
     arrays = {"poses": poses, "trans": trans, "fps": 30.0}
+    shape = garment.sample(1, 3, 2, poses, trans)[1][0]  # the garment where the file's body is at frames 2-3
     keyframes = [{"frame": 2, "vertices": shape}, {"frame": 10, "latent": np.full(100, 0.1, np.float32)}]
     with drape.Client(server_url) as client:
         z = client.encode_keyframe(NAME, vertices=shape, motion=path, frame=3)
@@ -299,12 +301,15 @@ def test_bad_inputs_name_their_field(http, garment, shape):
     problem(http.post(f"/v1/garments/{NAME}/encode", content=inf_vertices.encode(),
                       headers={"content-type": "application/json"}), 422, "vertices", "NaN or infinite")
     problem(post("animate", motion=kick, keyframes=[{"frame": 0, "latent": [1e9] * 100}]), 422, "keyframes[0].latent")
-    # a shape 10 km away (within the coordinate bound) encodes to a latent beyond the bound every latent keyframe
-    # has: refused naming the shape, so that every latent drape answers can be sent back as a keyframe
-    far = (shape + 1e4).tolist()
-    problem(post("encode", vertices=far, motion=kick, frame=0), 422, "vertices", "latent beyond +-10000")
-    problem(post("animate", motion=kick, keyframes=[{"frame": 0, "latent": z}, {"frame": 9, "vertices": far}]), 422,
-            "keyframes[1].vertices", "latent beyond +-10000")
+    # a shape that is not the garment in world space at its frame: 99 m off (it encoded to a junk latent, 200),
+    # 10 km off, collapsed to one point or blown up: refused naming the shape
+    for bad, words in (((shape + [99.0, 0, 0]).tolist(), ("centre lies", "world space")),
+                       ((shape + 1e4).tolist(), ("centre lies",)),
+                       (np.repeat(shape.mean(0, keepdims=True), len(shape), 0).tolist(), ("spreads 0.00x",)),
+                       ((shape.mean(0) + 5 * (shape - shape.mean(0))).tolist(), ("not this garment",))):
+        problem(post("encode", vertices=bad, motion=kick, frame=0), 422, "vertices", *words)
+        problem(post("animate", motion=kick, keyframes=[{"frame": 0, "latent": z}, {"frame": 9, "vertices": bad}]),
+                422, "keyframes[1].vertices", *words)
     # keyframes: none, twice on one frame, neither or both of vertices and latent
     problem(post("animate", motion=kick, keyframes=[]), 422, "keyframes")
     problem(post("animate", motion=kick), 422, "keyframes")
