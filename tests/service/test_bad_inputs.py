@@ -73,6 +73,10 @@ def test_empty_and_degenerate_mesh(http):
     problem(http.post("/v1/outfits/rig", json={"vertices": [], "faces": []}), 422, "vertices")
     flat = [[0, 0, 0], [1, 1, 1], [2, 2, 2]]
     problem(http.post("/v1/outfits/rig", json={"vertices": flat, "faces": [[0, 1, 2]]}), 422, "zero area")
+    # a real triangle 1e-9 m across: its area is below the zero-area bound, and the message says it is too small
+    tiny = [[0, 1e-9, 0], [1e-9, 0, 0], [0, 0, 1e-9]]
+    for route in ("/v1/outfits/rig", "/v1/outfits/fit"):
+        problem(http.post(route, json={"vertices": tiny, "faces": [[0, 1, 2]]}), 422, "vertices", "far too small")
 
 
 def test_too_many_vertices_and_frames(http, settings):
