@@ -313,7 +313,8 @@ def _buffers(tree: dict[str, Any], bin_chunk: memoryview | None, glb: bool) -> l
             if not sep or not head.endswith(";base64"):
                 raise InvalidInput(f"buffers[{i}]: only base64 data: URIs are supported", FIELD)
             try:
-                present = memoryview(base64.b64decode(payload))
+                # validate: b64decode otherwise drops what is not base64 and reports the bytes left as missing
+                present = memoryview(base64.b64decode("".join(payload.split()), validate=True))
             except (binascii.Error, ValueError) as exc:
                 _bad(f"buffers[{i}]: the base64 data is unreadable ({exc})")
         if declared > len(present):
@@ -759,7 +760,10 @@ def _check_indices(text: bytes | bytearray, bound: int) -> None:
             for j in range(digits):
                 values += (arr[longest + j].astype(np.int64) - 48) * scale[j]
             if values.max() > bound:
-                _bad(f"a face refers to index {values.max()}, beyond the file's {bound} vertices")
+                at = int(longest[int(np.argmax(values))])
+                negative = at > 0 and arr[at - 1] == ord("-")  # OBJ's relative index: -k is k back from the end
+                _bad(f"a face refers to index {'-' if negative else ''}{values.max()}, beyond the file's {bound} "
+                     "vertices")
 
 
 # ----------------------------------------------------------------------------------------- PLY

@@ -243,7 +243,12 @@ def test_gltf_external_uri_refused_and_data_uri_read():
     refused(MalformedInput, json.dumps(tree).encode(), "a.gltf", "only 0 are present")
     import base64
 
-    tree["buffers"][0]["uri"] += base64.b64encode(TRI_BIN).decode()
+    encoded = base64.b64encode(TRI_BIN).decode()
+    broken = dict(tree, buffers=[dict(tree["buffers"][0], uri=tree["buffers"][0]["uri"] + "*" + encoded[1:])])
+    # not base64: said so (b64decode dropped the stray characters and the bytes left were "only N present")
+    refused(MalformedInput, json.dumps(broken).encode(), "a.gltf", "base64 data is unreadable")
+    wrapped = "\n".join(encoded[i:i + 16] for i in range(0, len(encoded), 16))  # line breaks are not data
+    tree["buffers"][0]["uri"] += wrapped
     v, f = load(json.dumps(tree).encode(), "a.gltf")
     assert np.array_equal(v, TRI_V) and f.tolist() == [[0, 1, 2]]
 
@@ -371,6 +376,9 @@ def test_obj_face_index_values_are_bounded():
     many = b"v 0 0 0\n" * 1000 + b"vn 0 0 1\nf 1//1 2//1 3//1\nf 1//1 2//1 1001//1\n"
     refused(MalformedInput, many, "idx.obj", "index 1001", "beyond the file's 1000 vertices")
     assert load(many.replace(b"1001", b"1000"), "ok.obj")[1].shape == (2, 3)
+    # a relative (negative) index is named with its sign (f -1 -2 -9 said "index 9")
+    relative = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -9\n"
+    refused(MalformedInput, relative, "rel.obj", "index -9", "beyond the file's 3 vertices")
     tracemalloc.start()
     try:  # today's reader on the 47-byte file: tens of MB (an index of 2e9: hundreds of GB)
         plain_read(data, "idx.obj")
