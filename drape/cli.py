@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from drape.assets.body import Body
     from drape.sim.params import SimParams
 
 ASSETS = Path(__file__).parent / "assets"
@@ -111,7 +112,7 @@ def _check_fps_option(fps: float | None) -> None:
 BODY_FILE_SUFFIXES = (".glb", ".gltf", ".npz")
 
 
-def _body_arg(text: str):  # noqa: ANN202 (a drape.assets.body.Body)
+def _body_arg(text: str) -> Body:
     """--body: a preset's name, or a body file (a skinned GLB / glTF with SMPL joint names, or an npz of the body's
     arrays), read and checked as POST /v1/bodies reads one; a bad file is one line naming it."""
     from drape.assets.body import load_body
