@@ -33,11 +33,15 @@ KeyframeLike = Mapping[str, Any] | tuple[int, Any]
 
 
 class DrapeAPIError(Exception):
-    """An error answer from the service, carrying its RFC 9457 problem details."""
+    """An error answer from the service, carrying its RFC 9457 problem details: status, type, title, detail,
+    field (the request's field that is wrong, e.g. 'motion.poses'; None when the error is not about one), and
+    retry_after (seconds, from a 503's Retry-After; None otherwise)."""
 
-    def __init__(self, status: int, type: str, title: str, detail: str):
+    def __init__(self, status: int, type: str, title: str, detail: str, *, field: str | None = None,
+                 retry_after: float | None = None):
         super().__init__(f"{status} {title}: {detail}")
         self.status, self.type, self.title, self.detail = status, type, title, detail
+        self.field, self.retry_after = field, retry_after
 
 
 @dataclass(frozen=True)
@@ -192,8 +196,13 @@ def _raise_for(response: httpx.Response) -> None:
         return value if isinstance(value, str) else None
 
     detail = text("detail")
+    try:
+        retry_after: float | None = float(response.headers["retry-after"])
+    except (KeyError, ValueError):
+        retry_after = None
     raise DrapeAPIError(response.status_code, text("type") or "", text("title") or response.reason_phrase,
-                        response.text[:500] if detail is None else detail)
+                        response.text[:500] if detail is None else detail, field=text("field"),
+                        retry_after=retry_after)
 
 
 def _mesh_arrays(outfit: OutfitLike) -> tuple[np.ndarray, np.ndarray] | None:
@@ -637,7 +646,7 @@ class Client(_Base):
                 r.read()
                 _raise_for(r)
             reader = FrameReader()
-            for data in r.iter_raw():
+            for data in r.iter_bytes():
                 reader.feed(data)
         return _frames_done(reader, r.status_code)
 
@@ -942,7 +951,7 @@ class AsyncClient(_Base):
                 await r.aread()
                 _raise_for(r)
             reader = FrameReader()
-            async for data in r.aiter_raw():
+            async for data in r.aiter_bytes():
                 reader.feed(data)
         return _frames_done(reader, r.status_code)
 

@@ -242,3 +242,6 @@ class Problem(BaseModel):
     status: int = Field(description="the HTTP status code")
     detail: str = Field(description="what was wrong, naming the request's field first when there is one "
                         "('motion.poses: ...'); cut to 1000 characters")
+    field: str | None = Field(None, description="the request's field that is wrong, as the detail names it first "
+                              "('motion.poses', 'keyframes[1].vertices', 'Accept'); null when the error is not "
+                              "about one field (an extension member, RFC 9457 section 3.2)")

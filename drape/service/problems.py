@@ -20,6 +20,7 @@ from drape.service import errors
 PROBLEM = "application/problem+json"
 BASE = "https://drape.dev/problems/"
 MAX_DETAIL = 1000  # characters of a problem's detail
+MAX_FIELD = 200  # characters of a problem's field (a quoted unknown form field can be long)
 log = logging.getLogger("drape.service")
 
 # error class -> (status, stable type, title)
@@ -38,14 +39,17 @@ MAPPING: dict[type[errors.DrapeError], tuple[int, str, str]] = {
 }
 
 
-def _document(status: int, type_: str, title: str, detail: str) -> dict:
+def _document(status: int, type_: str, title: str, detail: str, field: str | None = None) -> dict:
     if len(detail) > MAX_DETAIL:
         detail = detail[:MAX_DETAIL] + "..."
-    return Problem(type=BASE + type_, title=title, status=status, detail=detail).model_dump()
+    if field is not None and len(field) > MAX_FIELD:
+        field = field[:MAX_FIELD] + "..."
+    return Problem(type=BASE + type_, title=title, status=status, detail=detail, field=field).model_dump()
 
 
-def problem(status: int, type_: str, title: str, detail: str, headers: dict | None = None) -> JSONResponse:
-    return JSONResponse(_document(status, type_, title, detail), status_code=status, media_type=PROBLEM,
+def problem(status: int, type_: str, title: str, detail: str, headers: dict | None = None,
+            field: str | None = None) -> JSONResponse:
+    return JSONResponse(_document(status, type_, title, detail, field), status_code=status, media_type=PROBLEM,
                         headers=headers)
 
 
@@ -56,7 +60,7 @@ def from_error(exc: errors.DrapeError) -> JSONResponse:
         headers = {"WWW-Authenticate": "Bearer"}
     elif isinstance(exc, errors.Overloaded):
         headers = {"Retry-After": str(exc.retry_after_s)}
-    return problem(status, type_, title, exc.detail, headers)
+    return problem(status, type_, title, exc.detail, headers, exc.field)
 
 
 # what each status means on the routes that declare it (the OpenAPI responses' descriptions)
@@ -149,11 +153,12 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
-        parts = []
+        parts, fields = [], []
         for e in exc.errors()[:5]:
             loc = ".".join(str(x) for x in e.get("loc", ()) if x != "body")
             parts.append(f"{loc or 'body'}: {e.get('msg')}")
-        return problem(422, "invalid-input", "Invalid input", "; ".join(parts))
+            fields.append(loc or "body")
+        return problem(422, "invalid-input", "Invalid input", "; ".join(parts), field=fields[0] if fields else None)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:

@@ -31,6 +31,8 @@ def problem(r, status: int, *words: str) -> dict:
     assert p["status"] == status and p["type"].startswith("https://drape.dev/problems/") and p["title"]
     for w in words:
         assert w in p["detail"], p["detail"]
+    # the field the detail names first is the document's field member (extension, RFC 9457 3.2)
+    assert p.get("field") is None or p["detail"].startswith(f"{p['field']}: ") or p["field"].endswith("..."), p
     return p
 
 

@@ -75,9 +75,53 @@ def test_async_client(server_url, outfit):
 
 
 def test_typed_errors_carry_the_problem(server_url):
+    """The error carries the problem's field (the request's field that is wrong; it was only a prefix of the
+    detail) and a 503's Retry-After seconds."""
+    import httpx
+
     with drape.Client(server_url) as client, pytest.raises(drape.DrapeAPIError) as info:
         client.animate(outfit_id="nope", motion="kick")
     assert info.value.status == 404 and info.value.type.endswith("not-found") and "outfit_id" in info.value.detail
+    assert info.value.field == "outfit_id" and info.value.retry_after is None
+    with drape.Client(server_url) as client, pytest.raises(drape.DrapeAPIError) as info:
+        client.animate(outfit=(np.zeros((3, 3)), np.array([[0, 1, 2]])), motion=np.zeros((4, 71)))
+    assert info.value.status == 422 and info.value.field is not None
+    assert info.value.detail.startswith(f"{info.value.field}: ")
+    busy = httpx.MockTransport(lambda request: httpx.Response(
+        503, json={"type": "t", "title": "Busy", "status": 503, "detail": "all slots taken"},
+        headers={"Retry-After": "2"}))
+    with drape.Client("http://drape.test", transport=busy) as client, pytest.raises(drape.DrapeAPIError) as info:
+        client.health()
+    assert info.value.retry_after == 2.0 and info.value.field is None
+
+
+def test_a_compressed_frame_stream_reads_as_the_plain_one(server_url):
+    """A proxy may gzip the frame stream (Content-Encoding: gzip): animate_stream read it decoded, animate read the
+    raw bytes and failed ('not a drape frame stream'); both, sync and async, now read the same frames."""
+    import asyncio
+    import gzip
+
+    import httpx
+
+    with drape.Client(server_url) as client:
+        oid = client.rig(generate_outfit("tshirt", vertices=300, seed=2)).outfit_id
+        plain = client.animate(outfit_id=oid, motion="kick")
+    body = httpx.post(f"{server_url}/v1/outfits/animate", json={"outfit_id": oid, "motion": {"clip": "kick"}},
+                      headers={"Accept": "application/x-drape-frames"}).content
+
+    def answer(request):
+        return httpx.Response(200, content=gzip.compress(body), headers={
+            "Content-Encoding": "gzip", "Content-Type": "application/x-drape-frames"})
+
+    with drape.Client("http://drape.test", transport=httpx.MockTransport(answer)) as client:
+        assert np.array_equal(client.animate(outfit_id=oid, motion="kick"), plain)
+        assert np.array_equal(np.stack(list(client.animate_stream(outfit_id=oid, motion="kick"))), plain)
+
+    async def go():
+        async with drape.AsyncClient("http://drape.test", transport=httpx.MockTransport(answer)) as client:
+            return await client.animate(outfit_id=oid, motion="kick")
+
+    assert np.array_equal(asyncio.run(go()), plain)
 
 
 def test_error_answers_that_are_not_problems_still_raise_the_typed_error():
