@@ -160,6 +160,8 @@ def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float
     """The layers animate request's httpx arguments: JSON with the motion as a clip name or poses; with a motion
     file (a MotionFile or Path: BVH or AMASS npz), a multipart form with the file as `motion_file` (the server
     retargets it onto the combination's body) and the rest of the request as JSON text in `request`."""
+    if isinstance(thickness, bool) or not isinstance(thickness, int | float | np.integer | np.floating):
+        raise ValueError(f"thickness: expected a number of metres, got {thickness!r}")
     fields = {"inner": inner, "outer": outer, "thickness": float(thickness), "refine": _refine_json(refine)}
     file = _motion_file(motion)
     if file is not None:
@@ -168,8 +170,9 @@ def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float
         raise ValueError("animate_layers takes a clip name, poses or a motion file (MotionFile or Path), not bytes")
     arrays = _motion_arrays(motion)
     m: dict[str, Any] = ({"clip": str(arrays["clip"])} if "clip" in arrays else
-                         {"poses": np.asarray(arrays["poses"]).reshape(len(arrays["poses"]), -1).tolist(),
-                          **({"translation": arrays["translation"].tolist()} if "translation" in arrays else {}),
+                         {"poses": _finite(arrays["poses"], "motion poses").reshape(len(arrays["poses"]), -1).tolist(),
+                          **({"translation": _finite(arrays["translation"], "motion translation").tolist()}
+                             if "translation" in arrays else {}),
                           **({"fps": float(arrays["fps"])} if "fps" in arrays else {})})
     return {"json": {**fields, "motion": m}}
 
@@ -205,14 +208,51 @@ def _raise_for(response: httpx.Response) -> None:
                         retry_after=retry_after)
 
 
+def _reals(value: Any, dtype: type, name: str) -> np.ndarray:
+    """An array of real numbers as `dtype`: complex, text or object values are a ValueError naming `name` (numpy
+    dropped an imaginary part with a warning and sent the rest)."""
+    a = np.asarray(value)
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{name}: expected real numbers, got dtype {a.dtype}")
+    return a.astype(dtype)
+
+
+def _finite(a: np.ndarray, name: str) -> np.ndarray:
+    """`a` unchanged; NaN or infinite values are a ValueError naming `name` (a JSON request cannot carry them:
+    json.dumps raised 'Out of range float values are not JSON compliant')."""
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name}: contains NaN or infinite values")
+    return a
+
+
+def _indices(value: Any, name: str) -> np.ndarray:
+    """Integer indices as int64: floats that are not whole numbers are a ValueError naming `name` (they were
+    truncated: faces + 0.7 rigged as the faces)."""
+    a = np.asarray(value)
+    if a.dtype.kind == "f" and not (np.isfinite(a).all() and np.array_equal(a, np.round(a))):
+        raise ValueError(f"{name}: expected integer indices, got values that are not whole numbers")
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{name}: expected integer indices, got dtype {a.dtype}")
+    return a.astype(np.int64)
+
+
+def _integer(value: Any, name: str) -> int:
+    """A whole number (an int, or a float with no fraction): 2.9 is a ValueError naming `name`, not 2."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating) or \
+            not float(value).is_integer():
+        raise ValueError(f"{name}: expected an integer, got {value!r}")
+    return int(value)
+
+
 def _mesh_arrays(outfit: OutfitLike) -> tuple[np.ndarray, np.ndarray] | None:
     """Arrays of an in-memory outfit, or None for a file path."""
     if isinstance(outfit, str | os.PathLike):
         return None
     if hasattr(outfit, "vertices") and hasattr(outfit, "faces"):
-        return np.asarray(outfit.vertices, np.float32), np.asarray(outfit.faces, np.int64)
-    vertices, faces = outfit
-    return np.asarray(vertices, np.float32), np.asarray(faces, np.int64)
+        vertices, faces = outfit.vertices, outfit.faces
+    else:
+        vertices, faces = outfit
+    return _finite(_reals(vertices, np.float32, "outfit vertices"), "outfit vertices"), _indices(faces, "outfit faces")
 
 
 def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
@@ -220,7 +260,7 @@ def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
     if isinstance(motion, str):
         return {"clip": np.array(motion)}
     if isinstance(motion, np.ndarray | list):
-        return {"poses": np.asarray(motion, np.float64)}
+        return {"poses": _reals(motion, np.float64, "motion poses")}
     get = motion.get if isinstance(motion, Mapping) else (lambda k, d=None: getattr(motion, k, d))
     poses = get("poses", None)
     if poses is None and isinstance(get("clip", None), str):  # the wire's own motion object: {"clip": name}
@@ -231,9 +271,9 @@ def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
     trans = get("translation", None)
     trans = get("trans", None) if trans is None else trans
     fps = get("fps", None)  # None: the service's 30; any other value is sent as given (0 is the service's 422)
-    out = {"poses": np.asarray(poses, np.float64), "fps": np.array(30.0 if fps is None else float(fps))}
+    out = {"poses": _reals(poses, np.float64, "motion poses"), "fps": np.array(30.0 if fps is None else float(fps))}
     if trans is not None:
-        out["translation"] = np.asarray(trans, np.float64)
+        out["translation"] = _reals(trans, np.float64, "motion translation")
     return out
 
 
@@ -260,7 +300,7 @@ def _fit_result(z: dict, prefix: str = "") -> FitResult:
 
 
 def _fit_request(outfit: OutfitLike, body: str, units: str | None, up: str | None, pose: Any) -> dict:
-    pose = pose if isinstance(pose, str) else np.asarray(pose, dtype=float).tolist()
+    pose = pose if isinstance(pose, str) else _finite(_reals(pose, float, "pose"), "pose").tolist()
     return _mesh_request(outfit, body=body, units=units, up=up, pose=pose)
 
 
@@ -360,11 +400,11 @@ def _refine_request(vertices: np.ndarray, faces: np.ndarray, motion: MotionLike,
     of the bytes); with a motion file (a MotionFile or Path), a multipart form with the garment (and inner layer)
     as the npz `garment` beside `motion_file` (the server imports it; it must give T frames). Options left None
     are not sent: the service applies its defaults."""
-    garment: dict[str, np.ndarray] = {"vertices": np.asarray(vertices, np.float32),
-                                      "faces": np.asarray(faces, np.int64)}
+    garment: dict[str, np.ndarray] = {"vertices": _reals(vertices, np.float32, "vertices"),
+                                      "faces": _indices(faces, "faces")}
     if inner is not None:
-        garment["inner_vertices"] = np.asarray(inner[0], np.float32)
-        garment["inner_faces"] = np.asarray(inner[1], np.int64)
+        garment["inner_vertices"] = _reals(inner[0], np.float32, "inner vertices")
+        garment["inner_faces"] = _indices(inner[1], "inner faces")
     if thickness is not None:
         garment["thickness"] = np.array(float(thickness))
     if rest_vertices is not None:
@@ -400,7 +440,9 @@ def _keyframe_arrays(keyframes: Sequence[KeyframeLike]) -> dict[str, np.ndarray]
         else:
             frame, value = key
             is_latent = np.ndim(value) == 1
-        (latents if is_latent else shapes).append((int(frame), np.asarray(value, np.float32)))
+        (latents if is_latent else shapes).append((_integer(frame, "keyframe frame"),
+                                                   _reals(value, np.float32, "keyframe latent" if is_latent else
+                                                          "keyframe vertices")))
     if not shapes and not latents:
         raise ValueError("give at least one keyframe")
     out: dict[str, np.ndarray] = {}
@@ -433,8 +475,10 @@ def _keyframes_json(keyframes: Sequence[KeyframeLike]) -> list[dict[str, Any]]:
 def _encode_npz(vertices: np.ndarray, motion: MotionLike, frame: int) -> dict:
     file = _motion_file(motion)
     if file is not None:
-        return _motion_form(file, {"vertices": np.asarray(vertices, float).tolist(), "frame": int(frame)}, NPZ)
-    return {"content": encode_npz({"vertices": np.asarray(vertices, np.float32), "frame": np.array(int(frame)),
+        return _motion_form(file, {"vertices": _finite(_reals(vertices, float, "vertices"), "vertices").tolist(),
+                                   "frame": _integer(frame, "frame")}, NPZ)
+    return {"content": encode_npz({"vertices": _reals(vertices, np.float32, "vertices"),
+                                   "frame": np.array(_integer(frame, "frame")),
                                    **_motion_arrays(motion)}),
             "headers": {"Content-Type": NPZ, "Accept": NPZ}}
 
@@ -453,9 +497,10 @@ def _keyframes_npz(motion: MotionLike, keyframes: Sequence[KeyframeLike], refine
 def _sample_npz(count: int, seed: int, motion: MotionLike, frame: int) -> dict:
     file = _motion_file(motion)
     if file is not None:
-        return _motion_form(file, {"count": int(count), "seed": int(seed), "frame": int(frame)}, NPZ)
-    return {"content": encode_npz({"count": np.array(int(count)), "seed": np.array(int(seed)),
-                                   "frame": np.array(int(frame)), **_motion_arrays(motion)}),
+        return _motion_form(file, {"count": _integer(count, "count"), "seed": _integer(seed, "seed"),
+                                   "frame": _integer(frame, "frame")}, NPZ)
+    return {"content": encode_npz({"count": np.array(_integer(count, "count")), "seed": np.array(_integer(seed, "seed")),
+                                   "frame": np.array(_integer(frame, "frame")), **_motion_arrays(motion)}),
             "headers": {"Content-Type": NPZ, "Accept": NPZ}}
 
 

@@ -689,3 +689,38 @@ def test_motion_files_and_refine_options_through_the_client(server_url, outfit, 
     assert raw.shape == (97, len(outfit.vertices), 3) and default.shape[0] == 121
     assert refined.shape == raw.shape and wide.shape == raw.shape
     assert np.abs(refined - raw).max() > 1e-3 and np.abs(wide - refined).max() > 1e-3  # eps 2 cm vs 3 mm
+
+
+def test_the_client_refuses_what_it_would_send_wrong():
+    """Checked before anything is sent, a ValueError naming the parameter: faces that are not whole numbers
+    (truncated: faces + 0.7 rigged as the faces), complex poses (the imaginary part dropped with a warning), a
+    keyframe frame or sample count of 2.9 / 2.5 (sent as 2), NaN in a request sent as JSON (json.dumps' 'Out of
+    range float values'), a thickness given as text (float() read it)."""
+    import httpx
+
+    def never(request):
+        raise AssertionError(f"sent {request.url}")
+
+    o = generate_outfit("tshirt", vertices=300, seed=2)
+    v, f = o.vertices, o.faces
+    with drape.Client("http://drape.test", transport=httpx.MockTransport(never)) as client:
+        cases = [
+            (lambda: client.rig((v, f + 0.7)), "outfit faces: expected integer indices"),
+            (lambda: client.rig((np.full_like(v, np.nan), f)), "outfit vertices: contains NaN"),
+            (lambda: client.fit((v, f), pose=np.full((24, 3), np.inf)), "pose: contains NaN"),
+            (lambda: client.animate(outfit=(v, f), motion=np.zeros((4, 72)) + 1j), "motion poses: expected real"),
+            (lambda: client.refine(np.zeros((2, len(v), 3)), f + 0.9, motion="kick"), "faces: expected integer"),
+            (lambda: client.animate_keyframes("skirt", motion="kick", keyframes=[{"frame": 2.9, "latent": [0.1] * 100}]),
+             "keyframe frame: expected an integer"),
+            (lambda: client.sample_designs("skirt", count=2.5, motion="kick"), "count: expected an integer"),
+            (lambda: client.encode_keyframe("skirt", vertices=np.zeros((5, 3)), motion="kick", frame=1.5),
+             "frame: expected an integer"),
+            (lambda: client.animate_layers(inner="tshirt", outer="jacket", motion=np.full((3, 72), np.nan)),
+             "motion poses: contains NaN"),
+            (lambda: client.animate_layers(inner="tshirt", outer="jacket", motion="kick", thickness="0.006"),
+             "thickness: expected a number"),
+        ]
+        for call, words in cases:
+            with pytest.raises(ValueError) as info:
+                call()
+            assert str(info.value).startswith(words), (words, info.value)
