@@ -109,7 +109,25 @@ def _check_fps_option(fps: float | None) -> None:
         raise SystemExit(f"drape: error: --fps must be within [{MIN_FILE_FPS:g}, {MAX_FILE_FPS:g}] fps, got {fps:g}")
 
 
+def _out_path(out: str, *inputs: str | None, suffixes: tuple[str, ...] = ()) -> Path:
+    """An --out about to be written: not one of the command's `inputs` (the same file by any path, hard links
+    too: writing it would replace the input), ending in one of `suffixes` when given, and its folder made (a
+    file in the way is main's one-line OSError). Checked before any work, so a failure leaves nothing behind."""
+    path = Path(out)
+    if path.is_dir():
+        raise SystemExit(f"drape: error: --out {out} is a folder: give a file name")
+    if suffixes and path.suffix.lower() not in suffixes:  # "" among them: no suffix is fine (the writer adds one)
+        raise SystemExit(f"drape: error: --out {out}: expected a file ending in {' or '.join(x for x in suffixes if x)}")
+    for given in inputs:
+        if given and path.exists() and Path(given).exists() and os.path.samefile(path, given):
+            raise SystemExit(f"drape: error: --out {out} is the input {given}: choose another path (writing it would "
+                             "replace the input)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
 BODY_FILE_SUFFIXES = (".glb", ".gltf", ".npz")
+MAX_SMOOTH = 10_000  # render --smooth: weight diffusion steps (1e8 ran until killed)
 
 
 def _body_arg(text: str) -> Body:
@@ -149,10 +167,7 @@ def _motions_import(args: argparse.Namespace) -> None:
     if src.suffix.lower() not in (".bvh", ".npz"):
         raise SystemExit(f"drape: error: {src}: expected a .bvh (CMU joint names) or an AMASS-style .npz file")
     _check_fps_option(args.fps)
-    out_path = Path(args.out if str(args.out).endswith(".npz") else f"{args.out}.npz")
-    if out_path.exists() and src.exists() and out_path.resolve() == src.resolve():
-        raise SystemExit(f"drape: error: --out {args.out} is the input file: choose another path (the import would "
-                         "replace the original mocap)")
+    _out_path(args.out if str(args.out).endswith(".npz") else f"{args.out}.npz", args.file)
     body = _body_arg(args.body)
     start = time.perf_counter()
     try:
@@ -186,6 +201,9 @@ def _outfits_fit(args: argparse.Namespace) -> None:
     from drape.geometry.fitting import FitError, fit_garment
     from drape.geometry.mesh_io import load_mesh, save_mesh
 
+    _out_path(args.out, args.mesh)
+    if args.report:
+        _out_path(args.report, args.mesh)
     vertices, faces = load_mesh(args.mesh)
     body = _body_arg(args.body)
     start = time.perf_counter()
@@ -221,6 +239,17 @@ def _frames_arg(text: str, num_frames: int, option: str = "--frames") -> list[in
     return frames
 
 
+def _port(text: str) -> int:
+    """An argparse type: a TCP port, 1-65535 (99999 was handed on and the server listened on another port)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"must be in [1, 65535], got {port}")
+    return port
+
+
 def _finite_float(text: str) -> float:
     """An argparse type: a finite float (an --azimuth of nan or inf drew every panel blank)."""
     try:
@@ -251,6 +280,13 @@ def _render(args: argparse.Namespace) -> None:
         raise ValueError(f"{', '.join(clash)}: not used {'with' if args.sim else 'without'} --sim")
     if args.clip and args.motion:
         raise ValueError("--clip, --motion: give one motion, not both")
+    if args.frames and not (args.sim or args.clip or args.motion):  # drew the rest pose at frame 0 without a word
+        raise ValueError("--frames: frames of a motion; give --clip, --motion or --sim")
+    if args.frames == "":
+        raise ValueError("--frames: expected a comma list of frame indices, got an empty one")
+    if not 0 <= args.smooth <= MAX_SMOOTH:
+        raise ValueError(f"--smooth: must be in [0, {MAX_SMOOTH}], got {args.smooth}")
+    _out_path(args.out, args.sim, args.outfit, args.motion, suffixes=("", ".png", ".jpg", ".jpeg", ".pdf", ".svg"))
     if args.sim:
         _render_sim(args)
         return
@@ -261,8 +297,9 @@ def _render(args: argparse.Namespace) -> None:
         motion = load_clip(args.clip)
     else:
         motion = None
-    if motion is not None:
-        frames = _frames_arg(args.frames or "0,10,20,30", motion.num_frames)
+    if motion is not None:  # by default four frames spread over the motion (0, 10, 20, 30 where it is long enough)
+        frames = _frames_arg(args.frames, motion.num_frames) if args.frames else \
+            sorted({min(f, motion.num_frames - 1) for f in (0, 10, 20, 30)})
         poses, trans = motion.poses[frames], motion.trans[frames]
     else:
         frames = [0]
@@ -271,6 +308,12 @@ def _render(args: argparse.Namespace) -> None:
     layers = [Layer(linear_blend_skinning(body.vertices, body.weights, transforms), body.faces, (0.86, 0.74, 0.62))]
     if args.outfit:
         verts, faces = load_mesh(args.outfit)
+        from drape.geometry.placement import FAR_M, body_distance
+
+        near = float(np.abs(body_distance(body.vertices, body.faces).signed_distance(verts)).min())
+        if near > FAR_M:  # drawn outside the picture: a PNG of the body alone, exit 0
+            raise ValueError(f"--outfit {args.outfit}: no vertex comes within {100 * FAR_M:.0f} cm of the body at "
+                             f"rest (the nearest is {near:.2f} m off); fit it first: drape outfits fit")
         # LBS with nearest-body-vertex weights diffused over the cloth: a look, not a cloth model
         weights = smooth_weights(nearest_vertex_weights(verts, body.vertices, body.weights), faces,
                                  iterations=args.smooth)
@@ -283,6 +326,47 @@ def _render(args: argparse.Namespace) -> None:
                         caption=caption))
 
 
+SIM_MEMBERS = ("body", "poses", "trans", "params", "garment", "motion", "fps")
+
+
+def _read_sim(path: str) -> dict[str, np.ndarray]:
+    """A simulated sequence npz (drape sim run / a dataset item) with what `render --sim` draws: its members, each
+    checked; SystemExit naming the file and the member otherwise (a 0-byte file, 0 frames, fewer poses than
+    frames or faces past the vertices were tracebacks)."""
+    import json
+    import zipfile
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            seq = {k: z[k] for k in z.files}
+    except (ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise SystemExit(f"drape: error: {path}: not a simulated sequence npz ({type(exc).__name__}: {exc})") from None
+    layered = "inner_vertices" in seq
+    meshes = (("inner_vertices", "inner_faces"), ("outer_vertices", "outer_faces")) if layered else \
+        (("vertices", "faces"),)
+    missing = [k for k in (*SIM_MEMBERS, *(m for pair in meshes for m in pair)) if k not in seq]
+    if missing:
+        raise SystemExit(f"drape: error: {path}: a simulated sequence (drape sim run) needs {', '.join(missing)}")
+    frames = len(seq[meshes[0][0]]) if seq[meshes[0][0]].ndim else 0
+    for vname, fname in meshes:
+        v, f = seq[vname], seq[fname]
+        if v.dtype.kind not in "fiu" or v.ndim != 3 or v.shape[2] != 3 or len(v) != frames or not frames:
+            raise SystemExit(f"drape: error: {path}: '{vname}' must be (T, N, 3) numbers with T >= 1, got {v.shape}")
+        if not np.isfinite(v).all():
+            raise SystemExit(f"drape: error: {path}: '{vname}' holds NaN or infinite values")
+        if f.dtype.kind not in "iu" or f.ndim != 2 or f.shape[1] != 3 or not len(f) or f.min() < 0 or \
+                f.max() >= v.shape[1]:
+            raise SystemExit(f"drape: error: {path}: '{fname}' must be (F, 3) indices into the {v.shape[1]} vertices")
+    if seq["poses"].shape[:1] != (frames,) or seq["trans"].shape != (frames, 3):
+        raise SystemExit(f"drape: error: {path}: 'poses' and 'trans' must have the {frames} frames of the cloth, got "
+                         f"{seq['poses'].shape} and {seq['trans'].shape}")
+    try:
+        json.loads(str(seq["params"]))
+    except ValueError:
+        raise SystemExit(f"drape: error: {path}: 'params' is not JSON text") from None
+    return seq
+
+
 def _render_sim(args: argparse.Namespace) -> None:
     """A simulated sequence (an `drape sim run` / dataset item npz) next to the posed body."""
     import json
@@ -290,8 +374,7 @@ def _render_sim(args: argparse.Namespace) -> None:
     from drape.assets.body import load_body
     from drape.render import Layer, render_frames
 
-    with np.load(args.sim, allow_pickle=False) as z:
-        seq = {k: z[k] for k in z.files}
+    seq = _read_sim(args.sim)
     body = load_body(str(seq["body"]))
     layered = "inner_vertices" in seq  # a two-layer sequence (drape sim run --outer)
     T = len(seq["inner_vertices" if layered else "vertices"])
@@ -528,6 +611,7 @@ def _export_pc2(args: argparse.Namespace) -> None:
 
     if not (np.isfinite(args.start_frame) and abs(args.start_frame) <= np.finfo(np.float32).max):
         raise SystemExit(f"--start-frame must be a finite float32 frame number, got {args.start_frame}")
+    _out_path(args.out, args.stream)
     v, _ = _read_stream(args.stream)
     with open(args.out, "wb") as f:
         for piece in encode_pc2([v], v.shape[1], len(v), start_frame=args.start_frame):
@@ -538,6 +622,7 @@ def _export_pc2(args: argparse.Namespace) -> None:
 def _export_glb(args: argparse.Namespace) -> None:
     from drape.schemas.gltf import vertex_animation_glb
 
+    _out_path(args.out, args.stream, suffixes=(".glb",))
     v, z = _read_stream(args.stream)
     faces, fps = _glb_faces_fps(args.stream, z, v.shape[0], v.shape[1])
     Path(args.out).write_bytes(vertex_animation_glb(v, faces, fps))
@@ -643,6 +728,8 @@ def _sim_run(args: argparse.Namespace) -> None:
     source = " and ".join([*([f"--params {args.params}"] if args.params else []),
                            *(["--thickness"] if args.thickness is not None else [])])
     params = _params_option(source, LayerParams if args.outer else SimParams, given)
+    _out_path(args.out, args.garment, args.outer,
+              args.clip if args.clip.endswith(".npz") else None, args.params)
     verts, faces = load_mesh(args.garment)
     motion = _motion_arg(args.clip)
     from tqdm import tqdm
@@ -749,7 +836,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("serve", help="run the HTTP service")
     s.add_argument("--host", help="default: DRAPE_HOST or 127.0.0.1")
-    s.add_argument("--port", type=int, help="default: DRAPE_PORT or 8000")
+    s.add_argument("--port", type=_port, help="default: DRAPE_PORT or 8000")
     s.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="deploy on this Ray cluster with Ray Serve (auto, or the head's HOST:6379); "
                         "Serve's HTTP proxies listen on host:port")
@@ -991,6 +1078,9 @@ def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
+    except KeyboardInterrupt:  # Ctrl-C: one line (training and datasets resume from their checkpoints)
+        print("drape: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
     except ModuleNotFoundError as exc:  # `make serve`'s venv has none of the training tools: one line, not a traceback
         package = (exc.name or "").split(".")[0]
         if package not in OPTIONAL_PACKAGES:

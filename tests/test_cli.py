@@ -368,3 +368,62 @@ def test_render_options_are_checked_and_the_written_file_is_named(tmp_path, caps
     cli.main(["render", "--out", str(tmp_path / "rest")])
     assert capsys.readouterr().out.strip() == str(tmp_path / "rest.png")
     assert (tmp_path / "rest.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_an_out_never_replaces_an_input_and_bad_files_are_one_line(tmp_path, capsys, monkeypatch):
+    """--out naming an input (by any path, a hard link too) is refused before any work: outfits fit, export
+    pc2|glb and sim run replaced their input. render --sim on a 0-byte file, a sequence with no frames, fewer poses
+    than frames or faces past the vertices were tracebacks; --frames without a motion and an --outfit far from the
+    body drew the rest pose or the body alone with exit 0; serve took --port 99999; Ctrl-C printed a traceback."""
+    import os
+
+    from drape import cli
+    from drape.geometry.mesh_io import save_mesh
+
+    mesh = tmp_path / "shirt.obj"
+    cli.main(["outfits", "generate", "--type", "tshirt", "--vertices", "300", "--out", str(mesh)])
+    before = mesh.read_bytes()
+    link = tmp_path / "link.obj"
+    os.link(mesh, link)
+    for out in (mesh, link):
+        code, line = _refused(capsys, "outfits", "fit", str(mesh), "--out", str(out))
+        assert f"is the input {mesh}" in line, line
+    stream = tmp_path / "s.npz"
+    np.savez(stream, vertices=np.zeros((2, 3, 3), np.float32), faces=np.array([[0, 1, 2]]), fps=np.array(30.0))
+    os.link(stream, tmp_path / "s.glb")  # the same file under a GLB's name
+    for kind, out in (("pc2", stream), ("glb", tmp_path / "s.glb")):
+        assert "is the input" in _refused(capsys, "export", kind, str(stream), "--out", str(out))[1]
+    assert "ending in .glb" in _refused(capsys, "export", "glb", str(stream), "--out", str(tmp_path / "a.obj"))[1]
+    assert "is the input" in _refused(capsys, "sim", "run", "--garment", str(mesh), "--clip", "walk", "--frames", "1",
+                                      "--out", str(mesh))[1]
+    assert mesh.read_bytes() == before
+    png = tmp_path / "x.png"
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    assert "not a simulated sequence npz" in _refused(capsys, "render", "--sim", str(empty), "--out", str(png))[1]
+    good = dict(vertices=np.zeros((2, 3, 3)), faces=np.array([[0, 1, 2]]), poses=np.zeros((2, 24, 3)),
+                trans=np.zeros((2, 3)), body=np.array("neutral"), params=np.array("{}"), garment=np.array("g"),
+                motion=np.array("walk"), fps=np.array(30.0))
+    for change, words in (({"vertices": np.zeros((0, 3, 3)), "poses": np.zeros((0, 24, 3)), "trans": np.zeros((0, 3))},
+                           "T >= 1"),
+                          ({"poses": np.zeros((1, 24, 3)), "trans": np.zeros((1, 3))}, "'poses' and 'trans'"),
+                          ({"faces": np.array([[0, 1, 1002]])}, "'faces' must be"),
+                          ({"body": None}, "needs body")):
+        seq = tmp_path / "seq.npz"
+        np.savez(seq, **{k: v for k, v in {**good, **change}.items() if v is not None})
+        assert words in _refused(capsys, "render", "--sim", str(seq), "--out", str(png))[1], words
+    assert "give --clip, --motion or --sim" in _refused(capsys, "render", "--frames", "5,6", "--out", str(png))[1]
+    far = tmp_path / "far.obj"
+    save_mesh(far, np.array([[100, 1, 0], [100.1, 1, 0], [100, 1.1, 0]]), np.array([[0, 1, 2]]))
+    assert "fit it first" in _refused(capsys, "render", "--outfit", str(far), "--out", str(png))[1]
+    assert not png.exists()
+    with pytest.raises(SystemExit) as exc:  # argparse's usage and its one error line, exit 2
+        cli.main(["serve", "--port", "99999"])
+    assert exc.value.code == 2 and "--port: must be in [1, 65535], got 99999" in capsys.readouterr().err
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_motions_generate", interrupted)
+    assert _refused(capsys, "motions", "generate", "--frames", "3", "--out", str(tmp_path / "m.npz")) == \
+        (130, "drape: interrupted")

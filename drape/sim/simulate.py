@@ -271,6 +271,9 @@ def simulate_cloths(
     rest = [np.asarray(c.vertices, dtype=np.float64) for c in cloths]
     if hulls is None:
         hulls = fit_hulls(body, garment_bones(body, np.concatenate(rest).astype(np.float32), reach=0.2))
+    if not hulls:  # no bone within reach: the scene would have no body (an IndexError further down)
+        raise ValueError("no part of the body lies within 0.2 m of the garment at rest: a garment to simulate must "
+                         "be in the body's rest pose, on the body (drape outfits fit puts one there)")
     all_p, all_t = settle_motion(motion, T, settle_blend, settle_hold)
     S = len(all_p) - T
     tr, pos, quat, omega, vel = bone_kinematics(body, all_p, all_t, motion.fps)
