@@ -210,7 +210,7 @@ def _outfits_fit(args: argparse.Namespace) -> None:
     try:
         result = fit_garment(vertices, faces, body, units=args.units, up=args.up, pose=args.pose)
     except FitError as exc:
-        raise SystemExit(f"{args.mesh}: {exc}") from None
+        raise SystemExit(f"drape: error: {args.mesh}: {exc}") from None
     save_mesh(args.out, result.vertices, faces)
     r = result.report
     print(f"{args.out}: {len(vertices)} vertices fitted onto {args.body} in {time.perf_counter() - start:.1f} s; "
@@ -263,7 +263,6 @@ def _finite_float(text: str) -> float:
 
 def _render(args: argparse.Namespace) -> None:
     _require("matplotlib", "tools", "render")
-    from drape.assets.body import load_body
     from drape.assets.motion import load_clip, load_motion_npz
     from drape.geometry.lbs import linear_blend_skinning, smooth_weights
     from drape.geometry.mesh_io import load_mesh
@@ -290,7 +289,7 @@ def _render(args: argparse.Namespace) -> None:
     if args.sim:
         _render_sim(args)
         return
-    body = load_body(args.body)
+    body = _body_arg(args.body)
     if args.motion:
         motion = load_motion_npz(args.motion)
     elif args.clip:
@@ -1047,7 +1046,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.set_defaults(func=_sim_sweep)
 
     r = sub.add_parser("render", help="PNG of a body (and outfit) at frames of a motion")
-    r.add_argument("--body", default="neutral")
+    r.add_argument("--body", default="neutral", help="a preset, or a body file (skinned GLB / glTF, or npz)")
     r.add_argument("--outfit", help="mesh file of an outfit in the body's rest pose")
     r.add_argument("--clip", help="embedded clip name")
     r.add_argument("--motion", help="motion npz file")

@@ -295,6 +295,10 @@ def test_a_mesh_that_is_not_a_triangle_mesh_is_named_in_one_line(tmp_path, capsy
                              ("missing.obj", 1, "No such file or directory")):
         got = _refused(capsys, "outfits", "fit", str(tmp_path / name), "--out", str(out))
         assert got[0] == code and got[1].startswith(f"drape: error: {tmp_path / name}: {said}"), got
+    (tmp_path / "point.obj").write_text("v 0 1 0\nv 0 1 0\nv 0 1 0\nf 1 2 3\n")  # fitted, exit 0, before
+    got = _refused(capsys, "outfits", "fit", str(tmp_path / "point.obj"), "--out", str(out))
+    assert got == (1, f"drape: error: {tmp_path / 'point.obj'}: every face has zero area (its vertices coincide or "
+                      "lie on one line): not a garment"), got
     assert not out.exists()
     png = tmp_path / "look.png"
     got = _refused(capsys, "render", "--outfit", str(tmp_path / "nofaces.obj"), "--out", str(png))

@@ -208,6 +208,9 @@ def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: s
     pre = np.eye(4)
     pre[:3, :3] = UNITS[units] * (Z_UP_TO_Y_UP if up == "z" else np.eye(3))
     v_m = v @ pre[:3, :3].T
+    area = np.linalg.norm(np.cross(v_m[f[:, 1]] - v_m[f[:, 0]], v_m[f[:, 2]] - v_m[f[:, 0]]), axis=1)
+    if not np.any(area > 1e-12):  # every vertex at one point (or on one line): nothing to fit
+        raise FitError("every face has zero area (its vertices coincide or lie on one line): not a garment", "faces")
 
     if pose is None or (isinstance(pose, str) and pose == "t"):
         pose_arr, pose_name = np.zeros((24, 3)), "t"
