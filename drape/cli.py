@@ -629,10 +629,18 @@ def _export_glb(args: argparse.Namespace) -> None:
 
 
 def _eval_deepsd(args: argparse.Namespace) -> None:
+    from drape.training import DEFAULT_GROUND_TRUTH
     from drape.training.deepsd_eval import evaluate, format_table, write_results
 
-    results = evaluate(args.config, args.model, ground_truth=args.ground_truth or None,
-                       real_mocap=args.real_mocap or None, external=args.external or None)
+    folders = {}
+    for option, name, default in (("--ground-truth", "ground_truth", DEFAULT_GROUND_TRUTH),
+                                  ("--real-mocap", "real_mocap", "../shared/data/mocap"),
+                                  ("--external", "external", "../shared/data/external")):
+        given = getattr(args, name)
+        if given and not Path(given).is_dir():  # a folder named on purpose was skipped without a word
+            raise SystemExit(f"drape: error: {option} {given}: no such folder")
+        folders[name] = (given or None) if given is not None else str(default)
+    results = evaluate(args.config, args.model, **folders)
     print(format_table(results))
     if args.write:
         for path in write_results(results, args.model):
@@ -964,13 +972,16 @@ def build_parser() -> argparse.ArgumentParser:
     evd.add_argument("--config", default=str(DEFAULT_DEEPSD_CONFIG))
     evd.add_argument("--model", default=str(models_dir))
     evd.add_argument("--write", action="store_true", help="store the table in the manifest and docs/")
-    evd.add_argument("--real-mocap", default="../shared/data/mocap",
-                     help="folder of real CMU BVH clips for the second table ('' to skip)")
-    evd.add_argument("--external", default="../shared/data/external",
+    evd.add_argument("--real-mocap", default=None,
+                     help="folder of real CMU BVH clips for the second table (default ../shared/data/mocap, skipped "
+                          "when absent; '' to skip)")
+    evd.add_argument("--external", default=None,
                      help="folder of garment meshes (*.obj) made for other bodies: fitted onto the neutral body and "
-                          "measured on the real clips ('' to skip)")
-    evd.add_argument("--ground-truth", default=str(DEFAULT_GROUND_TRUTH),
-                     help="a `drape sim dataset` directory; mean vertex error against its sequences when it exists")
+                          "measured on the real clips (default ../shared/data/external, skipped when absent; '' to "
+                          "skip)")
+    evd.add_argument("--ground-truth", default=None,
+                     help=f"a `drape sim dataset` directory: mean vertex error against its sequences (default "
+                          f"{DEFAULT_GROUND_TRUTH}, skipped when absent)")
     evd.set_defaults(func=_eval_deepsd)
 
     evl = ev.add_parser("layers", help="the served layer combinations against two-layer simulations on held-out "

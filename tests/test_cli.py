@@ -431,3 +431,12 @@ def test_an_out_never_replaces_an_input_and_bad_files_are_one_line(tmp_path, cap
     monkeypatch.setattr(cli, "_motions_generate", interrupted)
     assert _refused(capsys, "motions", "generate", "--frames", "3", "--out", str(tmp_path / "m.npz")) == \
         (130, "drape: interrupted")
+
+
+@pytest.mark.parametrize("option", ["--real-mocap", "--external", "--ground-truth"])
+def test_eval_deepsd_refuses_a_folder_named_on_purpose_that_is_not_there(option, tmp_path, capsys):
+    """Its defaults are skipped when absent; a folder given on purpose was skipped the same way, without a word,
+    and the evaluation ran on without it."""
+    missing = tmp_path / "nope"
+    assert _refused(capsys, "eval", "deepsd", option, str(missing)) == (1, f"drape: error: {option} {missing}: no such "
+                                                                           "folder")
