@@ -113,6 +113,8 @@ def _out_path(out: str, *inputs: str | None, suffixes: tuple[str, ...] = ()) -> 
     """An --out about to be written: not one of the command's `inputs` (the same file by any path, hard links
     too: writing it would replace the input), ending in one of `suffixes` when given, and its folder made (a
     file in the way is main's one-line OSError). Checked before any work, so a failure leaves nothing behind."""
+    if not str(out).strip():
+        raise SystemExit("drape: error: --out: give a file name, got an empty one")
     path = Path(out)
     if path.is_dir():
         raise SystemExit(f"drape: error: --out {out} is a folder: give a file name")
@@ -153,6 +155,7 @@ def _motions_generate(args: argparse.Namespace) -> None:
     from drape.assets.procedural import generate_motion
 
     _check_fps_option(args.fps)
+    _out_path(args.out)
     motion = generate_motion(args.frames, seed=args.seed, fps=args.fps, body=args.body, walk=args.walk)
     out = motion.save(args.out)
     print(f"{out}: {motion.num_frames} frames at {motion.fps:g} fps")
@@ -188,6 +191,7 @@ def _outfits_generate(args: argparse.Namespace) -> None:
     from drape.assets.outfits import generate_outfit
     from drape.geometry.mesh_io import save_mesh
 
+    _out_path(args.out)
     outfit = generate_outfit(args.type, vertices=args.vertices, seed=args.seed, body=args.body,
                              looseness=args.looseness, length=args.length)
     save_mesh(args.out, outfit.vertices, outfit.faces)
@@ -865,7 +869,7 @@ def build_parser() -> argparse.ArgumentParser:
     motions = sub.add_parser("motions", help="make or convert motions").add_subparsers(dest="what", required=True)
     g = motions.add_parser("generate", help="a seeded procedural motion (gait, reaching, turning)")
     g.add_argument("--frames", type=_int_in(1, MAX_GENERATED_FRAMES), required=True)
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0)
     g.add_argument("--fps", type=float, default=30.0)
     g.add_argument("--walk", type=float, default=0.6, help="share of time walking (0..1)")
     g.add_argument("--body", default="neutral")
@@ -892,7 +896,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tshirt, tanktop, longsleeve, trousers, shorts, skirt, dress, jacket, long_skirt, "
                         "or a comma list")
     o.add_argument("--vertices", type=int, default=4000)
-    o.add_argument("--seed", type=int, default=0)
+    o.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0)
     o.add_argument("--body", default="neutral")
     o.add_argument("--looseness", type=float, default=None,
                    help="0 (tight) .. 1 (loose), up to 3 for an oversize garment; random if omitted")
@@ -1022,7 +1026,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --outer: sample the cloth's parameters per set (default) or keep the defaults and "
                          "vary H_in alone (MGN's setting: its outer network is conditioned on H_in only)")
     sd.add_argument("--params", type=int, default=8, help="number of parameter sets to sample")
-    sd.add_argument("--seed", type=int, default=0, help="seed of the parameter sampler")
+    sd.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="seed of the parameter sampler")
     sd.add_argument("--motions", required=True, help="comma list of clip names or motion npz files")
     sd.add_argument("--frames", type=int, default=90)
     sd.add_argument("--body", default="neutral")
@@ -1043,7 +1047,7 @@ def build_parser() -> argparse.ArgumentParser:
                                        "written as OUT/<inner>.obj and OUT/<outer>.obj")
     so.add_argument("--type", required=True, help="inner,outer garment types, e.g. tshirt,jacket")
     so.add_argument("--vertices", type=int, default=4000, help="target vertex count of the two together")
-    so.add_argument("--seed", type=int, default=0)
+    so.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0)
     so.add_argument("--body", default="neutral")
     so.add_argument("--looseness", type=float, default=None, help="0 (tight) .. 1 (loose); random if omitted")
     so.add_argument("--length", type=float, default=None, help="0 (short) .. 1 (long); random if omitted")

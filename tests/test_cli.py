@@ -440,3 +440,13 @@ def test_eval_deepsd_refuses_a_folder_named_on_purpose_that_is_not_there(option,
     missing = tmp_path / "nope"
     assert _refused(capsys, "eval", "deepsd", option, str(missing)) == (1, f"drape: error: {option} {missing}: no such "
                                                                            "folder")
+
+
+@pytest.mark.parametrize(("command", "option", "kind"), [(["train", "intrinsic"], "--template", "intrinsic"),
+                                                         (["train", "mgn-inner"], "--inner", "mgn_inner"),
+                                                         (["train", "mgn-outer"], "--outer", "mgn_outer")])
+def test_a_name_with_no_committed_config_lists_the_names_there_are(command, option, kind, capsys):
+    """It was an OSError about drape/training/configs/<kind>_<name>.json."""
+    code, line = _refused(capsys, *command, option, "nosuch")
+    assert code == 2 and line.startswith(f"drape: error: {option} 'nosuch': no committed config {kind}_nosuch.json; "
+                                         f"configs of {kind}: "), line

@@ -36,16 +36,13 @@ import numpy as np
 import torch
 
 from drape.models.intrinsic import IntrinsicConfig, IntrinsicSpace, uniform_laplacian_loss
-from drape.training.config_file import read_config
+from drape.training.config_file import named_config, read_config
 from drape.training.intrinsic_data import Frames, load_frames
 from drape.training.validated_steps import check_same_config, check_same_data, save_whole
 
-CONFIG_DIR = Path(__file__).resolve().parent / "configs"
-
 
 def load_config(template: str | None = None, path: str | Path | None = None) -> dict:
-    p = Path(path) if path else CONFIG_DIR / f"intrinsic_{template}.json"
-    return read_config(p)
+    return read_config(Path(path)) if path else named_config("intrinsic", str(template), "--template")
 
 
 def training_datasets(config: dict) -> list[str]:

@@ -35,16 +35,14 @@ from drape.assets.outfits import split_outfit
 from drape.geometry.mesh import neighbour_table, unique_edges
 from drape.models.layers import InnerConfig, InnerPSD
 from drape.training import physics
-from drape.training.config_file import read_config
+from drape.training.config_file import named_config, read_config
 from drape.training.deepsd_data import pose_pool
 from drape.training.deepsd_validation import Poser, measure_poser
 from drape.training.validated_steps import restore_best, resume, save_step
 
-CONFIGS = Path(__file__).parent / "configs"
-
 
 def load_config(inner: str, path: str | Path | None = None) -> dict:
-    return read_config(path or CONFIGS / f"mgn_inner_{inner}.json")
+    return read_config(path) if path else named_config("mgn_inner", inner, "--inner")
 
 
 def template(cfg: dict) -> tuple[np.ndarray, np.ndarray]:

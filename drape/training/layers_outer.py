@@ -64,16 +64,14 @@ from drape.models.layers import OuterConfig, OuterTransformer
 from drape.runtime.deepsd import Rig, pose_outfit
 from drape.runtime.layers import INNER_MODELS, InnerModel, blend_windows, window_starts
 from drape.training import physics
-from drape.training.config_file import read_config
+from drape.training.config_file import named_config, read_config
 from drape.training.deepsd_data import mocap_motion, repairs_flips
 from drape.training.layers_inner import body_weights
 from drape.training.validated_steps import restore_best, resume, save_step
 
-CONFIGS = Path(__file__).parent / "configs"
-
 
 def load_config(outer: str, path: str | Path | None = None) -> dict:
-    return read_config(path or CONFIGS / f"mgn_outer_{outer}.json")
+    return read_config(path) if path else named_config("mgn_outer", outer, "--outer")
 
 
 @dataclass
