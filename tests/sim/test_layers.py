@@ -176,7 +176,11 @@ def test_render_served_layers_beside_a_two_layer_sequence(tmp_path):
     r = subprocess.run(run, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    seq["outer_vertices"] = seq["outer_vertices"][:, :100]
+    seq["outer_garment"] = "cardigan"
     save_layer_sequence(tmp_path / "seq.npz", **seq)
     r = subprocess.run(run, capture_output=True, text=True)
     assert r.returncode != 0 and "not a served combination" in r.stderr
+    seq["outer_vertices"] = seq["outer_vertices"][:, :100]  # faces past the vertices: the file is refused first
+    save_layer_sequence(tmp_path / "seq.npz", **seq)
+    r = subprocess.run(run, capture_output=True, text=True)
+    assert r.returncode != 0 and "'outer_faces' must be (F, 3) indices into the 100 vertices" in r.stderr
