@@ -160,7 +160,7 @@ def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float
     """The layers animate request's httpx arguments: JSON with the motion as a clip name or poses; with a motion
     file (a MotionFile or Path: BVH or AMASS npz), a multipart form with the file as `motion_file` (the server
     retargets it onto the combination's body) and the rest of the request as JSON text in `request`."""
-    if isinstance(thickness, bool) or not isinstance(thickness, int | float | np.integer | np.floating):
+    if isinstance(thickness, str | bytes | bool | np.bool_):  # float() read "0.006" and True
         raise ValueError(f"thickness: expected a number of metres, got {thickness!r}")
     fields = {"inner": inner, "outer": outer, "thickness": float(thickness), "refine": _refine_json(refine)}
     file = _motion_file(motion)
@@ -229,8 +229,9 @@ def _indices(value: Any, name: str) -> np.ndarray:
     """Integer indices as int64: floats that are not whole numbers are a ValueError naming `name` (they were
     truncated: faces + 0.7 rigged as the faces)."""
     a = np.asarray(value)
-    if a.dtype.kind == "f" and not (np.isfinite(a).all() and np.array_equal(a, np.round(a))):
-        raise ValueError(f"{name}: expected integer indices, got values that are not whole numbers")
+    if a.dtype.kind == "f" and not (np.isfinite(a).all() and np.array_equal(a, np.round(a))
+                                    and (a.size == 0 or np.abs(a).max() < 2**53)):
+        raise ValueError(f"{name}: expected integer indices, got values that are not whole numbers (or beyond 2**53)")
     if a.dtype.kind not in "biuf":
         raise ValueError(f"{name}: expected integer indices, got dtype {a.dtype}")
     return a.astype(np.int64)
@@ -238,10 +239,13 @@ def _indices(value: Any, name: str) -> np.ndarray:
 
 def _integer(value: Any, name: str) -> int:
     """A whole number (an int, or a float with no fraction): 2.9 is a ValueError naming `name`, not 2."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating) or \
-            not float(value).is_integer():
-        raise ValueError(f"{name}: expected an integer, got {value!r}")
-    return int(value)
+    if isinstance(value, np.ndarray) and value.ndim == 0:  # a 0-d array, as numpy's reductions give
+        value = value.item()
+    if isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_):
+        return int(value)
+    if isinstance(value, float | np.floating) and np.isfinite(value) and float(value).is_integer():
+        return int(value)
+    raise ValueError(f"{name}: expected an integer, got {value!r}")
 
 
 def _mesh_arrays(outfit: OutfitLike) -> tuple[np.ndarray, np.ndarray] | None:

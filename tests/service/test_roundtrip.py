@@ -724,3 +724,11 @@ def test_the_client_refuses_what_it_would_send_wrong():
             with pytest.raises(ValueError) as info:
                 call()
             assert str(info.value).startswith(words), (words, info.value)
+    # what it took before stays taken: numpy integers and 0-d arrays as frames and counts, whole floats, huge ints
+    from drape.client.client import _indices, _integer
+
+    assert [_integer(x, "frame") for x in (3, np.int32(3), np.array(3), 3.0, np.float32(3))] == [3] * 5
+    assert _integer(10**400, "frame") == 10**400  # the service answers its range
+    assert _indices(f.astype(np.float32), "faces").tolist() == f.tolist()
+    with pytest.raises(ValueError, match="beyond 2"):
+        _indices(np.array([[0, 1, 1e20]]), "faces")  # cast to int64 it was garbage
