@@ -340,7 +340,10 @@ def _read_sim(path: str) -> dict[str, np.ndarray]:
     import zipfile
 
     try:
-        with np.load(path, allow_pickle=False) as z:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # a single .npy array under an .npz name
+            raise ValueError("a single array, not an npz archive of the sequence's members")
+        with loaded as z:
             seq = {k: z[k] for k in z.files}
     except (ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise SystemExit(f"drape: error: {path}: not a simulated sequence npz ({type(exc).__name__}: {exc})") from None
@@ -354,7 +357,8 @@ def _read_sim(path: str) -> dict[str, np.ndarray]:
     for vname, fname in meshes:
         v, f = seq[vname], seq[fname]
         if v.dtype.kind not in "fiu" or v.ndim != 3 or v.shape[2] != 3 or len(v) != frames or not frames:
-            raise SystemExit(f"drape: error: {path}: '{vname}' must be (T, N, 3) numbers with T >= 1, got {v.shape}")
+            raise SystemExit(f"drape: error: {path}: '{vname}' must be (T, N, 3) numbers with T >= 1, got {v.shape} "
+                             f"{v.dtype}")
         if not np.isfinite(v).all():
             raise SystemExit(f"drape: error: {path}: '{vname}' holds NaN or infinite values")
         if f.dtype.kind not in "iu" or f.ndim != 2 or f.shape[1] != 3 or not len(f) or f.min() < 0 or \

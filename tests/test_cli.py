@@ -405,6 +405,10 @@ def test_an_out_never_replaces_an_input_and_bad_files_are_one_line(tmp_path, cap
     empty = tmp_path / "empty.npz"
     empty.write_bytes(b"")
     assert "not a simulated sequence npz" in _refused(capsys, "render", "--sim", str(empty), "--out", str(png))[1]
+    one = tmp_path / "one.npz"  # a single .npy array under an .npz name (a TypeError traceback)
+    with open(one, "wb") as fh:
+        np.save(fh, np.zeros(3))
+    assert "a single array" in _refused(capsys, "render", "--sim", str(one), "--out", str(png))[1]
     good = dict(vertices=np.zeros((2, 3, 3)), faces=np.array([[0, 1, 2]]), poses=np.zeros((2, 24, 3)),
                 trans=np.zeros((2, 3)), body=np.array("neutral"), params=np.array("{}"), garment=np.array("g"),
                 motion=np.array("walk"), fps=np.array(30.0))

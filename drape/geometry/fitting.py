@@ -44,6 +44,7 @@ SAMPLE = 400  # vertices scored during the placement search
 HEIGHT_STEP_M = 0.03
 A_POSE_DEG = 45.0  # the "a" pose: both shoulders lowered this far from the T-pose
 UP_WRAP_MARGIN = 0.15  # infer_up: the wrap coverages of Y and Z further apart than this decide
+UP_FLAT_RATIO = 0.3  # infer_up: Y or Z under this share of the other is the depth of a flat piece, whatever wraps
 LEFT_SHOULDER, RIGHT_SHOULDER = 16, 17  # SMPL joint order
 
 
@@ -75,16 +76,19 @@ def infer_units(vertices: np.ndarray) -> str:
 def infer_up(vertices: np.ndarray) -> str:
     """'y' or 'z': which axis of a garment (N, 3) is up (X is left to right either way).
 
-    First the axis the garment's upper half wraps around (`wrap_coverage`), where one of Y and Z clearly wins
-    (by more than UP_WRAP_MARGIN): slices across the true up axis go round the body, slices across the depth
+    A piece far thinner along one of Y and Z than the other (under UP_FLAT_RATIO: one flat panel, which fills
+    every direction of a slice across its depth) is deep along it. Otherwise, first the axis the garment's upper
+    half wraps around (`wrap_coverage`), where one of Y and Z clearly wins (by more than UP_WRAP_MARGIN): slices across the true up axis go round the body, slices across the depth
     axis cut a front and a back strip. Otherwise (unsewn panels, tops whose sleeves fill the slices both ways)
     the thinner of the two is the depth (a garment is thinnest front to back). The thinnest-axis rule alone
     took a flared skirt, deeper than it is tall, for Z-up."""
     v = np.asarray(vertices, dtype=np.float64)
-    wrap_y, wrap_z = wrap_coverage(v, 1), wrap_coverage(v, 2)
-    if abs(wrap_y - wrap_z) > UP_WRAP_MARGIN:
-        return "y" if wrap_y > wrap_z else "z"
     extent = np.ptp(v, axis=0)
+    thin = min(extent[1], extent[2]) < UP_FLAT_RATIO * max(extent[1], extent[2])
+    if not thin:  # a flat or nearly flat piece (one panel) fills every direction of a slice across its depth
+        wrap_y, wrap_z = wrap_coverage(v, 1), wrap_coverage(v, 2)
+        if abs(wrap_y - wrap_z) > UP_WRAP_MARGIN:
+            return "y" if wrap_y > wrap_z else "z"
     return "z" if extent[1] < extent[2] else "y"
 
 

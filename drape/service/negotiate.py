@@ -16,6 +16,7 @@ def choose(accept: str | None, offered: list[str]) -> str:
     for i, part in enumerate(accept.split(",")):
         fields = [x.strip() for x in part.split(";")]
         media, q = fields[0].lower(), 1.0
+        media = "*/*" if media == "*" else media  # a bare "*" (sent by some HTTP libraries) means any type
         for param in fields[1:]:
             name, _, value = param.partition("=")
             if name.strip().lower() == "q":  # parameter names are case-insensitive (RFC 9110 5.6.6)

@@ -52,6 +52,17 @@ def test_up_is_inferred_for_garments_as_deep_as_they_are_tall(kind):
         assert extent[2] > extent[1]
 
 
+def test_up_is_inferred_for_one_flat_or_curved_panel():
+    """One panel (an apron's front) fills every direction of a slice across its depth, so the wrap rule alone read
+    a Y-up panel as Z-up; a piece far thinner along Y or Z than the other is deep along it."""
+    x, y = np.meshgrid(np.linspace(-0.25, 0.25, 20), np.linspace(0.8, 1.4, 30))
+    flat = np.c_[x.ravel(), y.ravel(), np.full(x.size, 0.12)]
+    angle = x.ravel() / 0.25 * np.pi / 2  # half a cylinder of radius 0.15 about the body's vertical axis
+    arc = np.c_[0.15 * np.sin(angle), y.ravel(), 0.15 * np.cos(angle)]
+    for panel in (flat, arc):
+        assert (infer_up(panel), infer_up(panel @ Z_UP.T)) == ("y", "z")
+
+
 @needs_data
 @pytest.mark.parametrize("path", GARMENTS, ids=lambda p: p.stem)
 def test_real_garments_made_for_no_body_of_ours_fit_with_nothing_inside(path):

@@ -21,6 +21,7 @@ OFFERED = [JSON, NPZ, GLB]
     # the most specific matching range sets an offer's q (JSON was chosen for both: ranked by q alone)
     (f"application/*, {JSON};q=0", NPZ), (f"*/*, {JSON};q=0.5", NPZ), (f"*/*;q=0.9, {GLB}", GLB),
     ("*/*, application/*;q=0.1", GLB),
+    ("*", JSON), ("*; q=.2, model/*", GLB),  # a bare "*" (Java's default Accept) is */* (it was a 406)
 ])
 def test_accept_chooses_what_it_prefers(accept, chosen):
     assert choose(accept, OFFERED) == chosen
