@@ -111,8 +111,8 @@ def _check_fps_option(fps: float | None) -> None:
 
 def _out_path(out: str, *inputs: str | None, suffixes: tuple[str, ...] = ()) -> Path:
     """An --out about to be written: not one of the command's `inputs` (the same file by any path, hard links
-    too: writing it would replace the input), ending in one of `suffixes` when given, and its folder made (a
-    file in the way is main's one-line OSError). Checked before any work, so a failure leaves nothing behind."""
+    too: writing it would replace the input), not a folder, ending in one of `suffixes` when given; its folder is
+    made here (a file in the way is main's one-line OSError). Called before any work."""
     if not str(out).strip():
         raise SystemExit("drape: error: --out: give a file name, got an empty one")
     path = Path(out)
@@ -130,6 +130,11 @@ def _out_path(out: str, *inputs: str | None, suffixes: tuple[str, ...] = ()) -> 
 
 BODY_FILE_SUFFIXES = (".glb", ".gltf", ".npz")
 MAX_SMOOTH = 10_000  # render --smooth: weight diffusion steps (1e8 ran until killed)
+
+
+def _body_file(text: str) -> str | None:
+    """--body when it names a body file (an input that no --out may replace), else None (a preset)."""
+    return text if text.lower().endswith(BODY_FILE_SUFFIXES) else None
 
 
 def _body_arg(text: str) -> Body:
@@ -170,7 +175,8 @@ def _motions_import(args: argparse.Namespace) -> None:
     if src.suffix.lower() not in (".bvh", ".npz"):
         raise SystemExit(f"drape: error: {src}: expected a .bvh (CMU joint names) or an AMASS-style .npz file")
     _check_fps_option(args.fps)
-    _out_path(args.out if str(args.out).endswith(".npz") else f"{args.out}.npz", args.file)
+    _out_path(args.out, args.file, _body_file(args.body))
+    _out_path(args.out if str(args.out).endswith(".npz") else f"{args.out}.npz", args.file, _body_file(args.body))
     body = _body_arg(args.body)
     start = time.perf_counter()
     try:
@@ -205,9 +211,11 @@ def _outfits_fit(args: argparse.Namespace) -> None:
     from drape.geometry.fitting import FitError, fit_garment
     from drape.geometry.mesh_io import load_mesh, save_mesh
 
-    _out_path(args.out, args.mesh)
+    _out_path(args.out, args.mesh, _body_file(args.body))
     if args.report:
-        _out_path(args.report, args.mesh)
+        _out_path(args.report, args.mesh, _body_file(args.body))
+        if Path(args.report).resolve() == Path(args.out).resolve():
+            raise SystemExit(f"drape: error: --report {args.report} is --out: give the report its own file")
     vertices, faces = load_mesh(args.mesh)
     body = _body_arg(args.body)
     start = time.perf_counter()
@@ -289,7 +297,7 @@ def _render(args: argparse.Namespace) -> None:
         raise ValueError("--frames: expected a comma list of frame indices, got an empty one")
     if not 0 <= args.smooth <= MAX_SMOOTH:
         raise ValueError(f"--smooth: must be in [0, {MAX_SMOOTH}], got {args.smooth}")
-    _out_path(args.out, args.sim, args.outfit, args.motion, suffixes=("", ".png", ".jpg", ".jpeg", ".pdf", ".svg"))
+    _out_path(args.out, args.sim, args.outfit, args.motion, _body_file(args.body))
     if args.sim:
         _render_sim(args)
         return
@@ -364,13 +372,16 @@ def _read_sim(path: str) -> dict[str, np.ndarray]:
         if f.dtype.kind not in "iu" or f.ndim != 2 or f.shape[1] != 3 or not len(f) or f.min() < 0 or \
                 f.max() >= v.shape[1]:
             raise SystemExit(f"drape: error: {path}: '{fname}' must be (F, 3) indices into the {v.shape[1]} vertices")
-    if seq["poses"].shape[:1] != (frames,) or seq["trans"].shape != (frames, 3):
+    if seq["poses"].shape not in ((frames, 24, 3), (frames, 72)) or seq["trans"].shape != (frames, 3):
         raise SystemExit(f"drape: error: {path}: 'poses' and 'trans' must have the {frames} frames of the cloth, got "
                          f"{seq['poses'].shape} and {seq['trans'].shape}")
     try:
-        json.loads(str(seq["params"]))
+        params = json.loads(str(seq["params"]))
     except ValueError:
         raise SystemExit(f"drape: error: {path}: 'params' is not JSON text") from None
+    needed = ("young", "density", "thickness", *(("inner_thickness",) if layered else ()))
+    if not isinstance(params, dict) or not all(isinstance(params.get(k), int | float) for k in needed):
+        raise SystemExit(f"drape: error: {path}: 'params' must be a JSON object with the numbers {', '.join(needed)}")
     return seq
 
 

@@ -401,6 +401,12 @@ def test_an_out_never_replaces_an_input_and_bad_files_are_one_line(tmp_path, cap
     assert "is the input" in _refused(capsys, "sim", "run", "--garment", str(mesh), "--clip", "walk", "--frames", "1",
                                       "--out", str(mesh))[1]
     assert mesh.read_bytes() == before
+    body = tmp_path / "me.npz"  # a body file is an input too
+    body.write_bytes(b"PK")
+    assert "is the input" in _refused(capsys, "outfits", "fit", str(mesh), "--body", str(body), "--out", str(body))[1]
+    assert "is --out" in _refused(capsys, "outfits", "fit", str(mesh), "--out", str(tmp_path / "f.obj"), "--report",
+                                  str(tmp_path / "f.obj"))[1]
+    assert body.read_bytes() == b"PK"
     png = tmp_path / "x.png"
     empty = tmp_path / "empty.npz"
     empty.write_bytes(b"")
@@ -416,7 +422,9 @@ def test_an_out_never_replaces_an_input_and_bad_files_are_one_line(tmp_path, cap
                            "T >= 1"),
                           ({"poses": np.zeros((1, 24, 3)), "trans": np.zeros((1, 3))}, "'poses' and 'trans'"),
                           ({"faces": np.array([[0, 1, 1002]])}, "'faces' must be"),
-                          ({"body": None}, "needs body")):
+                          ({"body": None}, "needs body"),
+                          ({}, "'params' must be a JSON object with the numbers young, density, thickness"),
+                          ({"poses": np.zeros((2,))}, "'poses' and 'trans'")):
         seq = tmp_path / "seq.npz"
         np.savez(seq, **{k: v for k, v in {**good, **change}.items() if v is not None})
         assert words in _refused(capsys, "render", "--sim", str(seq), "--out", str(png))[1], words

@@ -88,7 +88,7 @@ def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "",
     area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
     if not np.any(area > 1e-12):
         size = float(np.ptp(v, axis=0).max())
-        if size < 1e-3:  # distinct vertices, but too close for any face to have an area in metres
+        if 0 < size < 1e-3:  # distinct vertices, but too close for any face to have an area in metres
             raise InvalidInput(f"the mesh is {size:.3g} m across: far too small for a garment in metres (a mesh "
                                "in metres is 0.05-3 m across)", f"{pre}vertices")
         raise InvalidInput("every face has zero area (degenerate mesh)", f"{pre}faces")
