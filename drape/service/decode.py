@@ -43,11 +43,20 @@ def validation_detail(exc: ValidationError) -> str:
     return "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
 
 
+def validation_error(exc: ValidationError) -> InvalidInput:
+    """A request model's ValidationError as the 422: the detail names each wrong field (up to 5), and the
+    problem's field member is the first (it was null while the detail named it)."""
+    error = InvalidInput(validation_detail(exc))
+    errors = exc.errors()
+    error.field = ".".join(str(x) for x in errors[0]["loc"]) if errors and errors[0]["loc"] else None
+    return error
+
+
 def _model(model: type[BaseModel], doc: Any) -> Any:
     try:
         return model.model_validate(doc)
     except ValidationError as exc:
-        raise InvalidInput(validation_detail(exc)) from exc
+        raise validation_error(exc) from exc
 
 
 def _count(value: Any, limit: int, what: str, field: str) -> None:
@@ -143,7 +152,7 @@ def _refine_options(given: dict) -> dict | None:
     try:
         return RefineOptions.model_validate(given).model_dump()
     except ValidationError as exc:
-        raise InvalidInput(validation_detail(exc)) from exc
+        raise validation_error(exc) from exc
 
 
 # ---- the routes' bodies -------------------------------------------------------------------------
