@@ -142,7 +142,7 @@ def _body_arg(text: str) -> Body:
     arrays), read and checked as POST /v1/bodies reads one; a bad file is one line naming it."""
     from drape.assets.body import load_body
 
-    if not text.lower().endswith(BODY_FILE_SUFFIXES):
+    if _body_file(text) is None:
         return load_body(text)
     from drape.service.bodies import read_body_file
     from drape.service.errors import DrapeError
@@ -233,8 +233,7 @@ def _outfits_fit(args: argparse.Namespace) -> None:
           f"max; largest edge lengthening {r['max_stretch_mm']:.1f} mm")
     for warning in r["warnings"]:
         print(f"warning: {warning}")
-    if args.report:  # its folder made as the mesh's is (a missing one failed after the mesh was written)
-        Path(args.report).parent.mkdir(parents=True, exist_ok=True)
+    if args.report:  # its folder was made with the checks, before the fit (_out_path)
         Path(args.report).write_text(json.dumps({"transform": result.transform.tolist(), "report": r}, indent=1))
 
 
