@@ -46,7 +46,7 @@ def main() -> None:
     p.add_argument("--model", default=None, help="an exported model folder (default: the shipped template's)")
     p.add_argument("--fades", default="0.333,0.667,1.333,none", help="fading time constants, seconds, or none")
     args = p.parse_args()
-    config = read_config(args.config)
+    config = read_config(args.config, "intrinsic")
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
     fades = {f: (NO_FADE_S if f == "none" else float(f)) for f in args.fades.split(",")}
     items = validation_items(config, garment.window)

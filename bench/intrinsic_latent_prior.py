@@ -94,7 +94,7 @@ def main() -> None:
     p.add_argument("--calibrate-on", default="", help="held-out sets (comma list) the per-dimension factors are "
                    "measured on; the sequences of those sets are then left out of the scores (out-of-sample check)")
     args = p.parse_args()
-    config = read_config(args.config)
+    config = read_config(args.config, "intrinsic")
     garment = IntrinsicGarment(args.model or INTRINSIC_DIR / config["template"])
     root = Path(config["dataset"])
     items, held = _validation(config, root, garment.manifest.get("training"))

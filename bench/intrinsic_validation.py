@@ -51,7 +51,7 @@ def main() -> None:
     p.add_argument("--config", required=True)
     p.add_argument("models", nargs="+")
     args = p.parse_args()
-    config = read_config(args.config)
+    config = read_config(args.config, "intrinsic")
     val_motions = list(config.get("val_motions", ()))
     garments = {m: IntrinsicGarment(m) for m in args.models}
     by_window: dict[int, dict[str, Frames]] = {}

@@ -62,7 +62,7 @@ def main() -> None:
     parser.add_argument("--config", required=True)
     parser.add_argument("--shipped", type=Path, required=True, help="an exported outer network's folder")
     args = parser.parse_args()
-    cfg = read_config(args.config)
+    cfg = read_config(args.config, "mgn_outer")
     task = layers_outer.OuterTask(cfg)
     net = OuterModel(args.shipped)
     eps_body = float({**cfg["loss"], **cfg.get("mocap", {}).get("loss", {})}["eps_body"])

@@ -63,7 +63,7 @@ def main() -> None:
     parser.add_argument("--shipped", type=Path, action="append", default=[],
                         help="an exported network's folder (outer.onnx, rig.npz, manifest.json); repeatable")
     args = parser.parse_args()
-    cfg = read_config(args.config)
+    cfg = read_config(args.config, "mgn_outer")
     task = layers_outer.OuterTask(cfg)
     seqs, clips = task.sequences("test"), layers_outer.validation_clips(task)
     print(f"validation of {args.config}: {len(seqs)} sequences, clips {', '.join(s.motion for s in clips)}; "

@@ -1,5 +1,6 @@
 """The `drape` command line, end to end on small inputs."""
 
+import json
 import subprocess
 import sys
 
@@ -262,6 +263,36 @@ def test_a_config_that_is_not_a_json_object_is_named_in_one_line(command, text, 
                                                         if command[0] == "train" else [])])
     err = capsys.readouterr().err.strip()
     assert exc.value.code == 2 and err.startswith(f"drape: error: {config}: {said}") and "\n" not in err, err
+
+
+@pytest.mark.parametrize(("command", "committed", "typo", "said"), [
+    (["train", "deepsd"], "deepsd", ("loss", "colision"), "loss: unknown setting 'colision' (did you mean 'collision'?)"),
+    (["train", "intrinsic", "--template", "skirt"], "intrinsic_skirt", ("shape", "laplacain"),
+     "shape: unknown setting 'laplacain' (did you mean 'laplacian'?)"),
+    (["train", "mgn-inner", "--inner", "tshirt"], "mgn_inner_tshirt", ("", "batch_frame"),
+     "unknown setting 'batch_frame' (did you mean 'batch_frames'?)"),
+    (["train", "mgn-outer", "--outer", "jacket"], "mgn_outer_jacket", ("", "wieght_decay"),
+     "unknown setting 'wieght_decay' (did you mean 'weight_decay'?)"),
+    (["eval", "deepsd"], "deepsd", ("steps", "physic"), "steps: unknown setting 'physic' (did you mean 'physics'?)"),
+])
+def test_a_misspelt_setting_is_refused_before_anything_runs(command, committed, typo, said, tmp_path, capsys):
+    """A committed config with one setting misspelt (a trainer read it with .get and a default, or not at all, so
+    the run trained on the default without a word) is refused naming the file, the setting and the nearest name;
+    nothing is written."""
+    from drape import cli
+    from drape.training.config_file import CONFIGS
+
+    cfg = json.loads((CONFIGS / f"{committed}.json").read_text())
+    where, name = typo
+    (cfg[where] if where else cfg)[name] = 1
+    config = tmp_path / "c.json"
+    config.write_text(json.dumps(cfg))
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*command, "--config", str(config), *(["--checkpoints", str(tmp_path / "ck")]
+                                                        if command[0] == "train" else [])])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and err.startswith(f"drape: error: {config}: {said}") and "\n" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json"]
 
 
 def _refused(capsys, *args):

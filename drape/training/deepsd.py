@@ -56,7 +56,7 @@ PHASES = ("prior", "physics", "chi")
 
 
 def load_config(path: str | Path = DEFAULT_CONFIG) -> dict:
-    return read_config(path)
+    return read_config(path, "deepsd")
 
 
 def _trainable(phase: str, net: OutfitNet, pose: PoseNet) -> list[torch.nn.Parameter]:

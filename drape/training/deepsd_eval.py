@@ -92,7 +92,7 @@ def evaluate(config_path: str | Path, model_dir: str | Path = MODEL_DIR, log=pri
     "unseen_body": UNSEEN_BODY_OUTFITS made for the UNSEEN_BODY x the held-out embedded clips; "fitted_cmu": each
     garment mesh (*.obj) of `external`, made for another body, fitted onto FITTED_BODY (drape.geometry.fitting, its
     defaults) x the same real CMU clips, skipped when either folder is absent), metrics."""
-    cfg = read_config(config_path)
+    cfg = read_config(config_path, "deepsd")
     model = DeePSDModel(model_dir)
     real_dir = Path(real_mocap) if real_mocap else None
     real = [real_dir / f"{c}.bvh" for c in REAL_CLIPS] if real_dir and real_dir.is_dir() else []

@@ -42,7 +42,7 @@ from drape.training.validated_steps import check_same_config, check_same_data, s
 
 
 def load_config(template: str | None = None, path: str | Path | None = None) -> dict:
-    return read_config(Path(path)) if path else named_config("intrinsic", str(template), "--template")
+    return read_config(Path(path), "intrinsic") if path else named_config("intrinsic", str(template), "--template")
 
 
 def training_datasets(config: dict) -> list[str]:

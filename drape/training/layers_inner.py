@@ -42,7 +42,7 @@ from drape.training.validated_steps import restore_best, resume, save_step
 
 
 def load_config(inner: str, path: str | Path | None = None) -> dict:
-    return read_config(path) if path else named_config("mgn_inner", inner, "--inner")
+    return read_config(path, "mgn_inner") if path else named_config("mgn_inner", inner, "--inner")
 
 
 def template(cfg: dict) -> tuple[np.ndarray, np.ndarray]:

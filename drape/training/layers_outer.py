@@ -71,7 +71,7 @@ from drape.training.validated_steps import restore_best, resume, save_step
 
 
 def load_config(outer: str, path: str | Path | None = None) -> dict:
-    return read_config(path) if path else named_config("mgn_outer", outer, "--outer")
+    return read_config(path, "mgn_outer") if path else named_config("mgn_outer", outer, "--outer")
 
 
 @dataclass
