@@ -295,6 +295,31 @@ def test_a_misspelt_setting_is_refused_before_anything_runs(command, committed, 
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json"]
 
 
+@pytest.mark.parametrize(("command", "committed", "setting", "said"), [
+    (["train", "intrinsic", "--template", "skirt"], "intrinsic_skirt", "dataset",
+     "no simulated dataset here (no manifest.json); the Makefile's intrinsic-data targets"),
+    (["train", "mgn-outer", "--outer", "jacket"], "mgn_outer_jacket", "data",
+     "no two-layer simulations here (no manifest.json); make layers-data simulates them"),
+])
+def test_training_without_its_simulations_names_the_make_target_and_makes_no_folder(command, committed, setting, said,
+                                                                                     tmp_path, capsys):
+    """A trainer whose dataset was never simulated said 'data/.../manifest.json: No such file or directory' and
+    left an empty checkpoints folder behind."""
+    from drape import cli
+    from drape.training.config_file import CONFIGS
+
+    cfg = json.loads((CONFIGS / f"{committed}.json").read_text())
+    cfg[setting] = str(tmp_path / "never_simulated")
+    cfg.pop("extra_datasets", None)
+    config = tmp_path / "c.json"
+    config.write_text(json.dumps(cfg))
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*command, "--config", str(config), "--checkpoints", str(tmp_path / "ck")])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 1 and err.startswith(f"drape: error: {tmp_path / 'never_simulated'}: {said}"), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json"]
+
+
 def _refused(capsys, *args):
     """cli.main(args) -> (exit code, its one line of stderr); no traceback."""
     from drape import cli

@@ -183,11 +183,11 @@ def train(config: dict, ckpt_dir: str | Path | None = None, log=print) -> tuple[
     from tqdm import tqdm
 
     ckpt = Path(ckpt_dir or f"checkpoints/intrinsic/{config['template']}")
-    ckpt.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config["seed"])
     rng = np.random.default_rng(config["seed"])
     window = config["model"]["window"]
     frames, faces, manifest = load_frames(training_datasets(config), window, ("train",))
+    ckpt.mkdir(parents=True, exist_ok=True)  # once there is something to train on
     train_f, val_f = split_validation(frames, config["val_params"], config.get("val_motions", ()))
     train_sets = len(np.unique(train_f.params))
     per_batch = config["invariant"]["sets_per_batch"]

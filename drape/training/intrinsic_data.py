@@ -48,6 +48,10 @@ def load_frames(dataset: str | Path | Sequence[str | Path], window: int, splits:
     parameter sampler (`--params`, `--seed`: a parameter-set index means the same cloth in each; checked), e.g.
     more training motions simulated into a folder of their own."""
     roots = [Path(dataset)] if isinstance(dataset, (str, Path)) else [Path(d) for d in dataset]
+    for r in roots:
+        if not (r / "manifest.json").is_file():
+            raise FileNotFoundError(f"{r}: no simulated dataset here (no manifest.json); the Makefile's "
+                                    "intrinsic-data targets simulate each one (docs/intrinsic.md names which)")
     manifests = [json.loads((r / "manifest.json").read_text()) for r in roots]
     for r, m in zip(roots[1:], manifests[1:], strict=True):
         for key in ("body", "params", "garments", "frames"):

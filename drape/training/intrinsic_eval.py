@@ -47,6 +47,10 @@ WINDOW = 96  # frames between and including the two keyframes (Fig. 13)
 
 
 def _test_items(dataset: Path, template: str) -> list[dict]:
+    if not (dataset / "manifest.json").is_file():
+        raise FileNotFoundError(f"{dataset}: no simulated dataset here (no manifest.json); the Makefile's "
+                                "intrinsic-data targets simulate each one, its test split alone with "
+                                "INTRINSIC_SPLITS=test (docs/intrinsic.md)")
     manifest = json.loads((dataset / "manifest.json").read_text())
     items = [it for it in manifest["items"] if it["split"] == "test" and it["garment"] == template]
     if not items:

@@ -126,6 +126,9 @@ class OuterTask:
 
     def _check_templates(self) -> None:
         inner, outer = self.cfg["pair"].split(",")
+        if not (self.data_dir / "manifest.json").is_file():
+            raise FileNotFoundError(f"{self.data_dir}: no two-layer simulations here (no manifest.json); "
+                                    "make layers-data simulates them (docs/layers.md)")
         for name, (v, f) in ((inner, (self.inner_vertices, self.inner_faces)), (outer, (self.vertices, self.faces))):
             dv, df = load_mesh(self.data_dir / f"{name}.obj")
             if dv.shape != v.shape or not np.allclose(dv, v, atol=1e-5) or not np.array_equal(df, f):
@@ -469,9 +472,9 @@ def train(cfg: dict, ckpt_dir: str | Path, log: Callable[[str], object] = print,
     from tqdm import tqdm
 
     ckpt_dir = Path(ckpt_dir)
-    ckpt_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg["seed"])
     task = OuterTask(cfg, data_root)
+    ckpt_dir.mkdir(parents=True, exist_ok=True)  # once there is something to train on
     train_seqs, val_seqs = task.sequences("train"), task.sequences("test")
     if cfg.get("train_items"):  # the config names the training sequences: all of them must be there
         missing = sorted(set(cfg["train_items"]) - {s.key for s in train_seqs})
