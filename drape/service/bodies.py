@@ -20,7 +20,7 @@ from drape.assets.body import Body
 from drape.geometry.lbs import SingularSkinning, unpose_body
 from drape.geometry.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
 from drape.runtime.body_store import BodyStore, body_id
-from drape.service.decode import json_reals, npz_members, npz_numbers
+from drape.service.decode import json_reals, npz_members, npz_numbers, unknown_form_field
 from drape.service.errors import InvalidInput, quoted
 from drape.service.handlers import check_mesh
 from drape.service.http import parse_form
@@ -189,7 +189,7 @@ def read_upload(kind: str, content_type: str, data: bytes, settings: Settings) -
         parts = parse_form(data, content_type)
         unknown = sorted(set(parts) - set(FORM_FIELDS))
         if unknown:
-            raise InvalidInput(f"unknown form field; expected some of {', '.join(FORM_FIELDS)}", quoted(unknown[0], 40))
+            raise unknown_form_field(unknown[0], f"some of {', '.join(FORM_FIELDS)}")
         if FILE_FIELD not in parts:
             raise InvalidInput("a body file is required: a skinned GLB / glTF, or an npz of the body's arrays",
                                FILE_FIELD)

@@ -39,16 +39,49 @@ from drape.service.settings import Settings
 REFINE_OPTIONS = tuple(RefineOptions.model_fields)
 
 
-def validation_detail(exc: ValidationError) -> str:
-    return "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
+def _request_path(error: dict, doc: Any) -> tuple[tuple, bool]:
+    """An error's loc as a path into the request `doc` -> (the path, whether union member tags were dropped).
+
+    pydantic puts the member of a union in the loc (`refine.bool`, `refine.RefineOptions.eps` for `bool |
+    RefineOptions`); the client wrote `refine.eps`. A loc element the document does not hold at that point is such
+    a tag and is dropped, but for the last of a `missing` error (the field that should be there)."""
+    loc, path, node, dropped = error["loc"], [], doc, False
+    for i, step in enumerate(loc):
+        if isinstance(node, dict) and isinstance(step, str) and step in node:
+            node = node[step]
+        elif isinstance(node, list) and isinstance(step, int) and 0 <= step < len(node):
+            node = node[step]
+        elif not (i == len(loc) - 1 and error["type"] == "missing"):
+            dropped = True
+            continue
+        path.append(step)
+    return tuple(path), dropped
 
 
-def validation_error(exc: ValidationError) -> InvalidInput:
-    """A request model's ValidationError as the 422: the detail names each wrong field (up to 5), and the
-    problem's field member is the first (it was null while the detail named it)."""
-    error = InvalidInput(validation_detail(exc))
+def _request_errors(exc: ValidationError, doc: Any = None) -> list[tuple[str, str]]:
+    """(field, message) of each error, the field as the client wrote it: with `doc`, union member tags are
+    dropped, and a union member's type mismatch (`refine: Input should be a valid boolean`) is left out where
+    another member's error lies deeper in the same field (`refine.eps: ... less than or equal to 0.05`)."""
     errors = exc.errors()
-    error.field = ".".join(str(x) for x in errors[0]["loc"]) if errors and errors[0]["loc"] else None
+    if doc is None:
+        return [(".".join(str(x) for x in e["loc"]), e["msg"]) for e in errors]
+    paths = [_request_path(e, doc) for e in errors]
+    kept = [(path, e["msg"]) for (path, dropped), e in zip(paths, errors, strict=True)
+            if not (dropped and any(len(other) > len(path) and other[:len(path)] == path for other, _ in paths))]
+    return [(".".join(str(x) for x in path), msg) for path, msg in kept]
+
+
+def validation_detail(exc: ValidationError, doc: Any = None) -> str:
+    return "; ".join(f"{field}: {msg}" for field, msg in _request_errors(exc, doc)[:5])
+
+
+def validation_error(exc: ValidationError, doc: Any = None) -> InvalidInput:
+    """A request model's ValidationError as the 422: the detail names each wrong field (up to 5), and the
+    problem's field member is the first (it was null while the detail named it). Given the request document
+    `doc`, fields are named as the client wrote them (see _request_errors)."""
+    errors = _request_errors(exc, doc)
+    error = InvalidInput(validation_detail(exc, doc))
+    error.field = errors[0][0] or None if errors else None
     return error
 
 
@@ -56,7 +89,7 @@ def _model(model: type[BaseModel], doc: Any) -> Any:
     try:
         return model.model_validate(doc)
     except ValidationError as exc:
-        raise validation_error(exc) from exc
+        raise validation_error(exc, doc) from exc
 
 
 def _count(value: Any, limit: int, what: str, field: str) -> None:
@@ -152,7 +185,7 @@ def _refine_options(given: dict) -> dict | None:
     try:
         return RefineOptions.model_validate(given).model_dump()
     except ValidationError as exc:
-        raise validation_error(exc) from exc
+        raise validation_error(exc, given) from exc
 
 
 # ---- the routes' bodies -------------------------------------------------------------------------
@@ -200,11 +233,18 @@ def _form_mesh_parts(parts: dict[str, Any], num_vertices: int) -> list[dict] | N
 RIG_FORM = ("mesh", "body", "influences", "fit")
 
 
+def unknown_form_field(name: str, expected: str) -> InvalidInput:
+    """The 422 for a form field no route reads: the problem's field member is the name itself, as for every other
+    field (it was the quoted name), and the detail also quotes it (a space or an empty name shows); cut to 40
+    characters."""
+    return InvalidInput(f"unknown form field {quoted(name, 40)}; expected {expected}", name[:40])
+
+
 def _known_fields(parts: dict[str, Any], allowed: tuple[str, ...], expected: str) -> None:
     """A 422 naming the first form field not among `allowed` (`expected` says what is)."""
     unknown = sorted(set(parts) - set(allowed))
     if unknown:
-        raise InvalidInput(f"unknown form field; expected {expected}", quoted(unknown[0], 40))
+        raise unknown_form_field(unknown[0], expected)
 
 
 def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
@@ -378,7 +418,7 @@ def _form(data: bytes, content_type: str, allowed: tuple[str, ...]) -> dict[str,
     parts = parse_form(data, content_type)
     unknown = sorted(set(parts) - set(allowed))
     if unknown:
-        raise InvalidInput(f"unknown form field; expected some of {', '.join(allowed)}", quoted(unknown[0], 40))
+        raise unknown_form_field(unknown[0], f"some of {', '.join(allowed)}")
     if "motion_file" not in parts:
         raise InvalidInput("a motion file is required: a CMU-named BVH or an AMASS-style npz", "motion_file")
     return parts

@@ -32,7 +32,8 @@ def test_a_field_given_twice_is_refused_not_last_wins(http):
 def test_the_rig_form_refuses_an_unknown_field_as_the_other_forms_do(http):
     """`influence=8` (for influences) was dropped without a word: the rig answered 4 influences."""
     r = http.post("/v1/outfits/rig", files={"mesh": ("a.obj", OBJ)}, data={"influence": "8"})
-    problem(r, 422, "'influence'", "unknown form field", "influences")
+    p = problem(r, 422, "influence: unknown form field 'influence'", "influences")
+    assert p["field"] == "influence"
 
 
 @pytest.mark.parametrize("cell", ['"0"', "true", "null"])
@@ -133,3 +134,21 @@ def test_a_body_whose_faces_leave_its_vertices_off_the_surface_is_refused(http):
     problem(r, 422, "faces", "0.2% of the 1229 vertices")
     r = http.post("/v1/bodies", files={"body_file": ("b.npz", _npz(**arrays))})
     problem(r, 422, "body_file.faces", "lie on a face")
+
+
+@pytest.mark.parametrize(("path", "body"), [
+    ("/v1/layers/animate", {"inner": "tshirt", "outer": "jacket"}),
+    ("/v1/garments/testskirt/animate", {"keyframes": [{"frame": 0, "latent": [0.0] * 100}]}),
+    ("/v1/outfits/animate", {"outfit": {"vertices": [[0, 1, 0.2], [0.1, 1, 0.2], [0, 1.1, 0.2]], "faces": [[0, 1, 2]]}}),
+])
+def test_wrong_refine_options_name_the_option_not_the_union_member(http, path, body):
+    """`refine` is true/false or options; a wrong option was named `refine.bool` (the problem's field) beside
+    `refine.RefineOptions.eps`, pydantic's names for the union's members."""
+    p = problem(http.post(path, json={**body, "motion": {"clip": "kick"}, "refine": {"eps": 0.5}}), 422,
+                "refine.eps: Input should be less than or equal to 0.05")
+    assert p["field"] == "refine.eps" and "bool" not in p["detail"] and "RefineOptions" not in p["detail"], p
+    p = problem(http.post(path, json={**body, "motion": {"clip": "kick"}, "refine": {"epz": 0.01}}), 422, "refine.epz")
+    assert p["field"] == "refine.epz", p
+    p = problem(http.post(path, json={**body, "motion": {"clip": "kick"}, "refine": "yes"}), 422,
+                "refine: Input should be a valid boolean")
+    assert p["field"] == "refine", p
