@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ValidationError
+from pydantic_core import ErrorDetails
 
 from drape.runtime.engine import Engine
 from drape.schemas.binary import NpzTooLarge, decode_npz
@@ -39,7 +40,7 @@ from drape.service.settings import Settings
 REFINE_OPTIONS = tuple(RefineOptions.model_fields)
 
 
-def _request_path(error: dict, doc: Any) -> tuple[tuple, bool]:
+def _request_path(error: ErrorDetails, doc: Any) -> tuple[tuple, bool]:
     """An error's loc as a path into the request `doc` -> (the path, whether union member tags were dropped).
 
     pydantic puts the member of a union in the loc (`refine.bool`, `refine.RefineOptions.eps` for `bool |
