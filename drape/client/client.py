@@ -117,6 +117,9 @@ class MotionFile:
     up: Literal["y", "z"] | None = None
 
 
+MOTION_FILE_SUFFIXES = (".bvh", ".npz")  # what the service imports; no clip name ends so
+
+
 def _motion_file(motion: MotionLike) -> MotionFile | None:
     """The motion as a MotionFile when it is a file (a MotionFile or a Path), else None."""
     if isinstance(motion, MotionFile):
@@ -162,6 +165,8 @@ def _layers_request(inner: str, outer: str, motion: MotionLike, thickness: float
     retargets it onto the combination's body) and the rest of the request as JSON text in `request`."""
     if isinstance(thickness, str | bytes | bool | np.bool_):  # float() read "0.006" and True
         raise ValueError(f"thickness: expected a number of metres, got {thickness!r}")
+    if not np.isfinite(float(thickness)):  # json.dumps raised 'Out of range float values are not JSON compliant'
+        raise ValueError(f"thickness: expected a finite number of metres, got {thickness!r}")
     fields = {"inner": inner, "outer": outer, "thickness": float(thickness), "refine": _refine_json(refine)}
     file = _motion_file(motion)
     if file is not None:
@@ -262,6 +267,9 @@ def _mesh_arrays(outfit: OutfitLike) -> tuple[np.ndarray, np.ndarray] | None:
 def _motion_arrays(motion: MotionLike) -> dict[str, np.ndarray]:
     """A motion as the request's arrays: clip (a name) or poses, fps and translation if given."""
     if isinstance(motion, str):
+        if motion.lower().endswith(MOTION_FILE_SUFFIXES):  # a 404 'unknown clip' said nothing of files
+            raise ValueError(f"motion: {motion!r} is taken as a clip name, and names no clip; to upload the file, "
+                             f"pass Path({motion!r}) or MotionFile({motion!r}, fps=..., up=...)")
         return {"clip": np.array(motion)}
     if isinstance(motion, np.ndarray | list):
         return {"poses": _reals(motion, np.float64, "motion poses")}
@@ -781,8 +789,8 @@ class Client(_Base):
         space at frame f) or {"frame": f, "latent": (Z,)}, or a (frame, array) pair; latents are interpolated
         between keyframes and decoded with every frame's motion window; with `match_keyframes` the stream meets
         the shape keyframes exactly (what decoding misses of them is added back, fading away from them);
-        `refine` (True or RefineOptions) pushes the garment out of its body. format="glb" / "pc2": the bytes of a GLB vertex animation
-        / a PC2 point cache."""
+        `refine` (True or RefineOptions) then pushes the garment out of its body, moving what of a keyframe lies
+        inside it. format="glb" / "pc2": the bytes of a GLB vertex animation / a PC2 point cache."""
         req = _keyframes_npz(motion, keyframes, refine, match_keyframes)
         if format != "array":
             return self._file(_garment_path(name, "animate"), _file_type(format), **req)

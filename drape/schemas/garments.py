@@ -23,8 +23,9 @@ class GarmentInfo(BaseModel):
     num_vertices: int = Field(description="N, the template's vertex count: every stream and shape of it is (N, 3)")
     num_faces: int = Field(description="F, the template's triangle count")
     body: str = Field(description="the body preset the template is dressed on and the model was trained with")
-    models: list[str] = Field(description="the models of this template: 'intrinsic', or 'deepsd' for a layer "
-                                          "template (GET /v1/layers)")
+    models: list[str] = Field(description="the models of this template: 'intrinsic'; for a layer template "
+                                          "(GET /v1/layers) what animates it: 'mgn_inner' or 'deepsd' for "
+                                          "an inner one (whichever measured better), 'mgn_outer' for an outer one")
     fps: float | None = Field(None, description="the frame rate of the training motions (intrinsic)")
     window: int | None = Field(None, description="past frames in a motion window, besides the current one "
                                                  "(intrinsic)")
@@ -88,9 +89,11 @@ class KeyframeFields(BaseModel):
     keyframes: list[Keyframe] = Field(min_length=1, description="at least one; one keyframe per frame")
     match_keyframes: bool = Field(True, description="keyframes given as vertices are met exactly at their frames: "
                                   "what decoding their latents misses is added back, fading with the distance "
-                                  "from them (false: the decoded latents alone)")
+                                  "from them (false: the decoded latents alone); refine runs after, and moves "
+                                  "what of a keyframe lies inside the body")
     refine: bool | RefineOptions = Field(False, description="collision refinement post step against the "
-                                                            "garment's body: true or options")
+                                                            "garment's body: true or options; it runs after "
+                                                            "match_keyframes")
 
 
 EXAMPLE_KEYFRAMES: list[Any] = [{"frame": 0, "latent": [0.0] * EXAMPLE_LATENT_SIZE},

@@ -32,7 +32,8 @@ Pieces = Generator[bytes | memoryview, None, None]  # an answer's bytes, piece b
 @dataclass(frozen=True)
 class FrameSource:
     """What a frame route answers: `chunks()` yields frames (n, N, 3) float32 metres, T in all, with the
-    faces (F, 3) int32 of the garment, the frame rate and the outfit id ('' for a refined stream)."""
+    faces (F, 3) int32 of the garment, the frame rate and the outfit id ('' where no rig of /v1/outfits made the
+    stream: refine's, a garment template's, layers'; every frame answer has the same members)."""
 
     chunks: Callable[[], Iterator[np.ndarray]]
     faces: np.ndarray

@@ -695,7 +695,8 @@ def test_the_client_refuses_what_it_would_send_wrong():
     """Checked before anything is sent, a ValueError naming the parameter: faces that are not whole numbers
     (truncated: faces + 0.7 rigged as the faces), complex poses (the imaginary part dropped with a warning), a
     keyframe frame or sample count of 2.9 / 2.5 (sent as 2), NaN in a request sent as JSON (json.dumps' 'Out of
-    range float values'), a thickness given as text (float() read it)."""
+    range float values'), a thickness given as text (float() read it) or NaN, a motion file's path given as a str
+    (sent as a clip name: the service's 404 'unknown clip' said nothing of files)."""
     import httpx
 
     def never(request):
@@ -719,6 +720,11 @@ def test_the_client_refuses_what_it_would_send_wrong():
              "motion poses: contains NaN"),
             (lambda: client.animate_layers(inner="tshirt", outer="jacket", motion="kick", thickness="0.006"),
              "thickness: expected a number"),
+            (lambda: client.animate_layers(inner="tshirt", outer="jacket", motion="kick", thickness=float("nan")),
+             "thickness: expected a finite number"),
+            (lambda: client.animate(outfit_id="x", motion="02_01_walk.BVH"),
+             "motion: '02_01_walk.BVH' is taken as a clip name, and names no clip; to upload the file, pass Path("),
+            (lambda: client.animate_layers(inner="tshirt", outer="jacket", motion="take.npz"), "motion: 'take.npz'"),
         ]
         for call, words in cases:
             with pytest.raises(ValueError) as info:
