@@ -569,17 +569,45 @@ def _export_deepsd(args: argparse.Namespace) -> None:
         print(path)
 
 
-def _read_stream(path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+LAYER_MEMBERS = ("inner_vertices", "inner_faces", "outer_vertices", "outer_faces")  # a layers/animate npz answer
+
+
+def _layers_as_one_mesh(path: str, z: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A layers answer's members -> {"vertices" (T, Ni + No, 3), "faces" (Fi + Fo, 3) int64, "fps" if given}."""
+    vi, vo = z["inner_vertices"], z["outer_vertices"]
+    if vi.ndim != 3 or vo.ndim != 3 or vi.shape[0] != vo.shape[0] or vi.shape[2:] != vo.shape[2:]:
+        raise SystemExit(f"{path}: 'inner_vertices' {vi.shape} and 'outer_vertices' {vo.shape} must be (T, N, 3) "
+                         "with the same T")
+    faces = []
+    for name, offset, n in (("inner_faces", 0, vi.shape[1]), ("outer_faces", vi.shape[1], vo.shape[1])):
+        f = z[name]
+        if f.dtype.kind not in "iu" or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise SystemExit(f"{path}: {name!r} must be (F, 3) integers, F >= 1, got {f.shape} {f.dtype}")
+        if int(f.min()) < 0 or int(f.max()) >= n:
+            raise SystemExit(f"{path}: {name!r} index vertices {int(f.min())}..{int(f.max())}; its layer has {n}")
+        faces.append(f.astype(np.int64) + offset)
+    return {"vertices": np.concatenate([vi, vo], axis=1), "faces": np.concatenate(faces),
+            **({"fps": z["fps"]} if "fps" in z else {})}
+
+
+def _read_stream(path: str) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
     """An npz stream on disk (an animate/refine npz answer, a simulated sequence) -> (vertices (T, N, 3) float32 m,
-    finite, T and N >= 1; the archive's members); SystemExit naming the file and the member otherwise."""
+    finite, T and N >= 1; the archive's members); SystemExit naming the file and the member otherwise. A layers
+    answer (inner_vertices (T, Ni, 3), inner_faces, outer_vertices (T, No, 3), outer_faces) is read as the one
+    mesh the service's GLB and PC2 answers hold: the inner layer's vertices first, then the outer's. The third
+    item is the mesh's name in a GLB, as the service names it: "layers" or "garment"."""
     from drape.schemas.binary import decode_npz
 
     try:
-        z = decode_npz(Path(path).read_bytes(), ("vertices", "faces", "fps"))
+        z = decode_npz(Path(path).read_bytes(), ("vertices", "faces", "fps", *LAYER_MEMBERS))
     except ValueError as exc:
         raise SystemExit(f"{path}: {exc}") from None
+    name = "garment"
+    if "vertices" not in z and all(m in z for m in LAYER_MEMBERS):
+        z, name = _layers_as_one_mesh(path, z), "layers"
     if "vertices" not in z or "faces" not in z:
-        raise SystemExit(f"{path}: an npz stream needs 'vertices' (T, N, 3) and 'faces' (F, 3)")
+        raise SystemExit(f"{path}: an npz stream needs 'vertices' (T, N, 3) and 'faces' (F, 3) (or a layers "
+                         f"answer's {', '.join(LAYER_MEMBERS)})")
     v = z["vertices"]
     if v.dtype.kind not in "fiu" or v.ndim != 3 or v.shape[2] != 3:
         raise SystemExit(f"{path}: 'vertices' must be (T, N, 3) numbers, got {v.shape} {v.dtype}")
@@ -589,7 +617,7 @@ def _read_stream(path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         v = v.astype(np.float32, copy=False)
     if not np.isfinite(v).all():
         raise SystemExit(f"{path}: 'vertices' holds NaN or infinite values (or values beyond float32)")
-    return v, z
+    return v, z, name
 
 
 def _glb_faces_fps(path: str, z: dict[str, np.ndarray], frames: int, vertices: int) -> tuple[np.ndarray, float]:
@@ -629,7 +657,7 @@ def _export_pc2(args: argparse.Namespace) -> None:
     if not (np.isfinite(args.start_frame) and abs(args.start_frame) <= np.finfo(np.float32).max):
         raise SystemExit(f"--start-frame must be a finite float32 frame number, got {args.start_frame}")
     _out_path(args.out, args.stream)
-    v, _ = _read_stream(args.stream)
+    v, _, _ = _read_stream(args.stream)
     with open(args.out, "wb") as f:
         for piece in encode_pc2([v], v.shape[1], len(v), start_frame=args.start_frame):
             f.write(piece)
@@ -640,9 +668,9 @@ def _export_glb(args: argparse.Namespace) -> None:
     from drape.schemas.gltf import vertex_animation_glb
 
     _out_path(args.out, args.stream, suffixes=(".glb",))
-    v, z = _read_stream(args.stream)
+    v, z, name = _read_stream(args.stream)
     faces, fps = _glb_faces_fps(args.stream, z, v.shape[0], v.shape[1])
-    Path(args.out).write_bytes(vertex_animation_glb(v, faces, fps))
+    Path(args.out).write_bytes(vertex_animation_glb(v, faces, fps, name=name))
     print(f"{args.out}: {len(v)} frames x {v.shape[1]} vertices at {fps:g} fps")
 
 
@@ -971,12 +999,14 @@ def build_parser() -> argparse.ArgumentParser:
     td.set_defaults(func=_train_deepsd)
     e = sub.add_parser("export", help="export a network to ONNX, or a stream to an engine format").add_subparsers(
         dest="what", required=True)
-    ep = e.add_parser("pc2", help="an npz stream (vertices (T, N, 3), faces) -> a PC2 point cache")
+    ep = e.add_parser("pc2", help="an npz stream (vertices (T, N, 3), faces; or a layers answer, "
+                                    "inner_* then outer_*) -> a PC2 point cache")
     ep.add_argument("stream")
     ep.add_argument("--out", required=True)
     ep.add_argument("--start-frame", type=float, default=0.0)
     ep.set_defaults(func=_export_pc2)
-    eg = e.add_parser("glb", help="an npz stream (vertices (T, N, 3), faces, fps) -> a GLB vertex animation")
+    eg = e.add_parser("glb", help="an npz stream (vertices (T, N, 3), faces, fps; or a layers "
+                                    "answer, inner_* then outer_*) -> a GLB vertex animation")
     eg.add_argument("stream")
     eg.add_argument("--out", required=True)
     eg.set_defaults(func=_export_glb)

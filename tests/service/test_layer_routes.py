@@ -23,6 +23,7 @@ from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, decode_npz
 
 CLIP = load_clip("dance_b")
 MOTION = {"poses": CLIP.poses[:40:8].reshape(5, 72), "translation": CLIP.trans[:40:8], "fps": 30.0}
+MOTION_JSON = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in MOTION.items()}
 
 
 def test_layers_are_listed_and_their_templates_served(http):
@@ -118,6 +119,22 @@ def test_the_frame_stream_names_the_layer_ranges(http):
     js = http.post("/v1/layers/animate", json=body).json()
     assert np.allclose(frames[:, : ranges[0]["stop"]], js["inner_vertices"], atol=1e-6)
     assert np.allclose(frames[:, ranges[1]["start"]:], js["outer_vertices"], atol=1e-6)
+
+
+def test_drape_export_reads_a_saved_layers_answer_as_the_service_writes_its_files(http, tmp_path):
+    """`drape export pc2|glb` of a saved layers npz answer refused it ('an npz stream needs vertices'); it is read
+    as the one mesh the service's own files hold, inner layer first: the PC2 and the GLB are the service's, byte
+    for byte."""
+    from drape import cli
+
+    body = {"inner": "tanktop", "outer": "longsleeve", "motion": MOTION_JSON}
+    answer = http.post("/v1/layers/animate", json=body, headers={"accept": NPZ})
+    (tmp_path / "layers.npz").write_bytes(answer.content)
+    for fmt, accept in (("pc2", "application/x-pc2"), ("glb", "model/gltf-binary")):
+        served = http.post("/v1/layers/animate", json=body, headers={"accept": accept})
+        assert answer.status_code == served.status_code == 200
+        cli.main(["export", fmt, str(tmp_path / "layers.npz"), "--out", str(tmp_path / f"layers.{fmt}")])
+        assert (tmp_path / f"layers.{fmt}").read_bytes() == served.content, fmt
 
 
 @pytest.mark.parametrize("accept", [NPZ, "application/json"])
