@@ -799,7 +799,8 @@ class Client(_Base):
     def sample_designs(self, name: str, *, count: int, seed: int = 0, motion: MotionLike,
                        frame: int = 0) -> DesignSamples:
         """`count` design candidates (latents from the model's latent statistics, numpy default_rng(seed)) and
-        their shapes at `frame` of `motion`."""
+        their shapes at `frame` of `motion`, decoded and not refined: at frames of motions unlike the model's
+        training ones, part of a shape can lie inside the body (animate_keyframes(..., refine=True) removes it)."""
         return _samples(self._http.post(_garment_path(name, "sample"), **_sample_npz(count, seed, motion, frame)))
 
     def layers(self) -> list[dict[str, Any]]:
