@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import numbers
 import os
 from collections.abc import AsyncIterator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -215,8 +216,14 @@ def _raise_for(response: httpx.Response) -> None:
 
 def _reals(value: Any, dtype: type, name: str) -> np.ndarray:
     """An array of real numbers as `dtype`: complex, text or object values are a ValueError naming `name` (numpy
-    dropped an imaginary part with a warning and sent the rest)."""
+    dropped an imaginary part with a warning and sent the rest). An object array of real numbers (as a pandas
+    column of mixed ints and floats gives) is read as the numbers; text in it is refused, never parsed."""
     a = np.asarray(value)
+    if a.dtype.kind == "O" and all(isinstance(x, numbers.Real) for x in a.ravel()):
+        try:
+            a = a.astype(np.float64)
+        except OverflowError:
+            raise ValueError(f"{name}: holds a number beyond float64") from None
     if a.dtype.kind not in "biuf":
         raise ValueError(f"{name}: expected real numbers, got dtype {a.dtype}")
     return a.astype(dtype)

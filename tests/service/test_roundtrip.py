@@ -731,7 +731,15 @@ def test_the_client_refuses_what_it_would_send_wrong():
                 call()
             assert str(info.value).startswith(words), (words, info.value)
     # what it took before stays taken: numpy integers and 0-d arrays as frames and counts, whole floats, huge ints
-    from drape.client.client import _indices, _integer
+    from drape.client.client import _indices, _integer, _reals
+
+    mixed = np.array([1, 2.5, np.float32(3), True], dtype=object)  # a pandas column of ints and floats: numbers
+    assert _reals(mixed, np.float64, "poses").tolist() == [1.0, 2.5, 3.0, 1.0]
+    for text_or_none in ([1, "2"], [1.0, None], [1, 1j]):  # never parsed: "2" is text
+        with pytest.raises(ValueError, match="poses: expected real numbers, got dtype object"):
+            _reals(np.array(text_or_none, dtype=object), np.float64, "poses")
+    with pytest.raises(ValueError, match="beyond float64"):
+        _reals(np.array([10**400], dtype=object), np.float64, "poses")
 
     assert [_integer(x, "frame") for x in (3, np.int32(3), np.array(3), 3.0, np.float32(3))] == [3] * 5
     assert _integer(10**400, "frame") == 10**400  # the service answers its range
