@@ -152,8 +152,13 @@ def _body_arg(text: str) -> Body:
     data = path.read_bytes()  # OSError: main's one line with the path
     try:
         return read_body_file(data, path.name, Settings(), field="body")
-    except DrapeError as exc:
-        raise SystemExit(f"drape: error: --body {text}: {exc.detail}") from None
+    except DrapeError as exc:  # the field is the file's HTTP name (body_file) or "body": --body says it here
+        said = exc.detail
+        for name in ("body_file", "body"):
+            if exc.field == name or (exc.field or "").startswith(f"{name}."):
+                said = said.removeprefix(f"{name}.").removeprefix(f"{name}: ")
+                break
+        raise SystemExit(f"drape: error: --body {text}: {said}") from None
 
 
 def _motions_generate(args: argparse.Namespace) -> None:

@@ -426,5 +426,11 @@ def test_the_command_line_fits_and_imports_onto_a_body_file(proxy, shirt, tmp_pa
     bad.write_bytes(_bad(proxy, weights=proxy.weights * 2))
     with pytest.raises(SystemExit) as exc:
         main(["outfits", "fit", str(mesh), "--body", str(bad), "--out", str(tmp_path / "x.obj")])
-    assert str(exc.value.code).startswith(f"drape: error: --body {bad}: body.weights: "), exc.value
+    assert str(exc.value.code).startswith(f"drape: error: --body {bad}: weights: "), exc.value
+    broken = tmp_path / "broken.glb"  # the GLB reader's errors named the upload's form field, body_file
+    broken.write_bytes(b"glTF junk")
+    with pytest.raises(SystemExit) as exc:
+        main(["outfits", "fit", str(mesh), "--body", str(broken), "--out", str(tmp_path / "x.obj")])
+    assert str(exc.value.code) == f"drape: error: --body {broken}: 9 bytes are too few for a GLB (a 12-byte " \
+        "header and a chunk)", exc.value
     assert not (tmp_path / "x.obj").exists()
