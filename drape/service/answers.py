@@ -1,12 +1,14 @@
 """Streaming answers of the frame routes (animate, refine): every format (JSON, npz, the frame stream)
 is written chunk by chunk from the computed frames, so an answer's memory is one chunk's, a client that
-goes away stops the work within one chunk, and the request's time budget is kept.
+goes away stops the work within one chunk, and the request's time budget is kept, also against a client that
+stops reading (`StallGuardedStream`).
 
 The encoders are plain generators of bytes (no HTTP); `stream_frames` drives one off the event loop.
 """
 
 from __future__ import annotations
 
+import asyncio
 import io
 import json
 import logging
@@ -14,6 +16,7 @@ import time
 import zipfile
 from collections.abc import AsyncIterator, Callable, Generator, Iterator
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from fastapi.concurrency import run_in_threadpool
@@ -229,16 +232,55 @@ def first_chunk_ahead(src: FrameSource) -> FrameSource:
     return replace(src, chunks=chunks)
 
 
+class _Stalled(Exception):
+    """A send did not finish in time: the client stopped reading."""
+
+
+class StallGuardedStream(StreamingResponse):
+    """A StreamingResponse whose every send must finish within `stall_s` and before `deadline` (time.monotonic()).
+
+    A client that stops reading fills its TCP window; the server's send then waits on it, and the body generator
+    (which checks the time budget between pieces) is never resumed: two such clients held both computing slots
+    until they read or left. Here a send that waits longer ends the answer: `on_stall` is told why ("stalled", or
+    "time_budget" past the deadline), the body generator is closed (its `finally` frees the slot) and the
+    response is left incomplete, so the server closes the connection."""
+
+    def __init__(self, content: AsyncIterator[bytes | memoryview], *, media_type: str, deadline: float,
+                 stall_s: float, on_stall: Callable[[str], None]) -> None:
+        super().__init__(content, media_type=media_type)
+        self.deadline, self.stall_s, self.on_stall = deadline, stall_s, on_stall
+
+    async def stream_response(self, send: Any) -> None:
+        async def guarded(message: Any) -> None:
+            wait = min(self.stall_s, self.deadline - time.monotonic())
+            try:
+                await asyncio.wait_for(send(message), timeout=max(wait, 0.0))
+            except TimeoutError:
+                raise _Stalled from None
+
+        try:
+            await super().stream_response(guarded)
+        except _Stalled:
+            self.on_stall("time_budget" if time.monotonic() >= self.deadline else "stalled")
+            await self.body_iterator.aclose()  # type: ignore[attr-defined]
+
+
 async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: float,
-                        metrics: Metrics) -> StreamingResponse:
+                        metrics: Metrics, stall_s: float = 30.0) -> StreamingResponse:
     """Drive the answer's encoder off the event loop, one piece at a time, holding `slot` until the end.
 
     The first chunk's frames (`first_chunk_ahead`) and the first piece are made before the answer starts, so
     an error there is still a problem document. Afterwards, the starlette response cancels this generator when the
     client disconnects: the thread finishes its chunk and nothing more is computed. Past `budget_s` the
-    answer is cut (the client sees an incomplete stream) and the cut is counted and logged.
+    answer is cut (the client sees an incomplete stream) and the cut is counted and logged; so is an answer whose
+    client reads none of it for `stall_s` (StallGuardedStream).
     """
     deadline = time.monotonic() + budget_s
+    stalled: list[str] = []  # why the response ended the body early, if it did
+
+    def on_stall(reason: str) -> None:
+        stalled.append(reason)
+        log.warning("answer cut: the client read nothing for %g s (%s)", stall_s, reason)
     try:
         src = await run_in_threadpool(first_chunk_ahead, src)
     except BaseException:
@@ -274,9 +316,10 @@ async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: flo
             end = ""
             metrics.served(src.num_frames, src.num_vertices)
         finally:
+            end = stalled[0] if stalled else end
             if end:
                 metrics.cut.labels(reason=end).inc()
             slot.release()
             pieces.close()
 
-    return StreamingResponse(body(), media_type=answer)
+    return StallGuardedStream(body(), media_type=answer, deadline=deadline, stall_s=stall_s, on_stall=on_stall)

@@ -35,6 +35,7 @@ class Settings(BaseSettings):
     queue_timeout_s: float = 30.0  # longest wait for a turn before a 503
     retry_after_s: int = 5  # the Retry-After of a 503
     request_budget_s: float = 300.0  # a heavy request's computation stops after this (its answer is cut)
+    send_stall_s: float = 30.0  # a streamed answer whose client reads none of it for this long is cut, its slot freed
     # the server
     limit_concurrency: int = 512  # connections + tasks; over it new connections get a 503
     timeout_keep_alive_s: int = 5

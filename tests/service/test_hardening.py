@@ -250,6 +250,41 @@ def test_a_client_that_goes_away_stops_the_work_within_a_chunk(settings, monkeyp
         assert_a_disconnect_stops_the_work(url, "/v1/outfits/animate", body, accept, made)  # 40 chunks asked
 
 
+def test_a_client_that_stops_reading_is_cut_and_its_slot_freed(settings):
+    """A client that reads the first bytes of a stream and then nothing (its TCP window full) held its computing
+    slot until it read or left: the server's send waited on it, and the time budget, checked between pieces, was
+    never reached. Two such clients made every other heavy request a 503 after queue_timeout_s. Now a send that
+    waits `send_stall_s` ends the answer, counted as a cut of reason "stalled", and the slot serves the next one."""
+    from drape.assets.outfits import generate_outfit
+
+    small = settings.model_copy(update={"max_active": 1, "send_stall_s": 1.0, "queue_timeout_s": 20.0,
+                                        "max_frames": 4000, "max_posed_values": 10**8})
+    outfit = generate_outfit("tshirt", vertices=2000, seed=1)
+    with live_server(small) as url:
+        rig = httpx.post(f"{url}/v1/outfits/rig", timeout=60, headers={"accept": "application/x-npz"},
+                         json={"vertices": outfit.vertices.tolist(), "faces": outfit.faces.tolist()})
+        assert rig.status_code == 200, rig.text[:300]
+        outfit_id = str(np.load(io.BytesIO(rig.content))["outfit_id"])
+        # 4,000 frames x 2,000 vertices: 96 MB of frames, far more than the loopback buffers hold
+        body = json.dumps({"outfit_id": outfit_id, "motion": {"poses": np.zeros((4000, 72)).tolist()}}).encode()
+        host, port = url.removeprefix("http://").split(":")
+        with socket.socket() as stalled:
+            stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            stalled.connect((host, int(port)))
+            stalled.sendall(b"POST /v1/outfits/animate HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                            b"Accept: application/x-drape-frames\r\nContent-Length: %d\r\n\r\n" % len(body) + body)
+            assert stalled.recv(4096).startswith(b"HTTP/1.1 200")  # the answer started; nothing more is read
+            t0 = time.perf_counter()
+            r = httpx.post(f"{url}/v1/outfits/animate", timeout=60,
+                           json={"outfit_id": outfit_id, "motion": {"poses": np.zeros((3, 72)).tolist()}})
+            waited = time.perf_counter() - t0
+            assert r.status_code == 200, (r.status_code, r.text[:300])  # was a 503 after the queue's 20 s
+            assert waited < 10, waited
+            metrics = httpx.get(f"{url}/metrics").text
+            assert 'drape_answers_cut_total{reason="stalled"} 1.0' in metrics
+            assert "drape_inflight_requests 0.0" in metrics
+
+
 def _descendants(pid: int) -> set[int]:
     """Every live process under `pid` (from /proc)."""
     children: dict[int, list[int]] = {}

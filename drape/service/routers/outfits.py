@@ -350,7 +350,8 @@ async def stream_answer(request: Request, answer: str, plan: Any) -> Response:
     except BaseException:
         slot.release()
         raise
-    return await stream_frames(answer, source, slot, settings.request_budget_s, request.app.state.metrics)
+    return await stream_frames(answer, source, slot, settings.request_budget_s, request.app.state.metrics,
+                               settings.send_stall_s)
 
 
 refine_router = APIRouter(prefix="/v1", tags=["refine"])
