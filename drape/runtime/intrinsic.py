@@ -227,10 +227,11 @@ class IntrinsicGarment:
 
     def encode_at(self, vertices: np.ndarray, frames: Sequence[int], motion: MotionFrames) -> np.ndarray:
         """Keyframe shapes vertices (K, N, 3) m, world space at their frames (K,) of `motion` -> latents (K, Z)
-        float32 (one ONNX Runtime call); each frame's window uses the motion up to that frame only. Each latent is
-        the encoder's pulled toward the training mean: latent_mean + keyframe_shrink * (encoded - latent_mean)
-        (the best guess of the garment's own latent from one frame; drape.training.intrinsic_shrink)."""
-        v = np.asarray(vertices, dtype=np.float64)
+        float32 (one ONNX Runtime call per DECODE_BLOCK keyframes: 10,000 keyframes in one call took 4 GB); each
+        frame's window uses the motion up to that frame only. Each latent is the encoder's pulled toward the
+        training mean: latent_mean + keyframe_shrink * (encoded - latent_mean) (the best guess of the garment's own
+        latent from one frame; drape.training.intrinsic_shrink)."""
+        v = np.asarray(vertices)
         idx = np.asarray(frames, dtype=np.int64).reshape(-1)
         if v.ndim != 3 or v.shape[1:] != (self.num_vertices, 3) or len(v) != len(idx):
             raise ValueError(f"expected ({len(idx)}, {self.num_vertices}, 3) vertices, got {v.shape}")
@@ -238,12 +239,21 @@ class IntrinsicGarment:
             raise ValueError(f"frames must lie in [0, {len(motion) - 1}]")
         if not len(idx):
             return np.zeros((0, self.latent_size), np.float32)
-        windows = np.concatenate([motion.windows(int(f), int(f) + 1, self.window) for f in idx])
-        local = character_space_numpy(v, motion.root_position[idx], motion.root_rotation[idx]).astype(np.float32)
-        z = self._encode_local(local, windows)
+        z = np.concatenate([self._encode_local(self._local_at(v[s:s + DECODE_BLOCK], idx[s:s + DECODE_BLOCK], motion),
+                                               self._windows_at(idx[s:s + DECODE_BLOCK], motion))
+                            for s in range(0, len(idx), DECODE_BLOCK)])
         if np.all(self.keyframe_shrink == 1):
             return z
         return (self.latent_mean + self.keyframe_shrink * (z.astype(np.float64) - self.latent_mean)).astype(np.float32)
+
+    def _local_at(self, vertices: np.ndarray, idx: np.ndarray, motion: MotionFrames) -> np.ndarray:
+        """Shapes (k, N, 3) m world space at frames idx (k,) of `motion` -> character space, (k, N, 3) float32."""
+        v = np.asarray(vertices, dtype=np.float64)
+        return character_space_numpy(v, motion.root_position[idx], motion.root_rotation[idx]).astype(np.float32)
+
+    def _windows_at(self, idx: np.ndarray, motion: MotionFrames) -> np.ndarray:
+        """The motion windows of frames idx (k,): (k, window + 1, 24, 3)."""
+        return np.concatenate([motion.windows(int(f), int(f) + 1, self.window) for f in idx])
 
     def encode_frames(self, vertices: np.ndarray, poses: np.ndarray, trans: np.ndarray,
                       chunk: int = DECODE_BLOCK) -> np.ndarray:
@@ -298,17 +308,17 @@ class IntrinsicGarment:
         (T, Z) the stream's latents (each keyframe's own latent at its frame); fps of the motion; fade_s: the
         fading's time constant, seconds."""
         idx = np.asarray(shape_frames, dtype=np.int64).reshape(-1)
-        v = np.asarray(shapes, dtype=np.float64).reshape(len(idx), self.num_vertices, 3)
-        local = character_space_numpy(v, motion.root_position[idx], motion.root_rotation[idx]).astype(np.float32)
-        windows = (np.concatenate([motion.windows(int(f), int(f) + 1, self.window) for f in idx]) if len(idx)
-                   else np.zeros((0, self.window + 1, 24, 3), np.float32))
-        decoded = (self._decode_local(np.ascontiguousarray(latents[idx], dtype=np.float32), windows) if len(idx)
-                   else np.zeros_like(local))
+        v = np.asarray(shapes).reshape(len(idx), self.num_vertices, 3)
         frames = np.concatenate([idx, np.asarray(latent_frames, dtype=np.int64).reshape(-1)])
-        residuals = np.concatenate([local - decoded, np.zeros((len(frames) - len(idx), self.num_vertices, 3),
-                                                              np.float32)])
         order = np.argsort(frames, kind="stable")
-        return KeyframeResidual(frames[order], residuals[order].astype(np.float32), fade_s * float(fps))
+        residuals = np.zeros((len(frames), self.num_vertices, 3), np.float32)  # latent keyframes: 0
+        where = np.argsort(order, kind="stable")  # keyframe i's row in the frame order
+        for s in range(0, len(idx), DECODE_BLOCK):  # DECODE_BLOCK shapes per ONNX Runtime call, as decode_chunks
+            part = idx[s:s + DECODE_BLOCK]
+            decoded = self._decode_local(np.ascontiguousarray(latents[part], dtype=np.float32),
+                                         self._windows_at(part, motion))
+            residuals[where[s:s + len(part)]] = self._local_at(v[s:s + len(part)], part, motion) - decoded
+        return KeyframeResidual(frames[order], residuals, fade_s * float(fps))
 
     def decode_chunks(self, latents: np.ndarray, motion: MotionFrames, chunk: int = DECODE_BLOCK,
                       observe: Callable[[str, float], None] | None = None,

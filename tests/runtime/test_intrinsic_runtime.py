@@ -154,6 +154,37 @@ def test_matched_keyframes_are_met_exactly_and_the_correction_fades(garment, mot
         assert np.allclose(gap, np.exp(-abs(t - k) / fade) * own, atol=1e-5)
 
 
+def test_many_keyframes_are_encoded_and_matched_in_blocks_as_one_by_one(garment, motion, monkeypatch):
+    """encode_at and keyframe_residual run DECODE_BLOCK keyframes per ONNX Runtime call (10,000 keyframes in one
+    call took 4-5 GB): with a block of 4, 11 shape keyframes in shuffled frame order, among latent keyframes, give
+    the latents and residuals of encoding and decoding each keyframe alone, in frame order."""
+    import drape.runtime.intrinsic as intrinsic
+
+    poses, trans = motion
+    mf = garment.motion_frames(poses, trans)
+    rng = np.random.default_rng(5)
+    frames = rng.permutation(np.arange(3, 69, 6))  # 11 shape keyframes
+    latent_frames = [0, 4, 69]
+    shapes = garment.decode(np.tile(garment.latent_mean, (len(poses), 1)).astype(np.float32), poses, trans)[frames]
+    shapes = shapes + rng.normal(0, 0.01, shapes.shape).astype(np.float32)
+    alone_z = np.concatenate([garment.encode_at(shapes[i:i + 1], frames[i:i + 1], mf) for i in range(len(frames))])
+    latents = np.tile(garment.latent_mean, (len(poses), 1)).astype(np.float32)
+    latents[frames] = alone_z
+    alone = [garment.keyframe_residual(shapes[i:i + 1], frames[i:i + 1], [], latents, mf, 30.0).residuals[0]
+             for i in range(len(frames))]
+    monkeypatch.setattr(intrinsic, "DECODE_BLOCK", 4)
+    calls: list[int] = []
+    for name in ("_encode_local", "_decode_local"):
+        run = getattr(garment, name)
+        monkeypatch.setattr(garment, name, lambda a, w, run=run: (calls.append(len(a)), run(a, w))[1])
+    assert np.allclose(garment.encode_at(shapes, frames, mf), alone_z, atol=1e-6)
+    together = garment.keyframe_residual(shapes, frames, latent_frames, latents, mf, 30.0)
+    assert calls == [4, 4, 3, 4, 4, 3], calls  # two passes of 11 keyframes, 4 per ONNX Runtime call
+    assert together.frames.tolist() == sorted([*frames.tolist(), *latent_frames])
+    expected = {int(f): r for f, r in zip(frames, alone, strict=True)} | {f: 0 * alone[0] for f in latent_frames}
+    assert np.allclose(together.residuals, np.stack([expected[int(f)] for f in together.frames]), atol=1e-6)
+
+
 def test_sample_draws_from_the_latent_statistics(garment, motion):
     poses, trans = motion
     latents, shapes = garment.sample(5, 11, 20, poses, trans)
