@@ -237,13 +237,13 @@ class _Stalled(Exception):
 
 
 class StallGuardedStream(StreamingResponse):
-    """A StreamingResponse whose every send must finish within `stall_s` and before `deadline` (time.monotonic()).
+    """A StreamingResponse whose every send must finish within `stall_s`.
 
     A client that stops reading fills its TCP window; the server's send then waits on it, and the body generator
     (which checks the time budget between pieces) is never resumed: two such clients held both computing slots
     until they read or left. Here a send that waits longer ends the answer: `on_stall` is told why ("stalled", or
-    "time_budget" past the deadline), the body generator is closed (its `finally` frees the slot) and the
-    response is left incomplete, so the server closes the connection."""
+    "time_budget" when it is past `deadline`, time.monotonic()), the body generator is closed (its `finally` frees
+    the slot) and the response is left incomplete, so the server closes the connection."""
 
     def __init__(self, content: AsyncIterator[bytes | memoryview], *, media_type: str, deadline: float,
                  stall_s: float, on_stall: Callable[[str], None]) -> None:
@@ -252,9 +252,8 @@ class StallGuardedStream(StreamingResponse):
 
     async def stream_response(self, send: Any) -> None:
         async def guarded(message: Any) -> None:
-            wait = min(self.stall_s, self.deadline - time.monotonic())
-            try:
-                await asyncio.wait_for(send(message), timeout=max(wait, 0.0))
+            try:  # the whole stall_s, even past the deadline: a send that completes at once is never cut here
+                await asyncio.wait_for(send(message), timeout=self.stall_s)
             except TimeoutError:
                 raise _Stalled from None
 
