@@ -236,19 +236,30 @@ class _Stalled(Exception):
     """A send did not finish in time: the client stopped reading."""
 
 
+ABORT_CONNECTION = "drape.abort_connection"  # scope["extensions"]: drops the connection, unsent bytes too (server.py)
+
+
 class StallGuardedStream(StreamingResponse):
-    """A StreamingResponse whose every send must finish within `stall_s`.
+    """A StreamingResponse whose every send, the response's start included, must finish within `stall_s`.
 
     A client that stops reading fills its TCP window; the server's send then waits on it, and the body generator
     (which checks the time budget between pieces) is never resumed: two such clients held both computing slots
-    until they read or left. Here a send that waits longer ends the answer: `on_stall` is told why ("stalled", or
-    "time_budget" when it is past `deadline`, time.monotonic()), the body generator is closed (its `finally` frees
-    the slot) and the response is left incomplete, so the server closes the connection."""
+    until they read or left. Here a send that waits longer ends the answer: `stall` says why ("stalled", or
+    "time_budget" when it is past `deadline`, time.monotonic()), the body generator is closed, `on_cut(stall)` is
+    called (once the generator's own `finally` has run, if it ever started: the caller's cleanup must be
+    idempotent), and the connection is dropped where the server offers it (its unsent bytes would otherwise keep
+    it open, and a piece in memory, until the client reads or leaves)."""
 
     def __init__(self, content: AsyncIterator[bytes | memoryview], *, media_type: str, deadline: float,
-                 stall_s: float, on_stall: Callable[[str], None]) -> None:
+                 stall_s: float, on_cut: Callable[[str], None]) -> None:
         super().__init__(content, media_type=media_type)
-        self.deadline, self.stall_s, self.on_stall = deadline, stall_s, on_stall
+        self.deadline, self.stall_s, self.on_cut = deadline, stall_s, on_cut
+        self.stall: str | None = None
+        self._abort: Callable[[], None] | None = None
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        self._abort = scope.get("extensions", {}).get(ABORT_CONNECTION)
+        await super().__call__(scope, receive, send)
 
     async def stream_response(self, send: Any) -> None:
         async def guarded(message: Any) -> None:
@@ -260,8 +271,14 @@ class StallGuardedStream(StreamingResponse):
         try:
             await super().stream_response(guarded)
         except _Stalled:
-            self.on_stall("time_budget" if time.monotonic() >= self.deadline else "stalled")
-            await self.body_iterator.aclose()  # type: ignore[attr-defined]
+            self.stall = "time_budget" if time.monotonic() >= self.deadline else "stalled"
+            log.warning("answer cut: a send waited %g s for the client to read (%s)", self.stall_s, self.stall)
+            try:
+                await self.body_iterator.aclose()  # type: ignore[attr-defined]
+            finally:
+                self.on_cut(self.stall)
+                if self._abort is not None:
+                    self._abort()
 
 
 async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: float,
@@ -275,11 +292,6 @@ async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: flo
     client reads none of it for `stall_s` (StallGuardedStream).
     """
     deadline = time.monotonic() + budget_s
-    stalled: list[str] = []  # why the response ended the body early, if it did
-
-    def on_stall(reason: str) -> None:
-        stalled.append(reason)
-        log.warning("answer cut: the client read nothing for %g s (%s)", stall_s, reason)
     try:
         src = await run_in_threadpool(first_chunk_ahead, src)
     except BaseException:
@@ -296,6 +308,18 @@ async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: flo
         slot.release()
         pieces.close()
         raise
+
+    ended: list[str] = []
+
+    def finish(end: str) -> None:
+        """Count how the answer ended ("": whole) and give back the slot; once, whoever calls first."""
+        if ended:
+            return
+        ended.append(end)
+        if end:
+            metrics.cut.labels(reason=end).inc()
+        slot.release()
+        pieces.close()
 
     async def body() -> AsyncIterator[bytes | memoryview]:
         piece, end = first, "disconnected"  # how the answer ended, unless it finishes
@@ -315,10 +339,7 @@ async def stream_frames(answer: str, src: FrameSource, slot: Slot, budget_s: flo
             end = ""
             metrics.served(src.num_frames, src.num_vertices)
         finally:
-            end = stalled[0] if stalled else end
-            if end:
-                metrics.cut.labels(reason=end).inc()
-            slot.release()
-            pieces.close()
+            finish(response.stall or end)
 
-    return StallGuardedStream(body(), media_type=answer, deadline=deadline, stall_s=stall_s, on_stall=on_stall)
+    response = StallGuardedStream(body(), media_type=answer, deadline=deadline, stall_s=stall_s, on_cut=finish)
+    return response

@@ -283,6 +283,59 @@ def test_a_client_that_stops_reading_is_cut_and_its_slot_freed(settings):
             metrics = httpx.get(f"{url}/metrics").text
             assert 'drape_answers_cut_total{reason="stalled"} 1.0' in metrics
             assert "drape_inflight_requests 0.0" in metrics
+            # and the connection is dropped with its unsent frames (closed, it stayed open, a piece in memory,
+            # until the client read megabytes or left)
+            assert _bytes_until_closed(stalled) < 256 * 1024
+
+
+def _bytes_until_closed(sock: socket.socket, limit: int = 64 * 2**20) -> int:
+    """Read `sock` until the server closes or resets it (10 s at most between reads): the bytes read."""
+    sock.settimeout(10)
+    got = 0
+    try:
+        while got < limit:
+            piece = sock.recv(1 << 16)
+            if not piece:
+                break
+            got += len(piece)
+    except ConnectionResetError:
+        pass
+    return got
+
+
+def test_a_pipelined_answer_whose_start_cannot_be_sent_frees_its_slot(settings):
+    """A client that pipelines a rig (a JSON answer larger than the server's write buffer) and an animate, and
+    reads nothing: the animate's first send, its status line, waits on the rig's unread bytes, before the body
+    has started. That send is bounded too, and the slot comes back (the body's cleanup never ran there)."""
+    from drape.assets.outfits import generate_outfit
+
+    small = settings.model_copy(update={"max_active": 1, "send_stall_s": 1.0, "queue_timeout_s": 20.0,
+                                        "max_json_values": 10**8})
+    outfit = generate_outfit("tshirt", vertices=1500, seed=1)
+    rig = json.dumps({"vertices": outfit.vertices.tolist(), "faces": outfit.faces.tolist()}).encode()
+    with live_server(small) as url:
+        first = httpx.post(f"{url}/v1/outfits/rig", content=rig, timeout=60,
+                           headers={"content-type": "application/json", "accept": "application/json"})
+        assert first.status_code == 200 and len(first.content) > 4 * 2**20, len(first.content)
+        animate = json.dumps({"outfit_id": first.json()["outfit_id"],
+                              "motion": {"poses": np.zeros((3, 72)).tolist()}}).encode()
+        host, port = url.removeprefix("http://").split(":")
+        with socket.socket() as stalled:
+            stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            stalled.connect((host, int(port)))
+            for path, body, accept in (("/v1/outfits/rig", rig, b"application/json"),
+                                       ("/v1/outfits/animate", animate, b"application/x-drape-frames")):
+                stalled.sendall(b"POST %s HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                                b"Accept: %s\r\nContent-Length: %d\r\n\r\n" % (path.encode(), accept, len(body))
+                                + body)
+            deadline = time.monotonic() + 60
+            while 'drape_answers_cut_total{reason="stalled"} 1.0' not in httpx.get(f"{url}/metrics").text:
+                assert time.monotonic() < deadline, "the pipelined animate was never cut"
+                time.sleep(0.5)
+            r = httpx.post(f"{url}/v1/outfits/animate", content=animate, timeout=60,
+                           headers={"content-type": "application/json", "accept": "application/json"})
+            assert r.status_code == 200, (r.status_code, r.text[:300])
+            assert "drape_inflight_requests 0.0" in httpx.get(f"{url}/metrics").text
 
 
 def _descendants(pid: int) -> set[int]:
