@@ -4,19 +4,41 @@ from __future__ import annotations
 
 import difflib
 import json
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 
 CONFIGS = Path(__file__).parent / "configs"  # the committed configs, <kind>_<name>.json
 
-# The settings each kind of config may hold: a name -> None (a value the trainer reads whole) or the names its JSON
-# object may hold. Each trainer reads these and no others, so a misspelt name would train with the default without a
+# The settings each kind of config may hold: a name -> None (a value the trainer reads whole), the names its JSON
+# object may hold, or a function giving them (the keywords of what the object is passed to: a model's config
+# dataclass, read only when needed, as it imports torch). Each trainer reads these and no others, so a misspelt name would train with the default without a
 # word; `check_settings` makes it an error before anything runs. A new setting goes here and in the trainer.
-SETTINGS: dict[str, dict[str, Collection[str] | None]] = {
+SET_BY_THE_TRAINER = {"num_vertices", "num_inner_keys", "parents"}  # what the code passes beside the config's
+
+
+def _fields(module: str, name: str) -> set[str]:
+    """A config dataclass's fields the config may set."""
+    import dataclasses
+    import importlib
+
+    return {f.name for f in dataclasses.fields(getattr(importlib.import_module(module), name))} - SET_BY_THE_TRAINER
+
+
+def _keywords(module: str, name: str, skip: int) -> set[str]:
+    """A function's parameters after the first `skip` the config may set."""
+    import importlib
+    import inspect
+
+    names = list(inspect.signature(getattr(importlib.import_module(module), name)).parameters)
+    return set(names[skip:]) - SET_BY_THE_TRAINER
+
+
+Names = Collection[str] | Callable[[], Collection[str]] | None
+SETTINGS: dict[str, dict[str, Names]] = {
     "deepsd": {
         "batch_frames": None, "bodies": None, "checkpoint_every": None, "eval_frames_per_clip": None,
         "eval_outfits": None, "eval_vertices": None, "heldout_clips": None, "init_checkpoints": None,
-        "joint_candidates": {"influences", "loose_beyond"},
+        "joint_candidates": lambda: _keywords("drape.geometry.queries", "candidate_joints", skip=3),
         "loose_prior_share": None,
         "loss": {"bend", "blend_l2", "collision", "edge", "eps", "follow", "follow_margin", "prior_blend",
                  "prior_weights", "prior_weights_near", "prior_weights_physics"},
@@ -38,8 +60,7 @@ SETTINGS: dict[str, dict[str, Collection[str] | None]] = {
         "checkpoint_every": None, "dataset": None, "extra_datasets": None,
         "invariant": {"frames_per_set", "lambda", "lr", "set_lambda", "sets_per_batch", "steps", "weight_decay",
                       "window_noise"},
-        "model": {"coefficients", "descriptor", "invariant_widths", "latent", "motion_widths", "shape_scale",
-                  "shape_widths", "window"},
+        "model": lambda: _fields("drape.models.intrinsic", "IntrinsicConfig"),
         "seed": None,
         "shape": {"batch", "laplacian", "lr", "steps"},
         "template": None, "val_motions": None, "val_params": None,
@@ -51,7 +72,7 @@ SETTINGS: dict[str, dict[str, Collection[str] | None]] = {
         "loss": {"bend", "collision", "edge", "eps", "gravity", "offset_l2"},
         "lr": None,
         "mocap": {"dir", "fps", "train"},
-        "model": {"depth", "num_basis", "width"},
+        "model": lambda: _fields("drape.models.layers", "InnerConfig"),
         "outfit_seed": None, "pair": None, "pose_noise": None, "procedural_frames": None, "procedural_motions": None,
         "seed": None, "steps": None, "validate_every": None,
         "validation": {"clips", "frames_per_clip", "procedural_frames", "procedural_seeds"},
@@ -65,7 +86,7 @@ SETTINGS: dict[str, dict[str, Collection[str] | None]] = {
         "max_h_coll_pct": None, "max_l_coll_pct": None,
         "mocap": {"dir", "embedded", "flips", "fps", "loss", "loss_frames", "max_frames", "train", "validation",
                   "validation_frames", "windows"},
-        "model": {"d_model", "dropout", "feedforward", "heads", "layers", "num_basis", "window"},
+        "model": lambda: _fields("drape.models.layers", "OuterConfig"),
         "outer": None, "outfit_seed": None, "pair": None, "seed": None, "steps": None, "target_follows_inner": None,
         "target_refined": None, "thickness": None, "tolerated_checks": None, "train_items": None,
         "validate_every": None, "vertices": None, "warmup": None, "weight_decay": None, "weights_k": None,
@@ -81,11 +102,12 @@ def _unknown(name: str, known: Collection[str]) -> str:
 def check_settings(config: Mapping, kind: str, where: str | Path) -> None:
     """ValueError naming `where` and the first setting of `config` a `kind` config (a key of SETTINGS) may not
     hold, at the top level or one level down, with the nearest known name."""
-    schema: Mapping[str, Collection[str] | None] = SETTINGS[kind]
+    schema: Mapping[str, Names] = SETTINGS[kind]
     for name, value in config.items():
         if name not in schema:
             raise ValueError(f"{where}: {_unknown(name, schema)}; a {kind} config holds {', '.join(sorted(schema))}")
         inner = schema[name]
+        inner = inner() if callable(inner) else inner
         if inner is not None and isinstance(value, Mapping):
             for sub in value:
                 if sub not in inner:
