@@ -40,36 +40,47 @@ from drape.service.settings import Settings
 REFINE_OPTIONS = tuple(RefineOptions.model_fields)
 
 
-def _request_path(error: ErrorDetails, doc: Any) -> tuple[tuple, bool]:
-    """An error's loc as a path into the request `doc` -> (the path, whether union member tags were dropped).
+def _request_path(error: ErrorDetails, doc: Any) -> tuple[tuple, tuple | None]:
+    """An error's loc as a path into the request `doc` -> (the path, the union member it came from: the loc up to
+    and including its first tag, None without one).
 
     pydantic puts the member of a union in the loc (`refine.bool`, `refine.RefineOptions.eps` for `bool |
     RefineOptions`); the client wrote `refine.eps`. A loc element the document does not hold at that point is such
     a tag and is dropped, but for the last of a `missing` error (the field that should be there)."""
-    loc, path, node, dropped = error["loc"], [], doc, False
+    loc, path, node, member = error["loc"], [], doc, None
     for i, step in enumerate(loc):
         if isinstance(node, dict) and isinstance(step, str) and step in node:
             node = node[step]
         elif isinstance(node, list) and isinstance(step, int) and 0 <= step < len(node):
             node = node[step]
         elif not (i == len(loc) - 1 and error["type"] == "missing"):
-            dropped = True
+            member = member or tuple(loc[:i + 1])
             continue
         path.append(step)
-    return tuple(path), dropped
+    return tuple(path), member
 
 
 def _request_errors(exc: ValidationError, doc: Any = None) -> list[tuple[str, str]]:
-    """(field, message) of each error, the field as the client wrote it: with `doc`, union member tags are
-    dropped, and a union member's type mismatch (`refine: Input should be a valid boolean`) is left out where
-    another member's error lies deeper in the same field (`refine.eps: ... less than or equal to 0.05`)."""
+    """(field, message) of each error, the field as the client wrote it. With `doc`, union member tags are
+    dropped, and of a union's members only the errors of the one the input came closest to are kept: the member
+    whose errors lie deepest, then the one with the fewest (ties: each) (`refine: {"eps": 0.5}` is `refine.eps: ... less than or
+    equal to 0.05`, not also `refine: Input should be a valid boolean`; poses of (T, 24, 3) with one string name
+    that string, not every value the (T, 72) member found to be a list)."""
     errors = exc.errors()
     if doc is None:
         return [(".".join(str(x) for x in e["loc"]), e["msg"]) for e in errors]
-    paths = [_request_path(e, doc) for e in errors]
-    kept = [(path, e["msg"]) for (path, dropped), e in zip(paths, errors, strict=True)
-            if not (dropped and any(len(other) > len(path) and other[:len(path)] == path for other, _ in paths))]
-    return [(".".join(str(x) for x in path), msg) for path, msg in kept]
+    located = [(*_request_path(e, doc), e) for e in errors]
+    members: dict[tuple, dict[tuple, list[int]]] = {}  # the union (loc before the tag) -> member -> loc lengths
+    for _, member, e in located:
+        if member is not None:
+            members.setdefault(member[:-1], {}).setdefault(member, []).append(len(e["loc"]))
+    def closeness(lengths: list[int]) -> tuple[int, int]:
+        return max(lengths), -len(lengths)
+
+    best = {union: {m for m, lengths in options.items() if closeness(lengths) == max(map(closeness, options.values()))}
+            for union, options in members.items()}  # a tie keeps each (refine: "yes" is neither a bool nor options)
+    return [(".".join(str(x) for x in path), e["msg"]) for path, member, e in located
+            if member is None or member in best[member[:-1]]]
 
 
 def validation_detail(exc: ValidationError, doc: Any = None) -> str:

@@ -152,3 +152,19 @@ def test_wrong_refine_options_name_the_option_not_the_union_member(http, path, b
     p = problem(http.post(path, json={**body, "motion": {"clip": "kick"}, "refine": "yes"}), 422,
                 "refine: Input should be a valid boolean")
     assert p["field"] == "refine", p
+
+
+def test_poses_with_one_wrong_value_name_that_value_not_the_other_union_member(http):
+    """poses are (T, 72) or (T, 24, 3): one string among (T, 24, 3) poses was reported as `motion.poses.0.N: Input
+    should be a valid number` five times (the (T, 72) member's complaints about valid rows), the string itself not
+    at all; a (T, 72) row with one string also listed 'Input should be a valid list' for each of its numbers."""
+    rig = http.post("/v1/outfits/rig", json={"vertices": [[0, 1, 0.2], [0.1, 1, 0.2], [0, 1.1, 0.2]],
+                                              "faces": [[0, 1, 2]]})
+    outfit_id = rig.json()["outfit_id"]
+    nested = [[[0, 0, 0]] * 24, [[0, 0, 0]] * 3 + [[0, 0, "a"]] + [[0, 0, 0]] * 20]
+    p = problem(http.post("/v1/outfits/animate", json={"outfit_id": outfit_id, "motion": {"poses": nested}}), 422,
+                "motion.poses.1.3.2: Input should be a valid number")
+    assert p["field"] == "motion.poses.1.3.2" and "poses.0." not in p["detail"], p
+    flat = [[0.0] * 71 + ["a"]]
+    p = problem(http.post("/v1/outfits/animate", json={"outfit_id": outfit_id, "motion": {"poses": flat}}), 422)
+    assert p["field"] == "motion.poses.0.71" and "valid list" not in p["detail"], p
