@@ -580,9 +580,12 @@ LAYER_MEMBERS = ("inner_vertices", "inner_faces", "outer_vertices", "outer_faces
 def _layers_as_one_mesh(path: str, z: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """A layers answer's members -> {"vertices" (T, Ni + No, 3), "faces" (Fi + Fo, 3) int64, "fps" if given}."""
     vi, vo = z["inner_vertices"], z["outer_vertices"]
-    if vi.ndim != 3 or vo.ndim != 3 or vi.shape[0] != vo.shape[0] or vi.shape[2:] != vo.shape[2:]:
-        raise SystemExit(f"{path}: 'inner_vertices' {vi.shape} and 'outer_vertices' {vo.shape} must be (T, N, 3) "
-                         "with the same T")
+    for name, v in (("inner_vertices", vi), ("outer_vertices", vo)):
+        if v.dtype.kind not in "fiu" or v.ndim != 3 or v.shape[2] != 3:
+            raise SystemExit(f"{path}: {name!r} must be (T, N, 3) numbers, got {v.shape} {v.dtype}")
+    if vi.shape[0] != vo.shape[0]:
+        raise SystemExit(f"{path}: 'inner_vertices' {vi.shape} and 'outer_vertices' {vo.shape} must have the same "
+                         "frames")
     faces = []
     for name, offset, n in (("inner_faces", 0, vi.shape[1]), ("outer_faces", vi.shape[1], vo.shape[1])):
         f = z[name]

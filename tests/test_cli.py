@@ -140,6 +140,13 @@ def test_export_refuses_a_malformed_stream_naming_the_member(tmp_path, monkeypat
         assert "no frames or no vertices" in refused(kind, {"vertices": v[:, :0], "faces": f[:0]})
         text = refused(kind, {"vertices": np.array([object()], dtype=object), "faces": f})
         assert str(tmp_path / "s.npz") in text and "pickled or object arrays are refused" in text
+    layers = {"inner_vertices": v, "inner_faces": f[:1], "outer_vertices": v, "outer_faces": f[:1]}
+    for change, said in (({"inner_vertices": np.array([[["a", "b", "c"]]])}, "'inner_vertices' must be (T, N, 3) num"),
+                         ({"outer_vertices": v > 0}, "'outer_vertices' must be (T, N, 3) numbers, got (4, 10, 3) bool"),
+                         ({"outer_vertices": v[:2]}, "must have the same frames"),
+                         ({"outer_faces": f + 1}, "'outer_faces' index vertices 1..10; its layer has 10"),
+                         ({"inner_faces": f - 1}, "'inner_faces' index vertices -1..8")):
+        assert said in refused("pc2", {**layers, **change})
     for faces, said in ((f + 1, "'faces' index vertices 1..10; the stream has 10 (0..9)"),
                         (f - 1, "'faces' index vertices -1..8"), (f[:, :2], "'faces' must be (F, 3) integers"),
                         (f + 0.5, "'faces' must be (F, 3) integers"), (f[:0], "'faces' must be (F, 3) integers")):
