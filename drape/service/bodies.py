@@ -20,7 +20,7 @@ from drape.assets.body import Body
 from drape.geometry.lbs import SingularSkinning, unpose_body
 from drape.geometry.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS
 from drape.runtime.body_store import BodyStore, body_id
-from drape.service.decode import json_reals, npz_members, npz_numbers, unknown_form_field
+from drape.service.decode import json_reals, known_form_fields, npz_members, npz_numbers
 from drape.service.errors import InvalidInput, quoted
 from drape.service.handlers import check_mesh
 from drape.service.http import parse_form
@@ -187,9 +187,7 @@ def read_upload(kind: str, content_type: str, data: bytes, settings: Settings) -
     """A POST /v1/bodies body (kind: its media type) -> the checked Body (not yet stored)."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
-        unknown = sorted(set(parts) - set(FORM_FIELDS))
-        if unknown:
-            raise unknown_form_field(unknown[0], f"some of {', '.join(FORM_FIELDS)}")
+        known_form_fields(parts, FORM_FIELDS)
         if FILE_FIELD not in parts:
             raise InvalidInput("a body file is required: a skinned GLB / glTF, or an npz of the body's arrays",
                                FILE_FIELD)

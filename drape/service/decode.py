@@ -74,17 +74,16 @@ def _request_errors(exc: ValidationError, doc: Any = None) -> list[tuple[str, st
     for _, member, e in located:
         if member is not None:
             members.setdefault(member[:-1], {}).setdefault(member, []).append(len(e["loc"]))
+
     def closeness(lengths: list[int]) -> tuple[int, int]:
         return max(lengths), -len(lengths)
 
-    best = {union: {m for m, lengths in options.items() if closeness(lengths) == max(map(closeness, options.values()))}
-            for union, options in members.items()}  # a tie keeps each (refine: "yes" is neither a bool nor options)
+    best = {}  # a tie keeps each (refine: "yes" is neither a bool nor options)
+    for union, options in members.items():
+        top = max(map(closeness, options.values()))
+        best[union] = {m for m, lengths in options.items() if closeness(lengths) == top}
     return [(".".join(str(x) for x in path), e["msg"]) for path, member, e in located
             if member is None or member in best[member[:-1]]]
-
-
-def validation_detail(exc: ValidationError, doc: Any = None) -> str:
-    return "; ".join(f"{field}: {msg}" for field, msg in _request_errors(exc, doc)[:5])
 
 
 def validation_error(exc: ValidationError, doc: Any = None) -> InvalidInput:
@@ -92,7 +91,7 @@ def validation_error(exc: ValidationError, doc: Any = None) -> InvalidInput:
     problem's field member is the first (it was null while the detail named it). Given the request document
     `doc`, fields are named as the client wrote them (see _request_errors)."""
     errors = _request_errors(exc, doc)
-    error = InvalidInput(validation_detail(exc, doc))
+    error = InvalidInput("; ".join(f"{field}: {msg}" for field, msg in errors[:5]))
     error.field = errors[0][0] or None if errors else None
     return error
 
@@ -245,18 +244,15 @@ def _form_mesh_parts(parts: dict[str, Any], num_vertices: int) -> list[dict] | N
 RIG_FORM = ("mesh", "body", "influences", "fit")
 
 
-def unknown_form_field(name: str, expected: str) -> InvalidInput:
-    """The 422 for a form field no route reads: the problem's field member is the name itself, as for every other
-    field (it was the quoted name), and the detail also quotes it (a space or an empty name shows); cut to 40
-    characters."""
-    return InvalidInput(f"unknown form field {quoted(name, 40)}; expected {expected}", name[:40])
-
-
-def _known_fields(parts: dict[str, Any], allowed: tuple[str, ...], expected: str) -> None:
-    """A 422 naming the first form field not among `allowed` (`expected` says what is)."""
+def known_form_fields(parts: dict[str, Any], allowed: tuple[str, ...], expected: str | None = None) -> None:
+    """A 422 naming the first form field not among `allowed` (`expected` says what is; default: "some of" them):
+    the problem's field member is the name itself, as for every other field (it was the quoted name), and the
+    detail also quotes it (a space or an empty name shows); cut to 40 characters."""
     unknown = sorted(set(parts) - set(allowed))
     if unknown:
-        raise unknown_form_field(unknown[0], expected)
+        name = unknown[0]
+        raise InvalidInput(f"unknown form field {quoted(name, 40)}; expected {expected or 'some of ' + ', '.join(allowed)}",
+                           name[:40])
 
 
 def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
@@ -265,7 +261,7 @@ def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
     named parts or None), not yet checked."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
-        _known_fields(parts, RIG_FORM, "mesh and some of body, influences, fit")
+        known_form_fields(parts, RIG_FORM, "mesh and some of body, influences, fit")
         v, f = _form_mesh(parts, settings)
         return (v, f, _text(parts, "body"), _text(parts, "influences"), bool(_form_flag(parts, "fit")),
                 _form_mesh_parts(parts, len(v)))
@@ -290,7 +286,7 @@ def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings)
     handlers.fit, not yet checked."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
-        _known_fields(parts, ("mesh", *FIT_FIELDS), f"mesh and some of {', '.join(FIT_FIELDS)}")
+        known_form_fields(parts, ("mesh", *FIT_FIELDS), f"mesh and some of {', '.join(FIT_FIELDS)}")
         v, f = _form_mesh(parts, settings)
         pose: Any = _text(parts, "pose")
         if pose is not None and pose not in ("t", "a"):
@@ -428,9 +424,7 @@ _OPTION_TYPES: dict[str, type[float] | type[int]] = {"eps": float, "max_iteratio
 
 def _form(data: bytes, content_type: str, allowed: tuple[str, ...]) -> dict[str, Any]:
     parts = parse_form(data, content_type)
-    unknown = sorted(set(parts) - set(allowed))
-    if unknown:
-        raise unknown_form_field(unknown[0], f"some of {', '.join(allowed)}")
+    known_form_fields(parts, allowed)
     if "motion_file" not in parts:
         raise InvalidInput("a motion file is required: a CMU-named BVH or an AMASS-style npz", "motion_file")
     return parts
