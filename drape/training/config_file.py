@@ -11,8 +11,9 @@ CONFIGS = Path(__file__).parent / "configs"  # the committed configs, <kind>_<na
 
 # The settings each kind of config may hold: a name -> None (a value the trainer reads whole), the names its JSON
 # object may hold, or a function giving them (the keywords of what the object is passed to: a model's config
-# dataclass, read only when needed, as it imports torch). Each trainer reads these and no others, so a misspelt name would train with the default without a
-# word; `check_settings` makes it an error before anything runs. A new setting goes here and in the trainer.
+# dataclass, read only when needed, as it imports torch). Each trainer reads these and no others, so a misspelt
+# name would train with the default without a word; `check_settings` makes it an error before anything runs. A
+# new setting goes here and in the trainer.
 SET_BY_THE_TRAINER = {"num_vertices", "num_inner_keys", "parents"}  # what the code passes beside the config's
 
 
