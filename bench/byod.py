@@ -81,8 +81,8 @@ def main(bvh: Path = BVH) -> None:
         print(f"body: {reg.body_id}, {reg.num_vertices} vertices, {reg.height:.3f} m tall "
               f"(register {time.perf_counter() - t:.2f} s)")
         arrays = client.body(reg.body_id)
-        body = Body(reg.body_id, arrays["vertices"], arrays["faces"], arrays["weights"], arrays["joints"],
-                    arrays["parents"], tuple(str(n) for n in arrays["joint_names"]))
+        body = Body(reg.body_id, arrays.vertices, arrays.faces, arrays.weights, arrays.joints, arrays.parents,
+                    tuple(arrays.joint_names))
 
         t = time.perf_counter()
         motion = import_motion(bvh.read_bytes(), body, fps=30.0, name=bvh.stem)

@@ -25,6 +25,7 @@ Answers travel as npz or the binary frame stream by default.
 
 from drape.client.client import (
     AsyncClient,
+    BodyArrays,
     Client,
     DesignSamples,
     DrapeAPIError,
@@ -36,5 +37,5 @@ from drape.client.client import (
     RigResult,
 )
 
-__all__ = ["AsyncClient", "Client", "DesignSamples", "DrapeAPIError", "FitResult", "GarmentTemplate", "LayerFrames",
+__all__ = ["AsyncClient", "BodyArrays", "Client", "DesignSamples", "DrapeAPIError", "FitResult", "GarmentTemplate", "LayerFrames",
            "MotionFile", "RefineOptions", "RigResult"]

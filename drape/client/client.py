@@ -17,6 +17,7 @@ import numpy as np
 from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, FrameReader, decode_npz, encode_npz
 from drape.schemas.catalog import BodyList, BodyRegistered, Health, MotionList
 from drape.schemas.garments import GarmentList
+from drape.schemas.layers import LayerList
 from drape.schemas.models import ModelInfo, ModelList
 from drape.schemas.outfits import RefineOptions
 
@@ -82,6 +83,21 @@ class GarmentTemplate:
     body: str
     vertices: np.ndarray
     faces: np.ndarray
+
+
+@dataclass(frozen=True)
+class BodyArrays:
+    """A body's rest mesh and skeleton (a preset or a registered body_id): vertices (V, 3) float32 m, T-pose, +Y
+    up; faces (F, 3) int32; weights (V, 24) float32, rows summing to 1; joints (24, 3) float32 m; parents (24,)
+    int, -1 for the root; joint_names: 24 names in SMPL order."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    weights: np.ndarray
+    joints: np.ndarray
+    parents: np.ndarray
+    joint_names: list[str]
 
 
 @dataclass(frozen=True)
@@ -350,9 +366,11 @@ def _registered(response: httpx.Response) -> BodyRegistered:
     return BodyRegistered.model_validate(response.json())
 
 
-def _body_arrays(response: httpx.Response) -> dict[str, np.ndarray]:
+def _body_arrays(name: str, response: httpx.Response) -> BodyArrays:
     _raise_for(response)
-    return decode_npz(response.content)
+    z = decode_npz(response.content)
+    return BodyArrays(name=name, vertices=z["vertices"], faces=z["faces"], weights=z["weights"], joints=z["joints"],
+                      parents=z["parents"], joint_names=[str(n) for n in z["joint_names"]])
 
 
 def _rig_accept(format: str) -> str:
@@ -648,9 +666,10 @@ class Client(_Base):
         answer's body_id as `body=` anywhere."""
         return _registered(self._http.post("/v1/bodies", **_body_request(body, joint_map, rest_pose)))
 
-    def body(self, name: str) -> dict[str, np.ndarray]:
-        """A body's arrays (preset or body_id): vertices, faces, weights, joints, parents, joint_names."""
-        return _body_arrays(self._http.get(f"/v1/bodies/{quote(name, safe='')}", headers={"Accept": NPZ}))
+    def body(self, name: str) -> BodyArrays:
+        """A body's rest mesh and skeleton (preset or body_id): vertices, faces, weights, joints, parents,
+        joint_names."""
+        return _body_arrays(name, self._http.get(f"/v1/bodies/{quote(name, safe='')}", headers={"Accept": NPZ}))
 
     def delete_body(self, name: str) -> None:
         """Forget a registered body."""
@@ -810,11 +829,10 @@ class Client(_Base):
         training ones, part of a shape can lie inside the body (animate_keyframes(..., refine=True) removes it)."""
         return _samples(self._http.post(_garment_path(name, "sample"), **_sample_npz(count, seed, motion, frame)))
 
-    def layers(self) -> list[dict[str, Any]]:
-        """The served layer combinations: inner, outer, body, thickness [min, max] m, model."""
-        r = self._http.get("/v1/layers")
-        _raise_for(r)
-        return list(r.json()["layers"])
+    def layers(self) -> LayerList:
+        """The served layer combinations (`.layers`): inner, outer, body, thickness [min, max] m, the models that
+        pose each layer."""
+        return LayerList.model_validate(self._get("/v1/layers"))
 
     @overload
     def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
@@ -919,11 +937,9 @@ class AsyncClient(_Base):
         return _samples(await self._http.post(_garment_path(name, "sample"),
                                               **_sample_npz(count, seed, motion, frame)))
 
-    async def layers(self) -> list[dict[str, Any]]:
+    async def layers(self) -> LayerList:
         """See Client.layers."""
-        r = await self._http.get("/v1/layers")
-        _raise_for(r)
-        return list(r.json()["layers"])
+        return LayerList.model_validate(await self._get("/v1/layers"))
 
     @overload
     async def animate_layers(self, *, inner: str, outer: str, motion: MotionLike, thickness: float = 0.006,
@@ -967,9 +983,10 @@ class AsyncClient(_Base):
         """See Client.register_body."""
         return _registered(await self._http.post("/v1/bodies", **_body_request(body, joint_map, rest_pose)))
 
-    async def body(self, name: str) -> dict[str, np.ndarray]:
+    async def body(self, name: str) -> BodyArrays:
         """See Client.body."""
-        return _body_arrays(await self._http.get(f"/v1/bodies/{quote(name, safe='')}", headers={"Accept": NPZ}))
+        return _body_arrays(name, await self._http.get(f"/v1/bodies/{quote(name, safe='')}",
+                                                       headers={"Accept": NPZ}))
 
     async def delete_body(self, name: str) -> None:
         """See Client.delete_body."""

@@ -76,7 +76,7 @@ def test_animate_layers_through_the_client(server_url):
     """Both layers' frames from the client (sync and async), the refined ones equal to the library's post step on
     the unrefined ones; GLB and PC2 of the two as one mesh; the frame stream names the layer ranges."""
     with drape.Client(server_url) as client:
-        assert [x["outer"] for x in client.layers()] == ["jacket", "longsleeve"]
+        assert [x.outer for x in client.layers().layers] == ["jacket", "longsleeve"]
         raw = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, thickness=0.004)
         fixed = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, thickness=0.004, refine=True)
         pc2 = client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, format="pc2")
@@ -103,9 +103,12 @@ def test_animate_layers_through_the_client(server_url):
 
     async def go():
         async with drape.AsyncClient(server_url) as client:
-            return await client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, thickness=0.004)
+            listed = await client.layers()
+            return listed, await client.animate_layers(inner="tshirt", outer="jacket", motion=MOTION, thickness=0.004)
 
-    assert np.array_equal(asyncio.run(go()).outer_vertices, raw.outer_vertices)
+    listed, frames = asyncio.run(go())
+    assert [(x.inner, x.outer) for x in listed.layers] == [("tshirt", "jacket"), ("tanktop", "longsleeve")]
+    assert np.array_equal(frames.outer_vertices, raw.outer_vertices)
 
 
 def test_the_frame_stream_names_the_layer_ranges(http):

@@ -6,6 +6,7 @@ a restart only with DRAPE_BODY_DIR.
 The uploaded body is the neutral preset's collision proxy (1.2k vertices, the neutral skeleton): small enough
 for the test limits, and different from every preset's full mesh, so a wrong body would show."""
 
+import asyncio
 import dataclasses
 import io
 import json
@@ -333,6 +334,18 @@ def test_the_store_is_bounded_and_kept_only_in_body_dir(settings, proxy, tmp_pat
         problem(http.get(f"/v1/bodies/{first.json()['body_id']}"), 404)
 
 
+def test_the_async_client_reads_a_preset_body_as_the_library_holds_it(server_url):
+    async def go():
+        async with drape.AsyncClient(server_url) as client:
+            return await client.body("neutral")
+
+    arrays, body = asyncio.run(go()), load_body("neutral")
+    assert isinstance(arrays, drape.client.BodyArrays) and arrays.name == "neutral"
+    np.testing.assert_allclose(arrays.vertices, body.vertices, atol=1e-6)
+    np.testing.assert_array_equal(arrays.parents, body.parents)
+    assert tuple(arrays.joint_names) == tuple(body.joint_names)
+
+
 def test_the_client_registers_reads_and_deletes_a_body(server_url, proxy, shirt, tmp_path):
     path = tmp_path / "me.npz"
     path.write_bytes(_bad(proxy))
@@ -341,7 +354,11 @@ def test_the_client_registers_reads_and_deletes_a_body(server_url, proxy, shirt,
         assert reg.body_id.startswith("body-") and reg.num_vertices == len(proxy.vertices)
         assert client.register_body({"vertices": proxy.vertices, "faces": proxy.faces, "weights": proxy.weights,
                                      "joints": proxy.joints}).body_id == reg.body_id
-        np.testing.assert_allclose(client.body(reg.body_id)["vertices"], proxy.vertices, atol=1e-6)
+        arrays = client.body(reg.body_id)
+        assert isinstance(arrays, drape.client.BodyArrays) and arrays.name == reg.body_id
+        np.testing.assert_allclose(arrays.vertices, proxy.vertices, atol=1e-6)
+        np.testing.assert_allclose(arrays.weights, proxy.weights, atol=1e-6)
+        assert arrays.faces.shape == proxy.faces.shape and len(arrays.joint_names) == 24
         rig = client.rig(shirt, body=reg.body_id)
         np.testing.assert_allclose(rig.rest_joints, proxy.joints, atol=1e-6)
         frames = client.animate(outfit_id=rig.outfit_id, motion="walk", refine=True)
