@@ -205,7 +205,15 @@ def _outfits_generate(args: argparse.Namespace) -> None:
     _out_path(args.out)
     outfit = generate_outfit(args.type, vertices=args.vertices, seed=args.seed, body=args.body,
                              looseness=args.looseness, length=args.length)
-    save_mesh(args.out, outfit.vertices, outfit.faces)
+    vertices, faces, parts = outfit.vertices, outfit.faces, None
+    if len(outfit.garments) > 1:  # each garment's vertices together, one named OBJ object each (the rig's parts)
+        order = np.argsort(outfit.garment, kind="stable")
+        new_index = np.empty_like(order)
+        new_index[order] = np.arange(len(order))
+        vertices, faces = vertices[order], new_index[faces].astype(np.int32)
+        stops = np.cumsum(np.bincount(outfit.garment, minlength=len(outfit.garments)))
+        parts = [(name, int(start), int(stop)) for name, start, stop in zip(outfit.garments, [0, *stops[:-1]], stops, strict=True)]
+    save_mesh(args.out, vertices, faces, parts)
     print(f"{args.out}: {len(outfit.vertices)} vertices, {len(outfit.faces)} faces, garments {outfit.garments}")
 
 
@@ -951,7 +959,8 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--looseness", type=float, default=None,
                    help="0 (tight) .. 1 (loose), up to 3 for an oversize garment; random if omitted")
     o.add_argument("--length", type=float, default=None, help="0 (short) .. 1 (long); random if omitted")
-    o.add_argument("--out", required=True)
+    o.add_argument("--out", required=True, help="a mesh file; an OBJ of several garments holds one named object "
+                   "each (inner first), which the rig answers as its parts")
     o.set_defaults(func=_outfits_generate)
     of = outfits.add_parser("fit", help="fit a garment made for another body (any units, Y- or Z-up, T- or A-pose) "
                             "onto a body at rest")

@@ -22,6 +22,21 @@ def test_outfits_generate_writes_a_mesh(tmp_path):
           "--body", "female", "--out", str(out))
     v, f = load_mesh(out)
     assert abs(len(v) - 1500) <= 150 and f.max() < len(v)
+    # one named object a garment, each garment's vertices together: the service reads them as the rig's parts
+    from drape.assets.outfits import generate_outfit
+    from drape.service.uploads import mesh_parts
+
+    outfit = generate_outfit("tshirt,trousers", vertices=1500, seed=3, body="female")
+    parts = mesh_parts(out.read_bytes(), out.name, len(v))
+    assert [p["name"] for p in parts] == outfit.garments
+    for g, p in enumerate(parts):
+        mine = outfit.vertices[outfit.garment == g]
+        assert p["stop"] - p["start"] == len(mine)
+        np.testing.assert_allclose(v[p["start"]:p["stop"]], mine, atol=1e-6)
+    def triangles(vertices, faces):  # each face as its corners' coordinates, same winding, any order
+        return sorted(map(tuple, vertices[faces].reshape(len(faces), 9).round(5).tolist()))
+
+    assert triangles(v, f) == triangles(outfit.vertices, outfit.faces)
 
 
 def test_outfits_fit_puts_a_z_up_centimetre_garment_on_the_body(tmp_path):

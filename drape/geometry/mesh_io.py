@@ -57,13 +57,39 @@ def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return vertices, faces.astype(np.int32)
 
 
-def save_mesh(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
-    """Write a triangle mesh; the format follows the file's suffix."""
+def save_mesh(path: str | Path, vertices: np.ndarray, faces: np.ndarray,
+              parts: list[tuple[str, int, int]] | None = None) -> Path:
+    """Write a triangle mesh; the format follows the file's suffix.
+
+    parts: named vertex ranges (name, start, stop), in order and covering every vertex, each face within one
+    range (several garments as one mesh). An OBJ then holds one `o name` object per range, its `v` and then its
+    `f` lines, which the service reads back as the rig's `parts` (`drape.service.uploads.mesh_parts`); the
+    vertex order is kept. Other formats ignore parts."""
     import trimesh
 
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ValueError(f"unsupported mesh suffix {path.suffix!r}; use one of {MESH_SUFFIXES}")
     path.parent.mkdir(parents=True, exist_ok=True)
+    if parts and path.suffix.lower() == ".obj":
+        _save_obj_parts(path, np.asarray(vertices), np.asarray(faces), parts)
+        return path
     trimesh.Trimesh(np.asarray(vertices), np.asarray(faces), process=False).export(str(path))
     return path
+
+
+def _save_obj_parts(path: Path, vertices: np.ndarray, faces: np.ndarray, parts: list[tuple[str, int, int]]) -> None:
+    bounds = [(start, stop) for _, start, stop in parts]
+    if bounds[0][0] != 0 or bounds[-1][1] != len(vertices) or any(
+            a[1] != b[0] for a, b in zip(bounds, bounds[1:], strict=False)):
+        raise ValueError(f"parts {bounds} do not cover the {len(vertices)} vertices in order")
+    stops = np.array([stop for _, _, stop in parts])
+    owner = np.searchsorted(stops, faces, side="right")  # the part of each face's corners
+    if (owner != owner[:, :1]).any():
+        raise ValueError("a face joins vertices of two parts")
+    lines = []
+    for k, (name, start, stop) in enumerate(parts):
+        lines.append(f"o {name}")
+        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices[start:stop].tolist())
+        lines.extend(f"f {a} {b} {c}" for a, b, c in (faces[owner[:, 0] == k] + 1).tolist())
+    path.write_text("\n".join(lines) + "\n")
