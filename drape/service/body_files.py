@@ -124,8 +124,8 @@ def body_from_glb(data: bytes, *, joint_map: dict[str, str] | None, max_vertices
 
 # -------------------------------------------------------------------------------- declarations
 
-def _invalid(detail: str) -> NoReturn:
-    raise InvalidInput(detail, FIELD)
+def _invalid(detail: str, field: str = FIELD) -> NoReturn:
+    raise InvalidInput(detail, field)
 
 
 def _bad(detail: str) -> NoReturn:
@@ -398,16 +398,16 @@ def _smpl_indices(names: list[str | None], joint_map: dict[str, str] | None) -> 
     smpl = [-1] * len(names)
     if joint_map:
         if not all(isinstance(k, str) and isinstance(v, str) for k, v in joint_map.items()):
-            _invalid("joint_map must map joint names (strings) to SMPL joint names (strings)")
+            _invalid("must map joint names (strings) to SMPL joint names (strings)", "joint_map")
         known = set(names)  # a set: a map of K keys against J joints is K lookups, not K x J comparisons
         unknown_keys = sorted(k for k in joint_map if k not in known)
         if unknown_keys:
-            _invalid(f"joint_map names joints the skin does not have: {quoted(unknown_keys)}; "
-                     f"the skin's joints: {quoted([n for n in names if n is not None])}")
+            _invalid(f"names joints the skin does not have: {quoted(unknown_keys)}; "
+                     f"the skin's joints: {quoted([n for n in names if n is not None])}", "joint_map")
         unknown_values = sorted({v for v in joint_map.values() if v not in JOINT_INDEX})
         if unknown_values:
-            _invalid(f"joint_map maps to names that are not SMPL joints: "
-                     f"{quoted(unknown_values)}; the SMPL joints are {', '.join(JOINT_NAMES)}")
+            _invalid(f"maps to names that are not SMPL joints: "
+                     f"{quoted(unknown_values)}; the SMPL joints are {', '.join(JOINT_NAMES)}", "joint_map")
         for k, name in enumerate(names):
             if name is not None and name in joint_map:
                 smpl[k] = JOINT_INDEX[joint_map[name]]

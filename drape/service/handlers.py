@@ -271,8 +271,8 @@ def body_scale_warnings(engine: Engine, body: str) -> list[str]:
         return []
     lo, hi = engine.model.trained_heights or (0.0, 0.0)
     height = body_height(b.vertices)
-    return [f"the {body} body is {height:.2f} m tall, outside the {lo:.2f}-{hi:.2f} m of the bodies the rig model "
-            f"was trained on: it reads the garment scaled to {height * scale.scale[1]:.2f} m; expect more of it inside "
+    return [f"the {body} body is {height:.3f} m tall, outside the {lo:.3f}-{hi:.3f} m of the bodies the rig model "
+            f"was trained on: it reads the garment scaled to {height * scale.scale[1]:.3f} m; expect more of it inside "
             "the body when posed (refine: true removes it)"]
 
 

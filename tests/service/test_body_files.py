@@ -90,12 +90,12 @@ def _attributes(doc: gl.GLTF2) -> gl.Attributes:
     return doc.meshes[0].primitives[0].attributes
 
 
-def _refused(cls: type[DrapeError], data: bytes, *fragments: str, **kwargs) -> str:
+def _refused(cls: type[DrapeError], data: bytes, *fragments: str, field: str = "body_file", **kwargs) -> str:
     with pytest.raises(DrapeError) as info:
         _read(data, **kwargs)
     assert type(info.value) is cls, info.value.detail
-    assert info.value.field == "body_file"
-    assert info.value.detail.startswith("body_file: ")
+    assert info.value.field == field
+    assert info.value.detail.startswith(f"{field}: ")
     for fragment in fragments:
         assert fragment in info.value.detail, info.value.detail
     assert len(info.value.detail) < 800
@@ -161,10 +161,12 @@ def test_a_joint_map_names_arbitrary_joints():
 
 def test_joint_map_mistakes_are_refused(glb):
     identity = {n: n for n in BODY.joint_names}
-    _refused(InvalidInput, glb, "joint_map names joints the skin does not have", "'Hips'",
+    # a map that names what is not there is the joint_map field's mistake, not the file's
+    _refused(InvalidInput, glb, "joint_map: names joints the skin does not have", "'Hips'", field="joint_map",
              joint_map=dict(identity, Hips="pelvis"))
-    _refused(InvalidInput, glb, "not SMPL joints", "'lefthip'",
+    _refused(InvalidInput, glb, "joint_map: maps to names that are not SMPL joints", "'lefthip'", field="joint_map",
              joint_map=dict(identity, left_hip="lefthip"))
+    _refused(InvalidInput, glb, "must map joint names (strings)", field="joint_map", joint_map=dict(identity, pelvis=3))
     _refused(InvalidInput, glb, "SMPL joint left_hip is matched by 2 joints", "joint_map",
              joint_map=dict(identity, right_hip="left_hip"))
 
@@ -238,7 +240,7 @@ def test_a_long_chain_of_unmapped_joints_and_a_long_joint_map_take_linear_steps(
     names = [_Name(n) for n in (*BODY.joint_names, *(f"bone_{k}" for k in range(J)))]
     joint_map = {**{n: n for n in BODY.joint_names}, **{f"x{k}": "head" for k in range(2000)}}
     _Name.compared = 0
-    with pytest.raises(InvalidInput, match="joint_map names joints the skin does not have: \\['x0'"):
+    with pytest.raises(InvalidInput, match="names joints the skin does not have: \\['x0'"):
         _smpl_indices(names, joint_map)
     assert _Name.compared < 1000, _Name.compared
     assert _smpl_indices(names, {n: n for n in BODY.joint_names}) == [*range(24), *[-1] * J]
