@@ -866,6 +866,14 @@ def _sim_dataset(args: argparse.Namespace) -> None:
             raise SystemExit(f"--substeps must be in [1, 64], got {args.substeps}")
         # the solver's steps per frame, not a sampled parameter: the same sets, each run finer in time
         params = [type(p).model_validate(p.model_dump() | {"substeps": args.substeps}) for p in params]
+    # the last --holdout-params sets and --holdout-motions motions are the test split: each split needs one
+    for option, held, total, what in (
+            ("--holdout-params", args.holdout_params, args.params, "parameter sets (--params)"),
+            ("--holdout-motions", args.holdout_motions, len(args.motions.split(",")), "motions (--motions)")):
+        if not 0 < held < total:
+            raise SystemExit(f"drape: error: {option} {held}: the last ones of the {total} {what} are held out for "
+                             f"the test split, so it must be in [1, {total - 1}]"
+                             + (f"; give at least 2 {what}" if total < 2 else ""))
     motions = [_motion_arg(m) for m in args.motions.split(",")]
     manifest = build_dataset(
         args.out, garments, params, motions, args.frames, body=args.body,
@@ -1086,10 +1094,10 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--material", choices=("sampled", "fixed"), default="sampled",
                     help="with --outer: sample the cloth's parameters per set (default) or keep the defaults and "
                          "vary H_in alone (MGN's setting: its outer network is conditioned on H_in only)")
-    sd.add_argument("--params", type=int, default=8, help="number of parameter sets to sample")
+    sd.add_argument("--params", type=_int_in(1), default=8, help="number of parameter sets to sample")
     sd.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="seed of the parameter sampler")
     sd.add_argument("--motions", required=True, help="comma list of clip names or motion npz files")
-    sd.add_argument("--frames", type=int, default=90)
+    sd.add_argument("--frames", type=_int_in(1), default=90, help="frames simulated per sequence")
     sd.add_argument("--body", default="neutral")
     sd.add_argument("--holdout-params", type=int, default=2)
     sd.add_argument("--holdout-motions", type=int, default=1)

@@ -237,6 +237,14 @@ def test_sim_option_files_and_ranges_are_refused_in_one_line(tmp_path, capsys):
         assert refused("sim", "dataset", "--garment", str(garment), "--outer", str(garment), "--thickness", given,
                        "--motions", "walk", "--out", str(tmp_path / "d")).startswith(
             f"--thickness takes LOW,HIGH in m, got {given!r}")
+    # a split left empty names its option; nothing is made (it said "holdout_motions must be in [1, 0], got 1",
+    # after making the dataset's folders)
+    text = refused("sim", "dataset", "--garment", str(garment), "--motions", "walk", "--out", str(tmp_path / "d"))
+    assert text.startswith("drape: error: --holdout-motions 1: the last ones of the 1 motions (--motions) are held "
+                           "out") and "give at least 2 motions" in text, text
+    text = refused("sim", "dataset", "--garment", str(garment), "--motions", "walk,run", "--params", "2",
+                   "--holdout-params", "2", "--out", str(tmp_path / "d"))
+    assert text.startswith("drape: error: --holdout-params 2:") and "must be in [1, 1]" in text, text
     assert not (tmp_path / "s.npz").exists() and not (tmp_path / "d").exists()
 
 
@@ -248,6 +256,8 @@ def test_sim_option_files_and_ranges_are_refused_in_one_line(tmp_path, capsys):
     (["sim", "dataset", "--garment", "g.obj", "--motions", "walk", "--out", "d", "--workers", "0"],
      "--workers: must be >= 1, got 0"),
     (["sim", "sweep", "--workers", "-1", "--out", "d"], "--workers: must be >= 1, got -1"),
+    (["sim", "dataset", "--garment", "g.obj", "--motions", "walk", "--out", "d", "--frames", "-1"],
+     "--frames: must be >= 1, got -1"),
     (["sim", "dataset", "--garment", "g.obj", "--motions", "walk", "--out", "d", "--only-params", "36,x"],
      "--only-params: expected a comma list of integers, got '36,x'"),
     (["sim", "dataset", "--garment", "g.obj", "--motions", "walk", "--out", "d", "--only-params", "-1"],

@@ -279,10 +279,8 @@ def build_dataset(
     (e.g. a training config's validation sets, to measure a model on them before the rest is simulated).
     """
     layered = _check_layered(garments, params)
-    out = Path(out)
-    (out / "items").mkdir(parents=True, exist_ok=True)
-    (out / "rejected").mkdir(exist_ok=True)
-    gate = gate or (LayerGate() if layered else QualityGate())
+    if frames < 1:
+        raise ValueError(f"frames must be at least 1, got {frames}")
     for m in motions:
         if m.num_frames < frames:
             raise ValueError(f"motion {m.name!r} has {m.num_frames} frames, fewer than frames={frames}")
@@ -290,6 +288,10 @@ def build_dataset(
     if len(set(names)) != len(names):
         raise ValueError("motion names must be unique")
     s = splits(len(params), names, holdout_params, holdout_motions)
+    out = Path(out)  # made once the request is known to be whole: a refused one leaves no folder behind
+    (out / "items").mkdir(parents=True, exist_ok=True)
+    (out / "rejected").mkdir(exist_ok=True)
+    gate = gate or (LayerGate() if layered else QualityGate())
     items = [
         Item(item_key(g, i, m.name), g, np.asarray(mesh[0], np.float32), np.asarray(mesh[1], np.int32), body, i, p,
              m, frames, *((np.asarray(mesh[2], np.float32), np.asarray(mesh[3], np.int32)) if layered else ()))

@@ -190,3 +190,16 @@ def test_layer_dataset_items_splits_and_resume(tmp_path):
     assert _layer_build(tmp_path)["last_run"]["simulated"] == 1
     _same(before, _arrays(tmp_path))
 
+
+
+@pytest.mark.parametrize(("change", "said"), [
+    ({"frames": 0}, "frames must be at least 1, got 0"),
+    ({"holdout_motions": 2}, "holdout_motions must be in [1, 1], got 2"),
+    ({"holdout_params": 0}, "holdout_params must be in [1, 1], got 0"),
+])
+def test_a_dataset_that_cannot_be_split_or_simulated_is_refused_before_its_folder_is_made(tmp_path, change, said):
+    garments, params, motions = _inputs()
+    kw = {"frames": FRAMES, "holdout_params": 1, "holdout_motions": 1, **change}
+    with pytest.raises(ValueError, match=said.replace("[", r"\[").replace("]", r"\]")):
+        build_dataset(tmp_path / "d", garments, params, motions, progress=False, **kw)
+    assert not (tmp_path / "d").exists()
