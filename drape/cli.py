@@ -222,7 +222,7 @@ def _outfits_fit(args: argparse.Namespace) -> None:
     import time
 
     from drape.geometry.fitting import FitError, fit_garment
-    from drape.geometry.mesh_io import load_mesh, save_mesh
+    from drape.geometry.mesh_io import load_mesh, obj_parts, save_mesh
 
     _out_path(args.out, args.mesh, _body_file(args.body))
     if args.report:
@@ -236,7 +236,12 @@ def _outfits_fit(args: argparse.Namespace) -> None:
         result = fit_garment(vertices, faces, body, units=args.units, up=args.up, pose=args.pose)
     except FitError as exc:
         raise SystemExit(f"drape: error: {args.mesh}: {exc}") from None
-    save_mesh(args.out, result.vertices, faces)
+    # an OBJ's objects (one garment each) stay objects: the fit keeps the vertex order
+    found = obj_parts(Path(args.mesh).read_bytes(), str(args.mesh), len(vertices))
+    try:
+        save_mesh(args.out, result.vertices, faces, [(p["name"], p["start"], p["stop"]) for p in found or []])
+    except ValueError:  # a face joins two objects (OBJ indices are global): written as one mesh
+        save_mesh(args.out, result.vertices, faces)
     r = result.report
     print(f"{args.out}: {len(vertices)} vertices fitted onto {args.body} in {time.perf_counter() - start:.1f} s; "
           f"units {r['units']}{' (inferred)' if r['units_inferred'] else ''}, "

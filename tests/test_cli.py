@@ -24,10 +24,10 @@ def test_outfits_generate_writes_a_mesh(tmp_path):
     assert abs(len(v) - 1500) <= 150 and f.max() < len(v)
     # one named object a garment, each garment's vertices together: the service reads them as the rig's parts
     from drape.assets.outfits import generate_outfit
-    from drape.service.uploads import mesh_parts
+    from drape.geometry.mesh_io import obj_parts
 
     outfit = generate_outfit("tshirt,trousers", vertices=1500, seed=3, body="female")
-    parts = mesh_parts(out.read_bytes(), out.name, len(v))
+    parts = obj_parts(out.read_bytes(), out.name, len(v))
     assert [p["name"] for p in parts] == outfit.garments
     for g, p in enumerate(parts):
         mine = outfit.vertices[outfit.garment == g]
@@ -55,6 +55,19 @@ def test_outfits_fit_puts_a_z_up_centimetre_garment_on_the_body(tmp_path):
 
     rep = json.loads(report.read_text())["report"]
     assert rep["inside_after"] <= 0.001 and len(load_mesh(out)[0]) == len(v)
+
+
+def test_outfits_fit_keeps_an_objs_garments_as_objects(tmp_path):
+    """The fit keeps the vertex order, so an OBJ's objects are written back as they came, and the rig answers
+    the fitted file with the same parts (they were dropped: one unnamed mesh)."""
+    from drape.geometry.mesh_io import obj_parts
+
+    made, out = tmp_path / "two.obj", tmp_path / "fitted.obj"
+    drape("outfits", "generate", "--type", "tshirt,trousers", "--vertices", "800", "--seed", "2", "--out", str(made))
+    drape("outfits", "fit", str(made), "--body", "male", "--out", str(out))
+    before = obj_parts(made.read_bytes(), made.name, len(load_mesh(made)[0]))
+    assert [p["name"] for p in before] == ["trousers", "tshirt"]
+    assert obj_parts(out.read_bytes(), out.name, len(load_mesh(out)[0])) == before
 
 
 def test_motions_generate_and_render(tmp_path):

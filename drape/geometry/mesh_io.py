@@ -63,7 +63,7 @@ def save_mesh(path: str | Path, vertices: np.ndarray, faces: np.ndarray,
 
     parts: named vertex ranges (name, start, stop), in order and covering every vertex, each face within one
     range (several garments as one mesh). An OBJ then holds one `o name` object per range, its `v` and then its
-    `f` lines, which the service reads back as the rig's `parts` (`drape.service.uploads.mesh_parts`); the
+    `f` lines, which the service reads back as the rig's `parts` (`obj_parts`); the
     vertex order is kept. Other formats ignore parts."""
     import trimesh
 
@@ -93,3 +93,37 @@ def _save_obj_parts(path: Path, vertices: np.ndarray, faces: np.ndarray, parts: 
         lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices[start:stop].tolist())
         lines.extend(f"f {a} {b} {c}" for a, b, c in (faces[owner[:, 0] == k] + 1).tolist())
     path.write_text("\n".join(lines) + "\n")
+
+
+def obj_parts(data: bytes, filename: str, num_vertices: int) -> list[dict] | None:
+    """The named parts of a mesh file's bytes, in the order of the file, as vertex ranges of what `load_mesh`
+    (and the service's upload reader) read: [{"name", "start", "stop"}, ...] (stop exclusive), or None for a
+    single part.
+
+    OBJ: each `o` object (or, in a file without them, each `g` group) holds the `v` lines that follow it,
+    which the reader keeps in the file's order. Other formats: None (their parts are not yet mapped).
+    """
+    if not filename.lower().endswith(".obj"):
+        return None
+    text = data.replace(b"\r\n", b"\n").replace(b"\\\n", b"")
+    lines = text.split(b"\n")
+    key = b"o" if any(line.startswith((b"o ", b"o\t")) for line in lines) else b"g"
+    parts: list[dict] = []
+    count = 0
+    for line in lines:
+        word = line.split(None, 1)
+        if not word:
+            continue
+        if word[0] == b"v":
+            count += 1
+        elif word[0] == key:
+            name = word[1].strip().decode("utf-8", "replace")[:200] if len(word) > 1 else ""
+            parts.append({"name": name, "start": count, "stop": count})
+        if parts:
+            parts[-1]["stop"] = count
+    if parts and parts[0]["start"] > 0:
+        parts.insert(0, {"name": "", "start": 0, "stop": parts[0]["start"]})
+    parts = [p for p in parts if p["stop"] > p["start"]]
+    if len(parts) < 2 or parts[-1]["stop"] != num_vertices:  # a file read otherwise than counted: no parts
+        return None
+    return parts

@@ -14,6 +14,7 @@ import numpy as np
 from pydantic import BaseModel, ValidationError
 from pydantic_core import ErrorDetails
 
+from drape.geometry.mesh_io import obj_parts
 from drape.runtime.engine import Engine
 from drape.schemas.binary import NpzTooLarge, decode_npz
 from drape.schemas.garments import (
@@ -238,7 +239,7 @@ def _form_mesh(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarray, n
 
 def _form_mesh_parts(parts: dict[str, Any], num_vertices: int) -> list[dict] | None:
     mesh = parts["mesh"]
-    return uploads.mesh_parts(mesh.data, mesh.filename, num_vertices)
+    return obj_parts(mesh.data, mesh.filename, num_vertices)
 
 
 RIG_FORM = ("mesh", "body", "influences", "fit")

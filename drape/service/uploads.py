@@ -102,39 +102,6 @@ def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
     return _load(data, file_type, suffix)
 
 
-def mesh_parts(data: bytes, filename: str, num_vertices: int) -> list[dict] | None:
-    """The named parts of an uploaded mesh, in the order of the file, as vertex ranges of what
-    `mesh_from_file` read: [{"name", "start", "stop"}, ...] (stop exclusive), or None for a single part.
-
-    OBJ: each `o` object (or, in a file without them, each `g` group) holds the `v` lines that follow it,
-    which `mesh_from_file` keeps in the file's order. Other formats: None (their parts are not yet mapped).
-    """
-    if not filename.lower().endswith(".obj"):
-        return None
-    text = data.replace(b"\r\n", b"\n").replace(b"\\\n", b"")
-    lines = text.split(b"\n")
-    key = b"o" if any(line.startswith((b"o ", b"o\t")) for line in lines) else b"g"
-    parts: list[dict] = []
-    count = 0
-    for line in lines:
-        word = line.split(None, 1)
-        if not word:
-            continue
-        if word[0] == b"v":
-            count += 1
-        elif word[0] == key:
-            name = word[1].strip().decode("utf-8", "replace")[:200] if len(word) > 1 else ""
-            parts.append({"name": name, "start": count, "stop": count})
-        if parts:
-            parts[-1]["stop"] = count
-    if parts and parts[0]["start"] > 0:
-        parts.insert(0, {"name": "", "start": 0, "stop": parts[0]["start"]})
-    parts = [p for p in parts if p["stop"] > p["start"]]
-    if len(parts) < 2 or parts[-1]["stop"] != num_vertices:  # a file read otherwise than counted: no parts
-        return None
-    return parts
-
-
 def _load(data: bytes, file_type: str, suffix: str) -> tuple[np.ndarray, np.ndarray]:
     from drape.geometry.mesh_io import read_trimesh
 

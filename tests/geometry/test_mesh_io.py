@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from drape.geometry.mesh_io import load_mesh, save_mesh
-from drape.service.uploads import mesh_parts
+from drape.geometry.mesh_io import load_mesh, obj_parts, save_mesh
 
 VERTICES = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1], [0, 1, 1], [1, 0, 1]], np.float32) * 0.1
 FACES = np.array([[0, 1, 2], [0, 2, 1], [3, 4, 5], [5, 4, 6], [3, 6, 4]], np.int32)
@@ -15,7 +14,7 @@ def test_an_obj_with_parts_reads_back_as_the_same_mesh_and_as_named_parts(tmp_pa
     v, f = load_mesh(path)
     np.testing.assert_array_equal(v, VERTICES)
     assert sorted(map(tuple, f.tolist())) == sorted(map(tuple, FACES.tolist()))
-    assert mesh_parts(path.read_bytes(), path.name, len(v)) == [
+    assert obj_parts(path.read_bytes(), path.name, len(v)) == [
         {"name": "shirt", "start": 0, "stop": 3}, {"name": "coat", "start": 3, "stop": 7}]
 
 

@@ -69,12 +69,12 @@ def test_seams_stay_closed_through_rig_and_animate(server_url, upload, tmp_path)
     assert len(np.unique(group)) == frames.shape[1] - len(pairs)
 
 
-def test_mesh_parts_reads_objects_or_groups_and_none_for_one_part():
-    from drape.service.uploads import mesh_parts
+def test_obj_parts_reads_objects_or_groups_and_none_for_one_part():
+    from drape.geometry.mesh_io import obj_parts
 
     two = b"o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\no b\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf 4 5 6\n"
-    assert mesh_parts(two, "x.obj", 6) == [{"name": "a", "start": 0, "stop": 3}, {"name": "b", "start": 3, "stop": 6}]
-    assert mesh_parts(two.replace(b"o ", b"g "), "x.OBJ", 6)[1]["name"] == "b"
-    assert mesh_parts(b"o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "x.obj", 3) is None
-    assert mesh_parts(two, "x.obj", 7) is None  # read otherwise than counted: no parts rather than wrong ones
-    assert mesh_parts(two, "x.ply", 6) is None
+    assert obj_parts(two, "x.obj", 6) == [{"name": "a", "start": 0, "stop": 3}, {"name": "b", "start": 3, "stop": 6}]
+    assert obj_parts(two.replace(b"o ", b"g "), "x.OBJ", 6)[1]["name"] == "b"
+    assert obj_parts(b"o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "x.obj", 3) is None
+    assert obj_parts(two, "x.obj", 7) is None  # read otherwise than counted: no parts rather than wrong ones
+    assert obj_parts(two, "x.ply", 6) is None
