@@ -611,9 +611,10 @@ def _layers_as_one_mesh(path: str, z: dict[str, np.ndarray]) -> dict[str, np.nda
             **({"fps": z["fps"]} if "fps" in z else {})}
 
 
-def _read_stream(path: str) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
+def _read_stream(path: str, faces: bool = True) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
     """An npz stream on disk (an animate/refine npz answer, a simulated sequence) -> (vertices (T, N, 3) float32 m,
-    finite, T and N >= 1; the archive's members); SystemExit naming the file and the member otherwise. A layers
+    finite, T and N >= 1; the archive's members); SystemExit naming the file and the member otherwise (faces
+    False: a stream without 'faces' is read too, for a PC2, which holds points only). A layers
     answer (inner_vertices (T, Ni, 3), inner_faces, outer_vertices (T, No, 3), outer_faces) is read as the one
     mesh the service's GLB and PC2 answers hold: the inner layer's vertices first, then the outer's. The third
     item is the mesh's name in a GLB, as the service names it: "layers" or "garment"."""
@@ -626,9 +627,9 @@ def _read_stream(path: str) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
     name = "garment"
     if "vertices" not in z and all(m in z for m in LAYER_MEMBERS):
         z, name = _layers_as_one_mesh(path, z), "layers"
-    if "vertices" not in z or "faces" not in z:
-        raise SystemExit(f"{path}: an npz stream needs 'vertices' (T, N, 3) and 'faces' (F, 3) (or a layers "
-                         f"answer's {', '.join(LAYER_MEMBERS)})")
+    if "vertices" not in z or (faces and "faces" not in z):
+        needs = "'vertices' (T, N, 3) and 'faces' (F, 3)" if faces else "'vertices' (T, N, 3)"
+        raise SystemExit(f"{path}: an npz stream needs {needs} (or a layers answer's {', '.join(LAYER_MEMBERS)})")
     v = z["vertices"]
     if v.dtype.kind not in "fiu" or v.ndim != 3 or v.shape[2] != 3:
         raise SystemExit(f"{path}: 'vertices' must be (T, N, 3) numbers, got {v.shape} {v.dtype}")
@@ -673,12 +674,14 @@ def _glb_faces_fps(path: str, z: dict[str, np.ndarray], frames: int, vertices: i
 
 
 def _export_pc2(args: argparse.Namespace) -> None:
+    import math
+
     from drape.schemas.pc2 import encode_pc2
 
-    if not (np.isfinite(args.start_frame) and abs(args.start_frame) <= np.finfo(np.float32).max):
+    if not (math.isfinite(args.start_frame) and abs(args.start_frame) <= float(np.finfo(np.float32).max)):
         raise SystemExit(f"--start-frame must be a finite float32 frame number, got {args.start_frame}")
     _out_path(args.out, args.stream)
-    v, _, _ = _read_stream(args.stream)
+    v, _, _ = _read_stream(args.stream, faces=False)  # a point cache holds no faces
     with open(args.out, "wb") as f:
         for piece in encode_pc2([v], v.shape[1], len(v), start_frame=args.start_frame):
             f.write(piece)

@@ -194,6 +194,11 @@ def test_export_refuses_a_malformed_stream_naming_the_member(tmp_path, monkeypat
     stream.write_bytes(encode_npz({"vertices": v, "faces": f[:, :2] + 100, "fps": np.array([1.0, 2.0])}))
     cli.main(["export", "pc2", str(stream), "--out", str(tmp_path / "ok.pc2")])
     assert (tmp_path / "ok.pc2").stat().st_size == 32 + v.nbytes
+    # nor a stream without faces at all (it was refused: "needs 'vertices' (T, N, 3) and 'faces' (F, 3)")
+    stream.write_bytes(encode_npz({"vertices": v}))
+    cli.main(["export", "pc2", str(stream), "--out", str(tmp_path / "points.pc2")])
+    assert (tmp_path / "points.pc2").read_bytes() == (tmp_path / "ok.pc2").read_bytes()
+    assert "needs 'vertices' (T, N, 3) and 'faces' (F, 3)" in refused("glb", {"vertices": v})
 
 
 def test_sim_dataset_substeps_run_every_parameter_set_finer(tmp_path):
