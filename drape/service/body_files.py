@@ -10,7 +10,8 @@ joints and weight columns in SMPL order (`drape.geometry.skeleton.JOINT_NAMES`):
 
 The file's structure is checked by `drape.service.uploads.gltf_tree_and_reader` (GLB chunks, JSON
 bounds, buffers, bufferViews and accessors within the bytes sent). The body is the first node with
-both a `mesh` and a `skin`; its mesh's primitives (triangle lists, indices optional) are
+both a `mesh` and a `skin` whose name holds "body" (case-insensitively), else the first node with both
+(so a garment skinned beside the body, as in drape's rig GLB, is not read as the body); its mesh's primitives (triangle lists, indices optional) are
 concatenated; POSITION and JOINTS_0 / WEIGHTS_0 are required, JOINTS_1..3 / WEIGHTS_1..3 are read
 where present (WEIGHTS float or normalised unsigned byte / short, JOINTS unsigned byte / short, both
 indexing `skin.joints`).
@@ -72,7 +73,7 @@ def body_from_glb(data: bytes, *, joint_map: dict[str, str] | None, max_vertices
                              FIELD)
     tree, read = gltf_tree_and_reader(data, suffix, field=FIELD)
     nodes = _list(tree, "nodes")
-    body = next((i for i, n in enumerate(nodes) if "mesh" in n and "skin" in n), None)
+    body = _body_node(nodes)
     if body is None:
         raise InvalidInput("the file has no skinned mesh: no node has both a mesh and a skin; "
                            "export the body with its armature (skin weights) included", FIELD)
@@ -243,6 +244,15 @@ def _parents(nodes: list[dict[str, Any]]) -> list[int]:
                 _bad(f"nodes[{c}] has more than one parent (the nodes must form trees)")
             parents[c] = i
     return parents
+
+
+def _body_node(nodes: list[dict[str, Any]]) -> int | None:
+    """The node holding the body: of the nodes with a mesh and a skin, the first whose name says "body"
+    (case-insensitively; a file of a garment and the body skinned to one armature, as drape's own rig GLB), else
+    the first; None without one."""
+    skinned = [i for i, n in enumerate(nodes) if isinstance(n, dict) and "mesh" in n and "skin" in n]
+    named = [i for i in skinned if isinstance(nodes[i].get("name"), str) and "body" in nodes[i]["name"].lower()]
+    return (named or skinned or [None])[0]
 
 
 def _skin_joints(skin: dict[str, Any], num_nodes: int) -> list[int]:

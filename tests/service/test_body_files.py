@@ -159,6 +159,20 @@ def test_a_joint_map_names_arbitrary_joints():
     assert np.abs(out["weights"][:, 16] - _stored(BODY.weights)[:, 17]).max() < 1e-6
 
 
+def test_the_body_is_the_skinned_node_named_body_when_a_garment_is_skinned_before_it():
+    """drape's rig GLB holds the outfit skinned to the skeleton, then the body: registering it read the outfit
+    ("the joint left_knee lies outside the mesh"); the node named body is the body."""
+    skeleton = Skeleton(tuple(BODY.joint_names), np.asarray(BODY.parents), np.asarray(BODY.joints))
+    shirt = np.flatnonzero(BODY.vertices[:, 1] > np.median(BODY.vertices[:, 1]))[:300]
+    faces = np.array([[0, 1, 2], [2, 1, 3]])
+    outfit = SkinnedMesh("outfit", BODY.vertices[shirt] * 1.05, faces, BODY.weights[shirt])
+    out = _read(skinned_glb(skeleton, [outfit, SkinnedMesh("Body", BODY.vertices, BODY.faces, BODY.weights)]))
+    np.testing.assert_allclose(out["vertices"], BODY.vertices, atol=1e-6)
+    assert len(out["faces"]) == len(BODY.faces)
+    only = _read(skinned_glb(skeleton, [SkinnedMesh("mesh", BODY.vertices, BODY.faces, BODY.weights), outfit]))
+    assert len(only["vertices"]) == len(BODY.vertices)  # no node named body: the first skinned one, as before
+
+
 def test_joint_map_mistakes_are_refused(glb):
     identity = {n: n for n in BODY.joint_names}
     # a map that names what is not there is the joint_map field's mistake, not the file's
