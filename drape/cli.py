@@ -165,8 +165,8 @@ def _motions_generate(args: argparse.Namespace) -> None:
     from drape.assets.procedural import generate_motion
 
     _check_fps_option(args.fps)
-    _out_path(args.out)
-    motion = generate_motion(args.frames, seed=args.seed, fps=args.fps, body=args.body, walk=args.walk)
+    _out_path(args.out, _body_file(args.body), suffixes=(".npz", ""))  # no suffix: .npz is added
+    motion = generate_motion(args.frames, seed=args.seed, fps=args.fps, body=_body_arg(args.body), walk=args.walk)
     out = motion.save(args.out)
     print(f"{out}: {motion.num_frames} frames at {motion.fps:g} fps")
 
@@ -195,15 +195,15 @@ def _motions_import(args: argparse.Namespace) -> None:
     motion = imported.motion
     out = motion.save(args.out)
     print(imported.summary())
-    print(f"{out}: {motion.num_frames} frames at {motion.fps:g} fps ({time.perf_counter() - start:.2f} s)")
+    print(f"{out}: {motion.num_frames} frames at {motion.fps:g} fps (imported in {time.perf_counter() - start:.2f} s)")
 
 
 def _outfits_generate(args: argparse.Namespace) -> None:
     from drape.assets.outfits import generate_outfit
     from drape.geometry.mesh_io import save_mesh
 
-    _out_path(args.out)
-    outfit = generate_outfit(args.type, vertices=args.vertices, seed=args.seed, body=args.body,
+    _out_path(args.out, _body_file(args.body))
+    outfit = generate_outfit(args.type, vertices=args.vertices, seed=args.seed, body=_body_arg(args.body),
                              looseness=args.looseness, length=args.length)
     vertices, faces, parts = outfit.vertices, outfit.faces, None
     if len(outfit.garments) > 1:  # each garment's vertices together, one named OBJ object each (the rig's parts)
@@ -946,8 +946,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0)
     g.add_argument("--fps", type=float, default=30.0)
     g.add_argument("--walk", type=float, default=0.6, help="share of time walking (0..1)")
-    g.add_argument("--body", default="neutral")
-    g.add_argument("--out", required=True)
+    g.add_argument("--body", default="neutral", help="a preset, or a body file (skinned GLB / glTF with SMPL joint "
+                   "names, or npz of the body's arrays)")
+    g.add_argument("--out", required=True, help="an .npz file (.npz is added to a name without a suffix)")
     g.set_defaults(func=_motions_generate)
     i = motions.add_parser("import", help="convert a CMU-named BVH or an AMASS-style npz to a drape clip "
                            "(retarget, Y-up, feet on the floor; docs/motion_import.md)")
@@ -969,9 +970,10 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--type", required=True,
                    help="tshirt, tanktop, longsleeve, trousers, shorts, skirt, dress, jacket, long_skirt, "
                         "or a comma list")
-    o.add_argument("--vertices", type=int, default=4000)
-    o.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0)
-    o.add_argument("--body", default="neutral")
+    o.add_argument("--vertices", type=int, default=4000, help="total vertex count, met within ~10%% (default 4000)")
+    o.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="drives every random choice (default 0)")
+    o.add_argument("--body", default="neutral", help="a preset, or a body file (skinned GLB / glTF with SMPL joint "
+                   "names, or npz of the body's arrays)")
     o.add_argument("--looseness", type=float, default=None,
                    help="0 (tight) .. 1 (loose), up to 3 for an oversize garment; random if omitted")
     o.add_argument("--length", type=float, default=None, help="0 (short) .. 1 (long); random if omitted")

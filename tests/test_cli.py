@@ -75,6 +75,14 @@ def test_motions_generate_and_render(tmp_path):
     drape("motions", "generate", "--frames", "40", "--seed", "2", "--out", str(motion))
     with np.load(motion, allow_pickle=False) as z:
         assert z["poses"].shape == (40, 24, 3)
+    # a body file as --body, as outfits fit and motions import take one; an --out that would become x.obj.npz refused
+    from drape.assets.body import BODIES_DIR
+
+    drape("motions", "generate", "--frames", "5", "--body", str(BODIES_DIR / "male.npz"), "--out", str(tmp_path / "b"))
+    assert (tmp_path / "b.npz").exists()
+    r = subprocess.run([sys.executable, "-m", "drape.cli", "motions", "generate", "--frames", "5", "--out",
+                        str(tmp_path / "x.obj")], capture_output=True, text=True)
+    assert r.returncode != 0 and "expected a file ending in .npz" in r.stderr and not (tmp_path / "x.obj.npz").exists()
     mesh = tmp_path / "skirt.ply"
     drape("outfits", "generate", "--type", "skirt", "--vertices", "800", "--out", str(mesh))
     png = tmp_path / "look.png"
