@@ -193,21 +193,35 @@ def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matri
     return (off + sp.diags(diag)).tocsr()
 
 
-def neighbour_table(faces: np.ndarray, num_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+def neighbour_table(faces: np.ndarray, num_vertices: int,
+                    max_neighbours: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Padded one-ring table for ONNX-safe graph convolution (gather + weighted sum).
 
-    Returns (indices (N, Kmax) int64, weights (N, Kmax) float32): row i lists
+    Returns (indices (N, K) int64, weights (N, K) float32), K the largest vertex degree: row i lists
     vertex i's neighbours with weight 1/deg(i); padding entries point at i itself
     with weight 0, so `sum_k w[i, k] * x[idx[i, k]]` is the neighbour mean.
+
+    max_neighbours: K at most this; a vertex with more neighbours keeps `max_neighbours` of them, evenly spaced
+    in index order, each weighted 1/max_neighbours (its mean over that subset). The table and what a network
+    gathers through it are N x K: one vertex joined to thousands (a fan, an n-gon, corners welded onto one point)
+    would otherwise make every row that long.
     """
     a = adjacency_matrix(faces, num_vertices).tocsr()
     deg = np.diff(a.indptr)
     kmax = max(int(deg.max(initial=0)), 1)
+    keep = np.ones(a.nnz, dtype=bool)
+    if max_neighbours is not None and kmax > max_neighbours:
+        for i in np.flatnonzero(deg > max_neighbours):  # the few over the cap: evenly spaced picks
+            picked = np.linspace(0, deg[i] - 1, max_neighbours).round().astype(np.int64)
+            keep[a.indptr[i]:a.indptr[i + 1]] = False
+            keep[a.indptr[i] + picked] = True
+        deg = np.minimum(deg, max_neighbours)
+        kmax = max_neighbours
     idx = np.repeat(np.arange(num_vertices)[:, None], kmax, axis=1).astype(np.int64)
     wts = np.zeros((num_vertices, kmax), dtype=np.float32)
-    slot = np.arange(a.nnz) - np.repeat(a.indptr[:-1], deg)
+    slot = np.arange(int(deg.sum())) - np.repeat(np.cumsum(deg) - deg, deg)
     row = np.repeat(np.arange(num_vertices), deg)
-    idx[row, slot] = a.indices
+    idx[row, slot] = a.indices[keep]
     wts[row, slot] = 1.0 / deg[row]
     return idx, wts
 

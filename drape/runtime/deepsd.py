@@ -39,11 +39,18 @@ if TYPE_CHECKING:
 MODEL_DIR = Path(__file__).resolve().parents[1] / "assets" / "models" / "deepsd"
 
 
+# one-ring neighbours a vertex's graph convolution reads at most: cloth meshes have 6-12 (the generator's
+# garments 6-9, the ArcSim tops of ../shared/data/external 11-12, after welding and densifying), so the network
+# reads them whole; a fan or n-gon of hundreds made every row of the table that long (one 120-gon line in a
+# 1k-vertex OBJ took a rig from 0.5 to 3.8 GB) and is read through an evenly spaced subset
+MAX_NEIGHBOURS = 16
+
+
 def network_inputs(vertices: np.ndarray, faces: np.ndarray) -> dict[str, np.ndarray]:
     """The outfit network's inputs: features (N, 6) float32 = rest position (m) + unit normal;
-    nbr_idx (N, K) int64 and nbr_w (N, K) float32, the padded one-ring table."""
+    nbr_idx (N, K) int64 and nbr_w (N, K) float32, the padded one-ring table (K <= MAX_NEIGHBOURS)."""
     v = np.asarray(vertices, dtype=np.float64)
-    idx, w = neighbour_table(faces, len(v))
+    idx, w = neighbour_table(faces, len(v), MAX_NEIGHBOURS)
     return {
         "features": np.concatenate([v, vertex_normals(v, faces)], axis=1).astype(np.float32),
         "nbr_idx": idx,
@@ -143,7 +150,7 @@ class DeePSDModel:
             v, f = densify(v, f, self.densify_edge, DENSIFY_MAX_VERTICES)
         answers = self.sessions["outfit"].run(outputs, self._inputs(v, f, body, scale))
         if self.densify_ring and len(v) > len(welded):
-            idx, w = neighbour_table(f, len(v))
+            idx, w = neighbour_table(f, len(v), MAX_NEIGHBOURS)
             idx, w = idx[: len(welded)], w[: len(welded)]
             answers = [0.5 * (a[..., : len(welded), :] + np.einsum("nk,...nkc->...nc", w, a[..., idx, :]))
                        for a in answers]

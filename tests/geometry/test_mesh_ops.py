@@ -70,6 +70,30 @@ def test_neighbour_table_padding_and_weights():
             assert (min(i, j), max(i, j)) in e
 
 
+def test_a_capped_neighbour_table_keeps_ordinary_rows_and_an_evenly_spaced_subset_of_a_fan():
+    """A vertex joined to 150 others (a fan) makes the table 150 wide; capped at 16 every other row is the
+    uncapped one, and the fan's row holds 16 of its true neighbours spread over them, weights 1/16."""
+    v, f = sphere(subdiv=2)
+    n = 150
+    fan = np.stack([np.zeros(n, np.int64), np.arange(1, n + 1), np.arange(2, n + 2)], axis=1)
+    faces = np.vstack([f, fan])
+    full_idx, full_w = neighbour_table(faces, len(v))
+    idx, w = neighbour_table(faces, len(v), max_neighbours=16)
+    assert full_idx.shape[1] >= 150 and idx.shape == (len(v), 16) and np.allclose(w.sum(axis=1), 1.0)
+    others = np.arange(1, len(v))
+    ordinary = full_idx.shape[1] - (full_w[others] == 0).sum(axis=1) <= 16
+    rows = others[ordinary]
+    assert len(rows) > 0.9 * len(others)
+    np.testing.assert_array_equal(np.sort(idx[rows], axis=1), np.sort(full_idx[rows, :16], axis=1))
+    truth = set(full_idx[0][full_w[0] > 0].tolist())
+    picked = idx[0].tolist()
+    assert len(set(picked)) == 16 and set(picked) <= truth and np.allclose(w[0], 1 / 16)
+    assert min(picked) == min(truth) and max(picked) == max(truth)  # spread over all of them, not the first 16
+    same_idx, same_w = neighbour_table(f, len(v), max_neighbours=16)  # under the cap: exactly the uncapped table
+    plain_idx, plain_w = neighbour_table(f, len(v))
+    assert np.array_equal(same_idx, plain_idx) and np.array_equal(same_w, plain_w)
+
+
 def test_cotangent_laplacian_linear_precision_and_sphere_curvature():
     # flat grid: the cotangent Laplacian of a linear function vanishes at interior vertices
     xs, ys = np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 6))

@@ -56,3 +56,21 @@ def test_with_the_ring_a_vertex_answers_the_mean_of_itself_and_its_finer_one_rin
         expect_d = 0.5 * (fine.blend_shapes[:, i] + fine.blend_shapes[:, nbrs].mean(axis=1))
         assert np.allclose(ring.blend_shapes[:, i], expect_d, atol=1e-7)
     assert np.allclose(ring.weights.sum(axis=1), 1, atol=1e-5)
+
+
+def test_a_fan_vertex_reads_a_capped_one_ring(monkeypatch):
+    """A vertex joined to a hundred others (one n-gon line in an OBJ) made the network's neighbour table, and every
+    gather through it, that wide: 0.5 -> 3.7 GB for a 1k-vertex t-shirt. The table is capped at MAX_NEIGHBOURS."""
+    from drape.runtime import deepsd
+
+    model = DeePSDModel()
+    o = generate_outfit("tshirt", vertices=600, seed=1)
+    n = 120
+    fan = np.stack([np.zeros(n, np.int64), np.arange(1, n + 1), np.arange(2, n + 2)], axis=1)
+    widths = []
+    real = deepsd.network_inputs
+    monkeypatch.setattr(deepsd, "network_inputs", lambda v, f: widths.append(real(v, f)["nbr_idx"].shape[1])
+                        or real(v, f))
+    rig = model.rig(o.vertices, np.vstack([o.faces, fan]).astype(np.int32), load_body("neutral"))
+    assert widths == [deepsd.MAX_NEIGHBOURS]
+    assert np.isfinite(rig.weights).all() and np.allclose(rig.weights.sum(axis=1), 1.0, atol=1e-4)
