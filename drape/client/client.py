@@ -672,7 +672,7 @@ class Client(_Base):
         return _body_arrays(name, self._http.get(f"/v1/bodies/{quote(name, safe='')}", headers={"Accept": NPZ}))
 
     def delete_body(self, name: str) -> None:
-        """Forget a registered body."""
+        """Take back one registration of a body (each register_body of it counts one); the last forgets it."""
         _raise_for(self._http.delete(f"/v1/bodies/{quote(name, safe='')}"))
 
     def _animate_body(self, outfit, outfit_id, motion, body, influences, fit, refine) -> dict:  # noqa: ANN001

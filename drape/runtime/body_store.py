@@ -48,8 +48,10 @@ def _arrays(body: Body) -> dict[str, np.ndarray]:
 
 
 class BodyStore:
-    """User bodies by name. `add` registers a body (idempotent: the same arrays give the same name);
-    `delete` forgets it; `close` unregisters everything this store registered (the files stay)."""
+    """User bodies by name. `add` registers a body (the same arrays give the same name) and counts its
+    registrations; `delete` takes one back and forgets the body with the last (two clients that registered the
+    same body each hold it until each deletes it); `close` unregisters everything this store registered (the
+    files stay). With a directory the counts are kept beside the bodies (`<name>.refs`, when over 1)."""
 
     def __init__(self, max_count: int, max_bytes: int, directory: Path | None = None,
                  check: Callable[[dict[str, np.ndarray], str], Body] | None = None):
@@ -57,6 +59,7 @@ class BodyStore:
         (ValueError or the service's domain errors) is skipped with a warning."""
         self.max_count, self.max_bytes, self.directory = max_count, max_bytes, directory
         self._bodies: dict[str, Body] = {}
+        self._refs: dict[str, int] = {}
         self._bytes = 0
         self._lock = threading.Lock()
         if directory is not None:
@@ -74,14 +77,17 @@ class BodyStore:
                     joints=arrays["joints"], parents=arrays["parents"],
                     joint_names=tuple(str(s) for s in arrays["joint_names"]))
                 self.add(body, write=False)
+                self._refs[body.name] = _read_refs(path.with_suffix(".refs"))
             except Exception as exc:  # noqa: BLE001 - a bad file must not stop the service
                 log.warning("skipping the stored body %s: %s", path.name, exc)
 
     def add(self, body: Body, write: bool = True) -> bool:
-        """Hold `body` under `body.name` (a `body_id`); True if it was new. StoreFull when over the bounds."""
+        """Hold `body` under `body.name` (a `body_id`), one registration more; True if it was new. StoreFull
+        when a new body is over the bounds."""
         size = body_nbytes(body)
         with self._lock:
             if body.name in self._bodies:
+                self._set_refs(body.name, self._refs.get(body.name, 1) + 1)
                 return False
             if len(self._bodies) >= self.max_count:
                 raise StoreFull(f"the body store holds its maximum of {self.max_count} bodies: DELETE one")
@@ -91,9 +97,28 @@ class BodyStore:
             if write and self.directory is not None:
                 self._write(body)
             self._bodies[body.name] = body
+            self._refs[body.name] = 1
             self._bytes += size
             register_body(body)
             return True
+
+    def _set_refs(self, name: str, count: int) -> None:
+        """A body's registration count, kept on disk too (under the lock; the file only while over 1)."""
+        self._refs[name] = count
+        if self.directory is None:
+            return
+        path = self.directory / f"{name}.refs"
+        if count <= 1:
+            path.unlink(missing_ok=True)
+            return
+        tmp = path.with_suffix(".refs.tmp")
+        tmp.write_text(f"{count}\n")
+        os.replace(tmp, path)
+
+    def registrations(self, name: str) -> int:
+        """How many registrations hold the body (0: not held)."""
+        with self._lock:
+            return self._refs.get(name, 0) if name in self._bodies else 0
 
     def _write(self, body: Body) -> None:
         assert self.directory is not None
@@ -117,15 +142,21 @@ class BodyStore:
             return list(self._bodies)
 
     def delete(self, name: str) -> bool:
-        """Forget a body (and its file); False if this store does not hold it."""
+        """Take back one registration of a body, and with the last forget it (and its file); False if this store
+        does not hold it."""
         with self._lock:
-            body = self._bodies.pop(name, None)
-            if body is None:
+            if name not in self._bodies:
                 return False
+            if self._refs.get(name, 1) > 1:
+                self._set_refs(name, self._refs[name] - 1)
+                return True
+            body = self._bodies.pop(name)
+            self._refs.pop(name, None)
             self._bytes -= body_nbytes(body)
             unregister_body(name)
             if self.directory is not None:
                 (self.directory / f"{name}.npz").unlink(missing_ok=True)
+                (self.directory / f"{name}.refs").unlink(missing_ok=True)
                 _fsync_directory(self.directory)  # a deleted body stays deleted after a power cut
             return True
 
@@ -134,7 +165,16 @@ class BodyStore:
             for name in self._bodies:
                 unregister_body(name)
             self._bodies.clear()
+            self._refs.clear()
             self._bytes = 0
+
+
+def _read_refs(path: Path) -> int:
+    """A stored body's registration count: its .refs file's number, or 1 without a readable one."""
+    try:
+        return max(1, int(path.read_text().strip()))
+    except (OSError, ValueError):
+        return 1
 
 
 def _fsync_directory(directory: Path) -> None:

@@ -40,6 +40,9 @@ class BodyRegistered(BaseModel):
     num_vertices: int = Field(description="V, vertices of the body mesh")
     num_faces: int = Field(description="F, triangles of the body mesh")
     height: float = Field(description="rest-pose height, metres")
+    registrations: int = Field(1, description="how many registrations hold the body: the same body registered "
+                                              "again (by any client) counts once more, each DELETE takes one back, "
+                                              "and the last forgets it")
 
 
 class BodyMesh(BaseModel):

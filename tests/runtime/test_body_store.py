@@ -167,3 +167,27 @@ def test_a_registered_body_reaches_the_disk_before_the_answer(tmp_path, monkeypa
         store.close()  # the body stays registered in this process otherwise
     assert synced == ["file", "dir"]
     assert len(list(tmp_path.glob("body-*.npz"))) == 1 and not list(tmp_path.glob("*.tmp"))
+
+
+def test_a_body_registered_twice_is_held_until_both_registrations_are_deleted(tmp_path):
+    """Two clients that register the same body get the same name; one DELETE used to forget it for both (the
+    other's outfits then answered 404). Each registration is counted, on disk too, and the last DELETE forgets it."""
+    body = _user_body()
+    store = BodyStore(4, 2**30, directory=tmp_path)
+    try:
+        assert store.add(body) and not store.add(body)
+        assert store.registrations(body.name) == 2 and (tmp_path / f"{body.name}.refs").read_text().strip() == "2"
+        assert store.delete(body.name) and has_body(body.name) and store.registrations(body.name) == 1
+        assert not (tmp_path / f"{body.name}.refs").exists()
+        store.add(body)
+    finally:
+        store.close()
+    again = BodyStore(4, 2**30, directory=tmp_path)  # a restart keeps the count
+    try:
+        assert again.registrations(body.name) == 2
+        assert again.delete(body.name) and has_body(body.name)
+        assert again.delete(body.name) and not has_body(body.name) and again.registrations(body.name) == 0
+        assert not again.delete(body.name)
+        assert not list(tmp_path.iterdir())
+    finally:
+        again.close()

@@ -74,6 +74,11 @@ def test_an_npz_body_registers_lists_and_answers_its_arrays(http, registered, pr
     again = http.post("/v1/bodies", files={"body_file": ("b.npz", npz(vertices=proxy.vertices, faces=proxy.faces,
                                                                        weights=proxy.weights, joints=proxy.joints))})
     assert again.status_code == 201 and again.json()["body_id"] == registered
+    # and counts once more: one DELETE takes that registration back, the fixture's first still holds the body
+    # (one client's DELETE forgot it for every other that had registered it)
+    assert again.json()["registrations"] == 2
+    assert http.delete(f"/v1/bodies/{registered}").status_code == 204
+    assert http.get(f"/v1/bodies/{registered}", headers={"Accept": NPZ}).status_code == 200
 
 
 def test_a_user_body_rigs_fits_animates_and_refines(http, registered, proxy, shirt):
@@ -363,6 +368,8 @@ def test_the_client_registers_reads_and_deletes_a_body(server_url, proxy, shirt,
         np.testing.assert_allclose(rig.rest_joints, proxy.joints, atol=1e-6)
         frames = client.animate(outfit_id=rig.outfit_id, motion="walk", refine=True)
         assert np.isfinite(frames).all() and frames.shape[1] == len(shirt[0])
+        client.delete_body(reg.body_id)  # registered twice: held until both are taken back
+        assert client.body(reg.body_id).name == reg.body_id
         client.delete_body(reg.body_id)
         with pytest.raises(drape.DrapeAPIError) as err:
             client.rig(shirt, body=reg.body_id)

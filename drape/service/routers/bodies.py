@@ -66,7 +66,8 @@ async def register_body(request: Request) -> Response:
     def work() -> Response:
         body = bodies.read_upload(kind, content_type, data, settings)
         bodies.register(store, body)
-        return JSONResponse(bodies.summary(body), status_code=201,
+        return JSONResponse({**bodies.summary(body), "registrations": store.registrations(body.name)},
+                            status_code=201,
                             headers={"Location": f"/v1/bodies/{body.name}"})
 
     slot = await admission_of(request).enter()
@@ -104,11 +105,14 @@ def get_body(request: Request, name: str = NAME) -> Response:
     return JSONResponse(doc.model_dump())
 
 
-@router.delete("/{name}", status_code=204, responses={204: {"description": "the body is forgotten"},
-                                                       **problem_responses(401, 404, 409)})
+@router.delete("/{name}", status_code=204, responses={
+    204: {"description": "one registration taken back; the body is forgotten with the last"},
+    **problem_responses(401, 404, 409)})
 def delete_body(request: Request, name: str = NAME) -> Response:
-    """Forget a user body (its file too, with DRAPE_BODY_DIR); presets cannot be deleted. Outfits rigged on it
-    stay cached, but new requests naming it answer 404."""
+    """Take back one registration of a user body; with the last the body is forgotten (its file too, with
+    DRAPE_BODY_DIR), so a client that registered a body keeps it while another that registered the same body
+    deletes it. Presets cannot be deleted. Outfits rigged on a forgotten body stay cached, but new requests naming
+    it answer 404."""
     if name in list_bodies():
         raise Conflict(f"{quoted(name, 60)} is a preset: only user bodies can be deleted", "name")
     if not store_of(request).delete(name):
