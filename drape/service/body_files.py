@@ -252,7 +252,8 @@ def _body_node(nodes: list[dict[str, Any]]) -> int | None:
     the first; None without one."""
     skinned = [i for i, n in enumerate(nodes) if isinstance(n, dict) and "mesh" in n and "skin" in n]
     named = [i for i in skinned if isinstance(nodes[i].get("name"), str) and "body" in nodes[i]["name"].lower()]
-    return (named or skinned or [None])[0]
+    chosen = named or skinned
+    return chosen[0] if chosen else None
 
 
 def _skin_joints(skin: dict[str, Any], num_nodes: int) -> list[int]:
