@@ -74,7 +74,7 @@ class FormPart:
 
 def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str, FormPart]:
     """A multipart/form-data body (already read within the limits) -> its parts by name; a 400 for a broken
-    form, a 422 for a field given more than once. Pure CPU work: call it off the event loop."""
+    form (one without its closing boundary too), a 422 for a field given more than once. Pure CPU work: call it off the event loop."""
     _, params = parse_options_header(content_type.encode("latin-1", "replace"))
     boundary = params.get(b"boundary")
     if not boundary:
@@ -103,7 +103,9 @@ def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str,
         headers.clear()
         data.clear()
 
+    ended: list[bool] = []
     callbacks = {
+        "on_end": lambda: ended.append(True),
         "on_header_field": lambda b, start, end: field.extend(b[start:end]),
         "on_header_value": lambda b, start, end: value.extend(b[start:end]),
         "on_header_end": on_header_end,
@@ -116,6 +118,9 @@ def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str,
         parser.finalize()
     except FormParserError as exc:  # MultipartParseError and the parser's other refusals
         raise MalformedInput(f"not a readable multipart form ({exc})", "body") from exc
+    if not ended:  # the parser drops a last part it never saw end: a form cut short lost a field without a word
+        raise MalformedInput("the form ends before its closing boundary (--boundary--): it was cut short, and its "
+                             "last field would be lost", "body")
     return parts
 
 
