@@ -140,10 +140,11 @@ def media_type(request: Request) -> str:
 
 
 async def require_api_key(request: Request) -> None:
-    """When DRAPE_API_KEY is set, every /v1 route needs `Authorization: Bearer <key>`."""
+    """When DRAPE_API_KEY is set, every /v1 route needs `Authorization: Bearer <key>` (the scheme's name in any
+    case, RFC 9110 11.1)."""
     key = settings_of(request).api_key
     if not key:
         return
-    given = request.headers.get("authorization", "")
-    if not (given.startswith("Bearer ") and hmac.compare_digest(given[7:].encode(), key.encode())):
+    scheme, _, token = request.headers.get("authorization", "").partition(" ")
+    if not (scheme.lower() == "bearer" and hmac.compare_digest(token.encode(), key.encode())):
         raise Unauthorized("send the API key as 'Authorization: Bearer <key>'", "Authorization")

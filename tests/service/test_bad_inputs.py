@@ -198,6 +198,8 @@ def test_api_key_guards_v1(settings, path):
         problem(c.get(path), 401, "Authorization")
         problem(c.get(path, headers={"authorization": "Bearer wrong"}), 401)
         assert c.get(path, headers={"authorization": "Bearer s3cret"}).status_code == 200
+        assert c.get(path, headers={"authorization": "bearer s3cret"}).status_code == 200  # the scheme: any case
+        problem(c.get(path, headers={"authorization": "Basic s3cret"}), 401)
         assert c.get("/healthz").status_code == 200  # liveness stays open
 
 
