@@ -11,7 +11,6 @@ radians says which.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import numpy as np
@@ -23,7 +22,7 @@ from drape.runtime.body_store import BodyStore, body_id
 from drape.service.decode import json_reals, known_form_fields, npz_members, npz_numbers
 from drape.service.errors import InvalidInput, quoted
 from drape.service.handlers import check_mesh
-from drape.service.http import parse_form
+from drape.service.http import DuplicateKey, loads, parse_form
 from drape.service.settings import Settings
 
 FILE_FIELD = "body_file"
@@ -178,7 +177,9 @@ def _form_json(parts: dict[str, Any], name: str) -> Any:
     if part is None:
         return None
     try:
-        return json.loads(part.data)
+        return loads(part.data)
+    except DuplicateKey as exc:
+        raise InvalidInput(str(exc), name) from None
     except (ValueError, UnicodeDecodeError, RecursionError) as exc:
         raise InvalidInput(f"expected JSON text ({type(exc).__name__})", name) from None
 

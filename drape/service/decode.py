@@ -6,7 +6,6 @@ the models validate every number. Pure CPU work, no HTTP: the routers call these
 
 from __future__ import annotations
 
-import json
 import re
 from typing import Any
 
@@ -35,7 +34,7 @@ from drape.schemas.outfits import (
 from drape.service import uploads
 from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, quoted
 from drape.service.handlers import unknown_outfit
-from drape.service.http import parse_form, parse_json
+from drape.service.http import loads, parse_form, parse_json
 from drape.service.settings import Settings
 
 REFINE_OPTIONS = tuple(RefineOptions.model_fields)
@@ -292,7 +291,7 @@ def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings)
         pose: Any = _text(parts, "pose")
         if pose is not None and pose not in ("t", "a"):
             try:
-                pose = json.loads(pose)
+                pose = loads(pose)
             except (ValueError, RecursionError):  # RecursionError: nested deeper than json.loads can take
                 raise InvalidInput(f"expected 't', 'a' or a JSON (24, 3) array, got {quoted(pose, 40)}",
                                    "pose") from None

@@ -124,13 +124,38 @@ def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str,
     return parts
 
 
+class DuplicateKey(ValueError):
+    """A JSON object names one key twice (json.loads keeps the last, silently): `key` names it."""
+
+    def __init__(self, key: str) -> None:
+        super().__init__(f"the JSON object gives {key[:40]!r} more than once")
+        self.key = key
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise DuplicateKey(key)
+        out[key] = value
+    return out
+
+
+def loads(data: bytes | str) -> Any:
+    """json.loads that refuses an object naming a key twice (DuplicateKey), as a form field or npz member given
+    twice is refused: `{"refine": true, "refine": false}` was read as false without a word."""
+    return json.loads(data, object_pairs_hook=_unique_keys)
+
+
 def parse_json(data: bytes, field: str = "body") -> Any:
     """JSON -> Python objects; a 400 naming the problem (and `field`: the body, or a form field holding JSON
-    text) for broken or too deeply nested documents."""
+    text) for broken or too deeply nested documents, a 422 naming the key an object gives twice."""
     try:
-        return json.loads(data)
+        return loads(data)
     except RecursionError:
         raise MalformedInput("JSON nested too deeply", field) from None
+    except DuplicateKey as exc:
+        raise InvalidInput(str(exc), exc.key[:40]) from None
     except (ValueError, UnicodeDecodeError) as exc:
         raise MalformedInput(f"not valid JSON ({str(exc)[:200]})", field) from exc
 

@@ -184,3 +184,19 @@ def test_poses_with_one_wrong_value_name_that_value_not_the_other_union_member(h
     flat = [[0.0] * 71 + ["a"]]
     p = problem(http.post("/v1/outfits/animate", json={"outfit_id": outfit_id, "motion": {"poses": flat}}), 422)
     assert p["field"] == "motion.poses.0.71" and "valid list" not in p["detail"], p
+
+
+def test_a_json_object_that_names_a_key_twice_is_refused_not_last_wins(http):
+    """`{"outfit_id": "nope", "outfit_id": "<valid>"}` answered 200 (the reverse a 404) and `"refine": true,
+    "refine": false` unrefined frames: json.loads keeps the last. A form field or npz member given twice was
+    refused already."""
+    body = b'{"motion": {"clip": "kick"}, "refine": true, "refine": false, "outfit_id": "x"}'
+    p = problem(http.post("/v1/outfits/animate", content=body, headers={"content-type": "application/json"}), 422,
+                "'refine' more than once")
+    assert p["field"] == "refine"
+    nested = b'{"outfit_id": "x", "motion": {"clip": "kick", "clip": "walk"}}'
+    problem(http.post("/v1/outfits/animate", content=nested, headers={"content-type": "application/json"}), 422,
+            "'clip' more than once")
+    pose = '{"pelvis": [0, 0, 0], "pelvis": [1, 0, 0]}'
+    r = http.post("/v1/bodies", files={"body_file": ("b.glb", b"glTF")}, data={"joint_map": pose})
+    assert problem(r, 422, "'pelvis' more than once")["field"] == "joint_map"
