@@ -68,7 +68,7 @@ SETTINGS: dict[str, dict[str, Names]] = {
     },
     "mgn_inner": {
         "batch_frames": None, "body": None,
-        "collision_fit": {"gain", "stride"},
+        "collision_fit": {"gain", "stride", "real_frames"},
         "heldout_clips": None, "inner": None,
         "loss": {"bend", "collision", "edge", "eps", "gravity", "offset_l2"},
         "lr": None,

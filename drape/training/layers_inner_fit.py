@@ -3,8 +3,8 @@
 MGN's inner-layer network ends in a linear rig (skin weights + a basis driven by the network's 64 keys,
 drape.runtime.layers.InnerModel), so the served DeePSD rig's collision fit applies to it alone: at fit frames
 (every `stride`-th frame of the embedded clips DeePSD and the layer networks trained on,
-drape.runtime.sparse_rig.FIT_CLIPS, and of three procedural training motions, seeds 501-503; never a validation
-or evaluation motion), pose the inner layer, refine each frame out of the body by the post step's inner pass
+drape.runtime.sparse_rig.FIT_CLIPS, of three procedural training motions, seeds 501-503, and of the first
+`real_frames` frames of each real CMU clip the network trained on; never a validation or evaluation motion), pose the inner layer, refine each frame out of the body by the post step's inner pass
 (drape.geometry.layers.inner_refiner), and refit the rig (at most 4 influences a vertex,
 drape.runtime.sparse_rig.sparse_rig) to the posed layer moved `gain` times toward that result. The network
 (pose.onnx) does not change, so the outer-layer network trained beside it still serves (it reads the network's
@@ -12,7 +12,8 @@ keys, not the inner vertices).
 
 The fit serves only where it measures better: the inner network's validation split (drape.training.layers_inner:
 inside % + edge error mm) before and after, the lower score kept; both are in the manifest's `collision_fit`.
-Configured by the inner config's `"collision_fit": {"gain": g, "stride": s}`; `drape train mgn-inner` runs it after
+Configured by the inner config's `"collision_fit": {"gain": g, "stride": s, "real_frames": r}` (r 0 or absent:
+no real clips); `drape train mgn-inner` runs it after
 the export, `drape train mgn-inner-fit` on a network already exported (once: a fitted rig is not fitted again, nor measured twice).
 Shapes: template vertices (N, 3) m; poses (T, 24, 3) rad; keys (T, K).
 """
@@ -36,12 +37,26 @@ PROCEDURAL_FRAMES = 300  # PROCEDURAL_SEEDS: those of the served DeePSD rig's co
 INFLUENCES = 4
 
 
-def fit_poses(stride: int) -> np.ndarray:
-    """(T, 24, 3) float32 rad: every `stride`-th frame of the embedded FIT_CLIPS and of the procedural motions
-    (PROCEDURAL_SEEDS, PROCEDURAL_FRAMES frames each), in that order."""
+def fit_poses(stride: int, real: list[np.ndarray] | None = None) -> np.ndarray:
+    """(T, 24, 3) float32 rad: every `stride`-th frame of the embedded FIT_CLIPS, of the procedural motions
+    (PROCEDURAL_SEEDS, PROCEDURAL_FRAMES frames each) and of `real` (poses (T_i, 24, 3) rad each), in that
+    order."""
     motions = [load_clip(name).poses for name in FIT_CLIPS]
     motions += [generate_motion(PROCEDURAL_FRAMES, seed=s).poses for s in PROCEDURAL_SEEDS]
+    motions += list(real or [])
     return np.concatenate([np.asarray(p, np.float32)[::stride] for p in motions])
+
+
+def real_fit_motions(cfg: dict, frames: int) -> list[np.ndarray]:
+    """The first `frames` frames of each real CMU clip the inner network trained on (the config's mocap.train,
+    imported onto its body as its training imported them) -> [poses (T_i, 24, 3) float32 rad]; none for 0."""
+    from drape.training.deepsd_data import mocap_motion, repairs_flips
+
+    mocap = cfg["mocap"]
+    if frames <= 0:
+        return []
+    return [mocap_motion(mocap["dir"], name, float(mocap["fps"]), cfg["body"], flips=repairs_flips(mocap))[0][:frames]
+            for name in mocap["train"]]
 
 
 def fit_inner_rig(vertices: np.ndarray, faces: np.ndarray, rig: Rig, pose_keys: Callable[[np.ndarray], np.ndarray],
@@ -78,7 +93,7 @@ def apply(folder: str | Path, cfg: dict, log: Callable[[str], object] = print) -
                          f"{model.manifest['collision_fit']['served']} rig); export the network again to redo it")
     settings = cfg["collision_fit"]
     body = load_body(cfg["body"])
-    poses = fit_poses(int(settings["stride"]))
+    poses = fit_poses(int(settings["stride"]), real_fit_motions(cfg, int(settings.get("real_frames", 0))))
     fitted = fit_inner_rig(model.vertices, model.faces, model.rig, model.pose_keys, body, poses,
                            float(settings["gain"]))
 

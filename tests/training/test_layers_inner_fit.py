@@ -73,3 +73,21 @@ def test_the_fit_takes_cloth_out_of_the_body_at_its_poses_with_four_influences()
     before, after = _inside(model.vertices, model.rig, model, body, poses), _inside(model.vertices, fitted, model,
                                                                                    body, poses)
     assert after < 0.95 * before, (before, after)  # gain 1: a least-squares fit takes back part of each push
+
+
+def test_the_fit_poses_take_the_first_frames_of_the_real_clips_the_network_trained_on():
+    from drape.training.deepsd_data import mocap_motion, repairs_flips
+    from drape.training.layers_inner_fit import real_fit_motions
+
+    cfg = layers_inner.load_config("tshirt")
+    assert cfg["collision_fit"]["real_frames"] > 0  # the served t-shirt's fit reads them
+    clip = cfg["mocap"]["train"][0]
+    short = {**cfg, "mocap": {**cfg["mocap"], "train": [clip]}}
+    real = real_fit_motions(short, 20)
+    whole = mocap_motion(cfg["mocap"]["dir"], clip, float(cfg["mocap"]["fps"]), cfg["body"],
+                         flips=repairs_flips(cfg["mocap"]))[0]
+    assert len(real) == 1 and np.array_equal(real[0], whole[:20])
+    assert real_fit_motions(short, 0) == []
+    base = fit_poses(24)
+    poses = fit_poses(24, real)
+    assert np.array_equal(poses[:len(base)], base) and np.array_equal(poses[len(base):], real[0][::24])
