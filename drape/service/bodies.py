@@ -224,14 +224,17 @@ def read_body_file(data: bytes, filename: str, settings: Settings, *, joint_map:
 
 
 def _npz_body(data: bytes, settings: Settings, field: str, rest_pose: Any) -> Body:
-    z = npz_members(data, NPZ_MEMBERS, settings)
+    z = npz_members(data, NPZ_MEMBERS, settings, field or "body")
     missing = [k for k in ("vertices", "faces", "weights", "joints") if k not in z]
     if missing:
         raise InvalidInput(f"the archive lacks {', '.join(missing)}", field or "body")
     arrays: dict[str, Any] = {"vertices": npz_numbers(z, "vertices"), "faces": npz_numbers(z, "faces", integer=True),
                               "weights": npz_numbers(z, "weights"), "joints": npz_numbers(z, "joints"),
                               "parents": z.get("parents"), "joint_names": z.get("joint_names")}
-    if rest_pose is None and "rest_pose" in z:
+    if rest_pose is not None and "rest_pose" in z:  # one was read without a word, the other dropped
+        raise InvalidInput(f"given twice: as a form field and as the {field or 'body'} archive's rest_pose member; "
+                           "give one", "rest_pose")
+    if "rest_pose" in z:
         rest_pose = npz_numbers(z, "rest_pose")
     return check_body_arrays(arrays, settings, field=field, rest_pose=rest_pose)
 

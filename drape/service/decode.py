@@ -143,14 +143,16 @@ def _document(data: bytes, field: str = "body") -> dict:
 
 # ---- npz ----------------------------------------------------------------------------------------
 
-def npz_members(data: bytes, names: tuple[str, ...], settings: Settings) -> dict[str, np.ndarray]:
-    """The members `names` of an npz body (others are never read), within DRAPE_MAX_DECODED_BYTES."""
+def npz_members(data: bytes, names: tuple[str, ...], settings: Settings,
+                field: str = "body") -> dict[str, np.ndarray]:
+    """The members `names` of an npz (others are never read), within DRAPE_MAX_DECODED_BYTES; errors name
+    `field`: the request body, or the form field that carried the archive."""
     try:
         return decode_npz(data, names, max_bytes=settings.max_decoded_bytes)
     except NpzTooLarge as exc:
-        raise LimitExceeded(str(exc), "body") from exc
+        raise LimitExceeded(str(exc), field) from exc
     except ValueError as exc:
-        raise MalformedInput(str(exc), "body") from exc
+        raise MalformedInput(str(exc), field) from exc
 
 
 def npz_numbers(z: dict[str, np.ndarray], name: str, integer: bool = False) -> np.ndarray:

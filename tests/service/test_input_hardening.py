@@ -200,3 +200,24 @@ def test_a_json_object_that_names_a_key_twice_is_refused_not_last_wins(http):
     pose = '{"pelvis": [0, 0, 0], "pelvis": [1, 0, 0]}'
     r = http.post("/v1/bodies", files={"body_file": ("b.glb", b"glTF")}, data={"joint_map": pose})
     assert problem(r, 422, "'pelvis' more than once")["field"] == "joint_map"
+
+
+def test_a_body_file_npz_is_named_body_file_and_a_rest_pose_given_twice_is_refused(http):
+    """An unreadable npz in the body_file form field was named `body`; a form rest_pose beside the archive's own
+    rest_pose member was taken and the member dropped without a word."""
+    from drape.assets.body import load_body
+
+    buf = io.BytesIO()
+    np.savez(buf, vertices=np.array([1, None], dtype=object))
+    r = http.post("/v1/bodies", files={"body_file": ("b.npz", buf.getvalue())})
+    assert problem(r, 400, "pickled or object arrays are refused")["field"] == "body_file"
+    r = http.post("/v1/bodies", files={"body_file": ("b.npz", b"PK\x03\x04")})
+    assert problem(r, 400)["field"] == "body_file"
+    proxy = load_body("neutral", proxy=True)
+    arrays = {"vertices": proxy.vertices, "faces": proxy.faces, "weights": proxy.weights, "joints": proxy.joints,
+              "rest_pose": np.zeros((24, 3))}
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    r = http.post("/v1/bodies", files={"body_file": ("b.npz", buf.getvalue())},
+                  data={"rest_pose": "[" + ",".join(["[0, 0, 0]"] * 24) + "]"})
+    assert problem(r, 422, "given twice")["field"] == "rest_pose"
