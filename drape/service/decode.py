@@ -33,6 +33,7 @@ from drape.schemas.outfits import (
 )
 from drape.service import uploads
 from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, quoted
+from drape.service.garments import NPZ_MEMBERS_KEY
 from drape.service.handlers import unknown_outfit
 from drape.service.http import loads, parse_form, parse_json
 from drape.service.settings import Settings
@@ -630,7 +631,8 @@ def _garment_npz(route: str, data: bytes, settings: Settings) -> dict:
                                    f"{frames.shape} and {values.shape}", values_name)
             if len(frames) > settings.max_frames:
                 raise LimitExceeded(f"{len(frames)} keyframes exceed the limit of {settings.max_frames}", frames_name)
-            keyframes += [{"frame": int(f), key: v} for f, v in zip(frames, values, strict=True)]
+            keyframes += [{"frame": int(f), key: v, NPZ_MEMBERS_KEY: (frames_name, values_name, j)}
+                          for j, (f, v) in enumerate(zip(frames, values, strict=True))]
         if not keyframes:
             raise InvalidInput("give at least one keyframe: 'vertex_frames' with 'vertices' and/or 'latent_frames' "
                                "with 'latents'", "keyframes")

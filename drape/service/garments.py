@@ -157,6 +157,11 @@ class KeyframePlan:
         return len(self.poses)
 
 
+# a keyframe read from an npz carries (frames member, values member, index) under this key, so that its errors
+# name the members the client wrote (latent_frames[0], latents[0]), not the JSON request's keyframes[i].frame
+NPZ_MEMBERS_KEY = "npz_members"
+
+
 def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
                    max_posed: int | None) -> KeyframePlan:
     """request {"motion", "keyframes": [{"frame", "vertices" | "latent"}, ...], "match_keyframes", "refine"} -> the
@@ -175,25 +180,30 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
     latent_keys: list[tuple[int, np.ndarray]] = []
     shapes: list[tuple[int, np.ndarray]] = []
     shape_fields: list[str] = []
+    frame_fields: dict[int, str] = {}
     for i, key in enumerate(keyframes):
         field = f"keyframes[{i}]"
         if not isinstance(key, dict):
             raise InvalidInput("expected an object with 'frame' and one of 'vertices' and 'latent'", field)
-        frame = check_frame(key.get("frame"), T, f"{field}.frame")
-        if frame in seen:
-            raise InvalidInput(f"frame {frame} is also the frame of keyframes[{seen[frame]}]: one keyframe per frame",
-                               f"{field}.frame")
-        seen[frame] = i
         given_v, given_z = key.get("vertices") is not None, key.get("latent") is not None
+        # where the client wrote it: keyframes[i].frame in JSON, latent_frames[j] / latents[j] in an npz
+        members = key.get(NPZ_MEMBERS_KEY)
+        frame_field = f"{members[0]}[{members[2]}]" if members else f"{field}.frame"
+        value_field = f"{members[1]}[{members[2]}]" if members else f"{field}.{'latent' if given_z else 'vertices'}"
+        frame = check_frame(key.get("frame"), T, frame_field)
+        if frame in seen:
+            raise InvalidInput(f"frame {frame} is also the frame of {frame_fields[frame]}: one keyframe per frame",
+                               frame_field)
+        seen[frame], frame_fields[frame] = i, frame_field
         if given_v == given_z:
             raise InvalidInput("give exactly one of 'vertices' and 'latent'", field)
         if given_z:
-            latent_keys.append((frame, check_latent(key["latent"], garment, f"{field}.latent")))
+            latent_keys.append((frame, check_latent(key["latent"], garment, value_field)))
         else:
-            shape = check_shape(key["vertices"], garment, f"{field}.vertices")
-            check_on_body(shape, garment, poses, trans, frame, f"{field}.vertices")
+            shape = check_shape(key["vertices"], garment, value_field)
+            check_on_body(shape, garment, poses, trans, frame, value_field)
             shapes.append((frame, shape))
-            shape_fields.append(f"{field}.vertices")
+            shape_fields.append(value_field)
     match = request.get("match_keyframes", True)
     if not isinstance(match, bool):
         raise InvalidInput(f"expected true or false, got {type(match).__name__}", "match_keyframes")

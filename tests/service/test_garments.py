@@ -356,10 +356,16 @@ def test_bad_npz_inputs_name_their_field(http, garment, shape):
     problem(post("encode", vertices=np.full_like(shape, np.inf), frame=np.array(0)), 422, "vertices", "NaN")
     problem(post("encode", vertices=shape), 422, "frame")
     problem(post("animate"), 422, "keyframes", "at least one")
-    problem(post("animate", latent_frames=np.array([1, 1]), latents=np.zeros((2, 100), np.float32)), 422,
-            "keyframes[1].frame", "frame 1")
-    problem(post("animate", latent_frames=np.array([1]), latents=np.zeros((1, 9), np.float32)), 422,
-            "keyframes[0].latent", "100 values")
+    # named by the members the client wrote (they were the JSON request's keyframes[1].frame, keyframes[0].latent)
+    p = problem(post("animate", latent_frames=np.array([1, 1]), latents=np.zeros((2, 100), np.float32)), 422,
+                "latent_frames[1]: frame 1 is also the frame of latent_frames[0]")
+    assert p["field"] == "latent_frames[1]"
+    p = problem(post("animate", latent_frames=np.array([1]), latents=np.zeros((1, 9), np.float32)), 422,
+                "latents[0]", "100 values")
+    assert p["field"] == "latents[0]"
+    p = problem(post("animate", vertex_frames=np.array([0]), vertices=shape[None],
+                     latent_frames=np.array([2**40]), latents=np.zeros((1, 100), np.float32)), 422, "latent_frames[0]")
+    assert p["field"] == "latent_frames[0]"
     problem(post("animate", latent_frames=np.array([1, 2]), latents=np.zeros((1, 100), np.float32)), 422, "latents")
     problem(post("animate", vertex_frames=np.array([1])), 422, "vertices")
     problem(post("animate", latent_frames=np.array([1]), latents=np.zeros((1, 100), np.float32),
