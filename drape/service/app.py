@@ -41,7 +41,7 @@ from drape.service import catalog, problems
 from drape.service.admission import Admission
 from drape.service.bodies import stored_body
 from drape.service.http import require_api_key
-from drape.service.metrics import CountRequests, Metrics
+from drape.service.metrics import CountRequests, HeadAsGet, Metrics
 from drape.service.routers import bodies, garments, health, layers, models, outfits, viewer
 from drape.service.routers import catalog as catalog_router
 from drape.service.settings import Settings
@@ -87,6 +87,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["*"])
 
+    app.add_middleware(HeadAsGet)  # inside CountRequests: HEAD is counted as HEAD
     app.add_middleware(CountRequests, metrics=metrics)  # outside problems.CatchAll: counts its 500s too
 
     app.include_router(health.router)

@@ -140,8 +140,8 @@ def allowed_methods(app: ASGIApp, scope: Scope) -> list[str]:
     the first route's (RFC 9110: Allow lists what the resource supports). Each method is tried against the
     app's routes (included routers too) as the router would match it."""
     routes = getattr(app, "routes", ())
-    return [m for m in METHODS
-            if any(route.matches({**scope, "method": m})[0] == Match.FULL for route in routes)]
+    found = [m for m in METHODS if any(route.matches({**scope, "method": m})[0] == Match.FULL for route in routes)]
+    return found + ["HEAD"] if "GET" in found and "HEAD" not in found else found  # HEAD as GET (metrics.HeadAsGet)
 
 
 def install(app: FastAPI) -> None:

@@ -90,10 +90,20 @@ def test_405_names_the_allowed_methods(http):
 def test_405_names_every_method_of_a_path_served_by_several_routes(http):
     """/v1/bodies (GET: the catalogue, POST: register) and /v1/bodies/{name} (GET, DELETE) are each two routes;
     Starlette's 405 named only the first route's method (RFC 9110: Allow lists all the resource supports)."""
-    for path, allowed in (("/v1/bodies", {"GET", "POST"}), ("/v1/bodies/neutral", {"GET", "DELETE"})):
+    for path, allowed in (("/v1/bodies", {"GET", "HEAD", "POST"}), ("/v1/bodies/neutral", {"GET", "HEAD", "DELETE"})):
         r = http.put(path)
         problem(r, 405)
         assert set(r.headers["allow"].split(", ")) == allowed, (path, r.headers["allow"])
+
+
+def test_head_is_answered_as_get_without_a_body(http):
+    """RFC 9110: HEAD wherever GET is served (FastAPI answered it with a 405)."""
+    for path in ("/healthz", "/v1/bodies", "/v1/garments"):
+        got, head = http.get(path), http.head(path)
+        assert head.status_code == got.status_code == 200 and head.content == b""
+        assert head.headers["content-type"] == got.headers["content-type"]
+    r = http.head("/v1/outfits/rig")
+    assert r.status_code == 405 and r.headers["allow"] == "POST" and r.content == b""
 
 
 def test_large_strings_are_not_echoed(http):
