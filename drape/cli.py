@@ -161,13 +161,23 @@ def _body_arg(text: str) -> Body:
         raise SystemExit(f"drape: error: --body {text}: {said}") from None
 
 
+def _motion_out(out: str, *inputs: str | None) -> str:
+    """A motion command's --out: an .npz file, or a name without a suffix (.npz is added, as Motion.save adds it);
+    -> the name written, checked (`_out_path`) against the command's inputs as written, so that `--out me` with
+    `--body me.npz` cannot replace the body."""
+    _out_path(out, suffixes=(".npz", ""))
+    written = out if str(out).lower().endswith(".npz") else f"{out}.npz"
+    _out_path(written, *inputs)
+    return written
+
+
 def _motions_generate(args: argparse.Namespace) -> None:
     from drape.assets.procedural import generate_motion
 
     _check_fps_option(args.fps)
-    _out_path(args.out, _body_file(args.body), suffixes=(".npz", ""))  # no suffix: .npz is added
+    written = _motion_out(args.out, _body_file(args.body))
     motion = generate_motion(args.frames, seed=args.seed, fps=args.fps, body=_body_arg(args.body), walk=args.walk)
-    out = motion.save(args.out)
+    out = motion.save(written)
     print(f"{out}: {motion.num_frames} frames at {motion.fps:g} fps")
 
 
@@ -180,8 +190,7 @@ def _motions_import(args: argparse.Namespace) -> None:
     if src.suffix.lower() not in (".bvh", ".npz"):
         raise SystemExit(f"drape: error: {src}: expected a .bvh (CMU joint names) or an AMASS-style .npz file")
     _check_fps_option(args.fps)
-    _out_path(args.out, args.file, _body_file(args.body))
-    _out_path(args.out if str(args.out).endswith(".npz") else f"{args.out}.npz", args.file, _body_file(args.body))
+    written = _motion_out(args.out, args.file, _body_file(args.body))
     body = _body_arg(args.body)
     start = time.perf_counter()
     try:
@@ -193,7 +202,7 @@ def _motions_import(args: argparse.Namespace) -> None:
     except MotionFileError as exc:
         raise SystemExit(f"drape: error: {src}: {exc}") from exc
     motion = imported.motion
-    out = motion.save(args.out)
+    out = motion.save(written)
     print(imported.summary())
     print(f"{out}: {motion.num_frames} frames at {motion.fps:g} fps (imported in {time.perf_counter() - start:.2f} s)")
 
@@ -852,6 +861,14 @@ def _sim_dataset(args: argparse.Namespace) -> None:
 
     params: list[SimParams]
     garments: dict[str, tuple[np.ndarray, ...]]
+    # the last --holdout-params sets and --holdout-motions motions are the test split: each split needs one
+    for option, held, total, what in (
+            ("--holdout-params", args.holdout_params, args.params, "parameter sets (--params)"),
+            ("--holdout-motions", args.holdout_motions, len(args.motions.split(",")), "motions (--motions)")):
+        if not 0 < held < total:
+            raise SystemExit(f"drape: error: {option} {held}: the last ones of the {total} {what} are held out for "
+                             f"the test split, so it must be in [1, {total - 1}]"
+                             + (f"; give at least 2 {what}" if total < 2 else ""))
     if args.outer:
         if len(args.outer) != len(args.garment):
             raise SystemExit("--outer takes one outer mesh per --garment (the inner), in the same order")
@@ -874,14 +891,6 @@ def _sim_dataset(args: argparse.Namespace) -> None:
             raise SystemExit(f"--substeps must be in [1, 64], got {args.substeps}")
         # the solver's steps per frame, not a sampled parameter: the same sets, each run finer in time
         params = [type(p).model_validate(p.model_dump() | {"substeps": args.substeps}) for p in params]
-    # the last --holdout-params sets and --holdout-motions motions are the test split: each split needs one
-    for option, held, total, what in (
-            ("--holdout-params", args.holdout_params, args.params, "parameter sets (--params)"),
-            ("--holdout-motions", args.holdout_motions, len(args.motions.split(",")), "motions (--motions)")):
-        if not 0 < held < total:
-            raise SystemExit(f"drape: error: {option} {held}: the last ones of the {total} {what} are held out for "
-                             f"the test split, so it must be in [1, {total - 1}]"
-                             + (f"; give at least 2 {what}" if total < 2 else ""))
     motions = [_motion_arg(m) for m in args.motions.split(",")]
     manifest = build_dataset(
         args.out, garments, params, motions, args.frames, body=args.body,

@@ -83,6 +83,16 @@ def test_motions_generate_and_render(tmp_path):
     r = subprocess.run([sys.executable, "-m", "drape.cli", "motions", "generate", "--frames", "5", "--out",
                         str(tmp_path / "x.obj")], capture_output=True, text=True)
     assert r.returncode != 0 and "expected a file ending in .npz" in r.stderr and not (tmp_path / "x.obj.npz").exists()
+    # --out me beside --body me.npz would write me.npz: the body is not replaced (it was)
+    import shutil
+
+    shutil.copy(BODIES_DIR / "male.npz", tmp_path / "me.npz")
+    r = subprocess.run([sys.executable, "-m", "drape.cli", "motions", "generate", "--frames", "5", "--body",
+                        str(tmp_path / "me.npz"), "--out", str(tmp_path / "me")], capture_output=True, text=True)
+    assert r.returncode != 0 and "is the input" in r.stderr, r.stderr
+    assert (tmp_path / "me.npz").read_bytes() == (BODIES_DIR / "male.npz").read_bytes()
+    drape("motions", "generate", "--frames", "5", "--out", str(tmp_path / "upper.NPZ"))
+    assert [p.name for p in tmp_path.glob("upper*")] == ["upper.NPZ"]  # not upper.NPZ.npz
     mesh = tmp_path / "skirt.ply"
     drape("outfits", "generate", "--type", "skirt", "--vertices", "800", "--out", str(mesh))
     png = tmp_path / "look.png"
@@ -261,7 +271,7 @@ def test_sim_option_files_and_ranges_are_refused_in_one_line(tmp_path, capsys):
         assert text.startswith(f"--params {params}: ") and said in text, text
     for given in ("0.01", "a,b", "0.01,0.02,0.03"):
         assert refused("sim", "dataset", "--garment", str(garment), "--outer", str(garment), "--thickness", given,
-                       "--motions", "walk", "--out", str(tmp_path / "d")).startswith(
+                       "--motions", "walk,run", "--out", str(tmp_path / "d")).startswith(
             f"--thickness takes LOW,HIGH in m, got {given!r}")
     # a split left empty names its option; nothing is made (it said "holdout_motions must be in [1, 0], got 1",
     # after making the dataset's folders)
@@ -271,6 +281,9 @@ def test_sim_option_files_and_ranges_are_refused_in_one_line(tmp_path, capsys):
     text = refused("sim", "dataset", "--garment", str(garment), "--motions", "walk,run", "--params", "2",
                    "--holdout-params", "2", "--out", str(tmp_path / "d"))
     assert text.startswith("drape: error: --holdout-params 2:") and "must be in [1, 1]" in text, text
+    text = refused("sim", "dataset", "--garment", str(garment), "--outer", str(garment), "--motions", "walk,run",
+                   "--params", "8", "--holdout-params", "8", "--out", str(tmp_path / "d"))  # two layers too
+    assert text.startswith("drape: error: --holdout-params 8:"), text
     assert not (tmp_path / "s.npz").exists() and not (tmp_path / "d").exists()
 
 

@@ -64,9 +64,10 @@ class Motion:
         """Write the clip npz, making its folder as `drape outfits` makes a mesh's; -> the file written (numpy
         adds .npz to a path without it)."""
         out = Path(path)
-        out = out if str(out).endswith(".npz") else out.with_name(out.name + ".npz")
+        out = out if out.suffix.lower() == ".npz" else out.with_name(out.name + ".npz")
         out.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(out, poses=self.poses, trans=self.trans, fps=np.float32(self.fps))
+        with open(out, "wb") as f:  # a file object: numpy would add .npz to "take.NPZ" too
+            np.savez_compressed(f, poses=self.poses, trans=self.trans, fps=np.float32(self.fps))
         return out
 
 

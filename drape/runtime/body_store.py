@@ -81,14 +81,14 @@ class BodyStore:
             except Exception as exc:  # noqa: BLE001 - a bad file must not stop the service
                 log.warning("skipping the stored body %s: %s", path.name, exc)
 
-    def add(self, body: Body, write: bool = True) -> bool:
-        """Hold `body` under `body.name` (a `body_id`), one registration more; True if it was new. StoreFull
-        when a new body is over the bounds."""
+    def add(self, body: Body, write: bool = True) -> int:
+        """Hold `body` under `body.name` (a `body_id`), one registration more -> the body's registrations after
+        this one (1: it is new). StoreFull when a new body is over the bounds."""
         size = body_nbytes(body)
         with self._lock:
             if body.name in self._bodies:
                 self._set_refs(body.name, self._refs.get(body.name, 1) + 1)
-                return False
+                return self._refs[body.name]
             if len(self._bodies) >= self.max_count:
                 raise StoreFull(f"the body store holds its maximum of {self.max_count} bodies: DELETE one")
             if self._bytes + size > self.max_bytes:
@@ -100,7 +100,7 @@ class BodyStore:
             self._refs[body.name] = 1
             self._bytes += size
             register_body(body)
-            return True
+            return 1
 
     def _set_refs(self, name: str, count: int) -> None:
         """A body's registration count, kept on disk too (under the lock; the file only while over 1)."""
@@ -110,10 +110,14 @@ class BodyStore:
         path = self.directory / f"{name}.refs"
         if count <= 1:
             path.unlink(missing_ok=True)
-            return
-        tmp = path.with_suffix(".refs.tmp")
-        tmp.write_text(f"{count}\n")
-        os.replace(tmp, path)
+        else:
+            tmp = path.with_suffix(".refs.tmp")
+            with open(tmp, "w") as f:
+                f.write(f"{count}\n")
+                f.flush()
+                os.fsync(f.fileno())  # as the body's file: a count lost in a power cut would let one DELETE forget it
+            os.replace(tmp, path)
+        _fsync_directory(self.directory)
 
     def registrations(self, name: str) -> int:
         """How many registrations hold the body (0: not held)."""

@@ -247,8 +247,9 @@ def stored_body(arrays: dict[str, np.ndarray], name: str, settings: Settings) ->
     return body
 
 
-def register(store: BodyStore, body: Body) -> bool:
-    """Hold the body; True if it is new. A full store is a domain error (the store's message)."""
+def register(store: BodyStore, body: Body) -> int:
+    """Hold the body, one registration more -> its registrations (1: new). A full store is a domain error (the
+    store's message)."""
     from drape.runtime.body_store import StoreFull
     from drape.service.errors import StoreIsFull
 

@@ -154,8 +154,8 @@ def parse_json(data: bytes, field: str = "body") -> Any:
         return loads(data)
     except RecursionError:
         raise MalformedInput("JSON nested too deeply", field) from None
-    except DuplicateKey as exc:
-        raise InvalidInput(str(exc), exc.key[:40]) from None
+    except DuplicateKey as exc:  # the key in a request body; the form field that holds the JSON text otherwise
+        raise InvalidInput(str(exc), exc.key[:40] if field == "body" else field) from None
     except (ValueError, UnicodeDecodeError) as exc:
         raise MalformedInput(f"not valid JSON ({str(exc)[:200]})", field) from exc
 

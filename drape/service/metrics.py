@@ -87,9 +87,13 @@ class HeadAsGet:
             await self.app(scope, receive, send)
             return
 
+        inner = {**scope, "method": "GET"}
+
         async def bodiless_send(message: Message) -> None:
+            if message["type"] == "http.response.start" and "route" in inner:
+                scope["route"] = inner["route"]  # the router's match, for CountRequests' route label
             if message["type"] == "http.response.body":
                 message = {**message, "body": b""}
             await send(message)
 
-        await self.app({**scope, "method": "GET"}, receive, bodiless_send)
+        await self.app(inner, receive, bodiless_send)

@@ -49,13 +49,14 @@ def fit_poses(stride: int, real: list[np.ndarray] | None = None) -> np.ndarray:
 
 def real_fit_motions(cfg: dict, frames: int) -> list[np.ndarray]:
     """The first `frames` frames of each real CMU clip the inner network trained on (the config's mocap.train,
-    imported onto its body as its training imported them) -> [poses (T_i, 24, 3) float32 rad]; none for 0."""
-    from drape.training.deepsd_data import mocap_motion, repairs_flips
+    read as its training's pose pool reads them: deepsd_data.mocap_poses) -> [poses (T_i, 24, 3) float32 rad];
+    none for 0."""
+    from drape.training.deepsd_data import mocap_poses, repairs_flips
 
     mocap = cfg["mocap"]
     if frames <= 0:
         return []
-    return [mocap_motion(mocap["dir"], name, float(mocap["fps"]), cfg["body"], flips=repairs_flips(mocap))[0][:frames]
+    return [mocap_poses(mocap["dir"], name, mocap["fps"], flips=repairs_flips(mocap))[:frames]
             for name in mocap["train"]]
 
 

@@ -169,14 +169,19 @@ def test_a_registered_body_reaches_the_disk_before_the_answer(tmp_path, monkeypa
     assert len(list(tmp_path.glob("body-*.npz"))) == 1 and not list(tmp_path.glob("*.tmp"))
 
 
-def test_a_body_registered_twice_is_held_until_both_registrations_are_deleted(tmp_path):
+def test_a_body_registered_twice_is_held_until_both_registrations_are_deleted(tmp_path, monkeypatch):
     """Two clients that register the same body get the same name; one DELETE used to forget it for both (the
-    other's outfits then answered 404). Each registration is counted, on disk too, and the last DELETE forgets it."""
+    other's outfits then answered 404). Each registration is counted, on disk too (fsynced, as the body's file:
+    a count lost in a power cut would let one DELETE forget it), and the last DELETE forgets it."""
     body = _user_body()
+    synced: list[int] = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: synced.append(fd) or real_fsync(fd))
     store = BodyStore(4, 2**30, directory=tmp_path)
     try:
-        assert store.add(body) and not store.add(body)
+        assert store.add(body) == 1 and store.add(body) == 2
         assert store.registrations(body.name) == 2 and (tmp_path / f"{body.name}.refs").read_text().strip() == "2"
+        assert len(synced) == 4  # the body's file and folder, then the count's file and folder
         assert store.delete(body.name) and has_body(body.name) and store.registrations(body.name) == 1
         assert not (tmp_path / f"{body.name}.refs").exists()
         store.add(body)

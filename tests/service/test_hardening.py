@@ -104,6 +104,8 @@ def test_head_is_answered_as_get_without_a_body(http):
         assert head.headers["content-type"] == got.headers["content-type"]
     r = http.head("/v1/outfits/rig")
     assert r.status_code == 405 and r.headers["allow"] == "POST" and r.content == b""
+    metrics = http.get("/metrics").text  # counted under the route it matched, as HEAD
+    assert 'drape_requests_total{method="HEAD",route="/v1/bodies",status="200"}' in metrics
 
 
 def test_large_strings_are_not_echoed(http):

@@ -197,6 +197,9 @@ def test_a_json_object_that_names_a_key_twice_is_refused_not_last_wins(http):
     nested = b'{"outfit_id": "x", "motion": {"clip": "kick", "clip": "walk"}}'
     problem(http.post("/v1/outfits/animate", content=nested, headers={"content-type": "application/json"}), 422,
             "'clip' more than once")
+    form = {"motion_file": ("m.bvh", b"HIERARCHY"), "request": (None, b'{"inner": "tshirt", "inner": "tanktop"}')}
+    p = problem(http.post("/v1/layers/animate", files=form), 422, "'inner' more than once")
+    assert p["field"] == "request"  # the form field that holds the JSON text
     pose = '{"pelvis": [0, 0, 0], "pelvis": [1, 0, 0]}'
     r = http.post("/v1/bodies", files={"body_file": ("b.glb", b"glTF")}, data={"joint_map": pose})
     assert problem(r, 422, "'pelvis' more than once")["field"] == "joint_map"

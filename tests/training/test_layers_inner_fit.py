@@ -76,7 +76,7 @@ def test_the_fit_takes_cloth_out_of_the_body_at_its_poses_with_four_influences()
 
 
 def test_the_fit_poses_take_the_first_frames_of_the_real_clips_the_network_trained_on():
-    from drape.training.deepsd_data import mocap_motion, repairs_flips
+    from drape.training.deepsd_data import pose_pool
     from drape.training.layers_inner_fit import real_fit_motions
 
     cfg = layers_inner.load_config("tshirt")
@@ -84,9 +84,12 @@ def test_the_fit_poses_take_the_first_frames_of_the_real_clips_the_network_train
     clip = cfg["mocap"]["train"][0]
     short = {**cfg, "mocap": {**cfg["mocap"], "train": [clip]}}
     real = real_fit_motions(short, 20)
-    whole = mocap_motion(cfg["mocap"]["dir"], clip, float(cfg["mocap"]["fps"]), cfg["body"],
-                         flips=repairs_flips(cfg["mocap"]))[0]
-    assert len(real) == 1 and np.array_equal(real[0], whole[:20])
+    # the poses the training read: the clip's rows of its pose pool (the pool's last rows, after the embedded
+    # clips; the pool zeroes the root's rotation)
+    pool = pose_pool({**short, "procedural_motions": 0})
+    assert len(real) == 1 and real[0].shape == (20, 24, 3)
+    n = len(real_fit_motions(short, 10**6)[0])
+    np.testing.assert_array_equal(real[0][:, 1:], pool[len(pool) - n:][:20, 1:])
     assert real_fit_motions(short, 0) == []
     base = fit_poses(24)
     poses = fit_poses(24, real)

@@ -65,9 +65,8 @@ async def register_body(request: Request) -> Response:
 
     def work() -> Response:
         body = bodies.read_upload(kind, content_type, data, settings)
-        bodies.register(store, body)
-        return JSONResponse({**bodies.summary(body), "registrations": store.registrations(body.name)},
-                            status_code=201,
+        registrations = bodies.register(store, body)
+        return JSONResponse({**bodies.summary(body), "registrations": registrations}, status_code=201,
                             headers={"Location": f"/v1/bodies/{body.name}"})
 
     slot = await admission_of(request).enter()
