@@ -35,12 +35,24 @@ def world_space_numpy(points: np.ndarray, root_position: np.ndarray, root_rotati
 
 
 def motion_windows(joints: np.ndarray, root_position: np.ndarray, root_rotation: np.ndarray,
-                   window: int) -> np.ndarray:
+                   window: int, step: float = 1.0) -> np.ndarray:
     """joints (T, 24, 3) world -> (T, window + 1, 24, 3) float32: frames t - window .. t (clamped at 0),
-    each in the character space of frame t."""
+    each in the character space of frame t.
+
+    step: frames of this motion between two of the window's samples, the motion's fps over the fps the window
+    was trained at (2.0: a 60 fps motion read by a 30 fps model): the samples lie at frames t - k * step, the
+    joints linearly interpolated between frames, so a window spans the same seconds whatever the fps."""
     T = len(joints)
-    idx = np.clip(np.arange(T)[:, None] + np.arange(-window, 1)[None, :], 0, None)  # (T, W + 1)
-    w = (joints[idx] - root_position[:, None, None, :]).reshape(T, -1, 3)  # (T, (W + 1) * 24, 3)
+    if step == 1.0:
+        idx = np.clip(np.arange(T)[:, None] + np.arange(-window, 1)[None, :], 0, None)  # (T, W + 1)
+        picked = joints[idx]
+    else:
+        at = np.clip(np.arange(T)[:, None] + step * np.arange(-window, 1)[None, :], 0.0, None)  # (T, W + 1)
+        lo = np.floor(at).astype(np.int64)
+        hi = np.minimum(lo + 1, T - 1)
+        a = (at - lo)[..., None, None]
+        picked = joints[lo] * (1.0 - a) + joints[hi] * a
+    w = (picked - root_position[:, None, None, :]).reshape(T, -1, 3)  # (T, (W + 1) * 24, 3)
     return np.matmul(w, root_rotation).reshape(T, window + 1, -1, 3).astype(np.float32)
 
 

@@ -561,13 +561,14 @@ class Engine:
 
     def garment_chunks(self, garment: IntrinsicGarment, latents: np.ndarray, poses: np.ndarray,
                        translation: np.ndarray, chunk: int = 32, refine: RefineSettings | None = None,
-                       residual: KeyframeResidual | None = None) -> Iterator[np.ndarray]:
+                       residual: KeyframeResidual | None = None, fps: float | None = None) -> Iterator[np.ndarray]:
         """An intrinsic garment's stream: latents (T, Z), one per frame of the motion (poses (T, 24, 3) rad,
-        translation (T, 3) m) -> world-space vertices (n, N, 3) float32 m in chunks of up to `chunk` frames,
+        translation (T, 3) m, at fps; None: the model's) -> world-space vertices (n, N, 3) float32 m in chunks of
+        up to `chunk` frames,
         refined against the garment's body (its template faces) if asked, with the keyframes' `residual` added
         (character space) when given. Decoding runs DECODE_BLOCK
         frames per ONNX Runtime call, handed out a chunk at a time; the root frames are computed once."""
-        motion = garment.motion_frames(poses, translation)
+        motion = garment.motion_frames(poses, translation, fps)
         block = max(chunk, DECODE_BLOCK)
         start = 0
         for frames in garment.decode_chunks(latents, motion, block, observe=self._observe, residual=residual):

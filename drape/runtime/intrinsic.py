@@ -50,21 +50,25 @@ KEYFRAME_FADE_S = 40 / 30
 @dataclass(frozen=True)
 class MotionFrames:
     """A motion's root frames, world space: joints (T, 24, 3) m, root_position (T, 3) m, root_rotation
-    (T, 3, 3) (the pelvis' global rotation; columns are its axes)."""
+    (T, 3, 3) (the pelvis' global rotation; columns are its axes); step: the motion's frames per frame of the
+    model's fps (its fps / the model's), the spacing of a motion window's samples."""
 
     joints: np.ndarray
     root_position: np.ndarray
     root_rotation: np.ndarray
+    step: float = 1.0
 
     def __len__(self) -> int:
         return len(self.joints)
 
     def windows(self, start: int, stop: int, window: int) -> np.ndarray:
         """The motion windows of frames start..stop-1: (stop - start, window + 1, 24, 3) float32 m, each in
-        its frame's character space; equal to the rows start..stop-1 of `motion_windows` on the whole motion
-        (computed on frames max(0, start - window)..stop-1 only)."""
-        lo = max(0, start - window)
-        w = motion_windows(self.joints[lo:stop], self.root_position[lo:stop], self.root_rotation[lo:stop], window)
+        its frame's character space, its samples `step` frames apart (the model's window in seconds, whatever
+        the motion's fps); equal to the rows start..stop-1 of `motion_windows` on the whole motion (computed on
+        the frames from max(0, start - window * step) on only)."""
+        lo = max(0, start - int(np.ceil(window * self.step)))
+        w = motion_windows(self.joints[lo:stop], self.root_position[lo:stop], self.root_rotation[lo:stop], window,
+                           self.step)
         return w[start - lo:]
 
 
@@ -219,11 +223,14 @@ class IntrinsicGarment:
         """N_D: shape descriptors (K, D) -> shapes (K, N, 3) float32 m in character space."""
         return self.sessions["shape_decode"].run(["vertices"], {"descriptor": np.asarray(descriptors, np.float32)})[0]
 
-    def motion_frames(self, poses: np.ndarray, trans: np.ndarray) -> MotionFrames:
-        """poses (T, 24, 3) or (T, 72) rad, trans (T, 3) m -> the root frames on this garment's body."""
+    def motion_frames(self, poses: np.ndarray, trans: np.ndarray, fps: float | None = None) -> MotionFrames:
+        """poses (T, 24, 3) or (T, 72) rad, trans (T, 3) m, at fps frames per second (None: the model's) -> the
+        root frames on this garment's body, whose motion windows span the model's seconds (a motion at twice
+        the model's fps is read every second frame; it was read frame by frame, as if twice as slow)."""
         joints, position, rotation = root_frames(as_pose_array(poses), np.asarray(trans, dtype=np.float64),
                                                  self.rest_joints, self.parents)
-        return MotionFrames(joints, position, rotation)
+        step = 1.0 if fps is None else float(fps) / self.fps
+        return MotionFrames(joints, position, rotation, step)
 
     def encode_at(self, vertices: np.ndarray, frames: Sequence[int], motion: MotionFrames) -> np.ndarray:
         """Keyframe shapes vertices (K, N, 3) m, world space at their frames (K,) of `motion` -> latents (K, Z)
@@ -289,15 +296,16 @@ class IntrinsicGarment:
         template_spread = float(np.sqrt(((template - template.mean(0)) ** 2).sum(1).mean()))
         return float(np.linalg.norm(local.mean(0) - template.mean(0))), spread / template_spread
 
-    def encode(self, vertices_world: np.ndarray, poses: np.ndarray, trans: np.ndarray, frame: int) -> np.ndarray:
+    def encode(self, vertices_world: np.ndarray, poses: np.ndarray, trans: np.ndarray, frame: int,
+               fps: float | None = None) -> np.ndarray:
         """A keyframe shape -> its latent (Z,) float32 (`encode_at`'s: pulled toward the mean by keyframe_shrink).
 
         vertices_world (N, 3) m: the garment at `frame`, world space; poses (T, 24, 3) rad and trans (T, 3) m:
-        the motion (only frames 0..frame matter); frame: 0-based index, 0 <= frame < T.
+        the motion (only frames 0..frame matter) at fps (None: the model's); frame: 0-based index, 0 <= frame < T.
         """
         if not 0 <= frame < len(poses):
             raise ValueError(f"frame {frame} is outside the motion's {len(poses)} frames")
-        motion = self.motion_frames(np.asarray(poses)[: frame + 1], np.asarray(trans)[: frame + 1])
+        motion = self.motion_frames(np.asarray(poses)[: frame + 1], np.asarray(trans)[: frame + 1], fps)
         return self.encode_at(np.asarray(vertices_world)[None], [frame], motion)[0]
 
     def keyframe_residual(self, shapes: np.ndarray, shape_frames: Sequence[int], latent_frames: Sequence[int],
@@ -340,11 +348,12 @@ class IntrinsicGarment:
                                     motion.root_rotation[s:e].astype(np.float32))
 
     def decode(self, latents: np.ndarray, poses: np.ndarray, trans: np.ndarray,
-               chunk: int = DECODE_BLOCK, residual: KeyframeResidual | None = None) -> np.ndarray:
-        """latents (T, Z) and the motion (poses (T, 24, 3) rad, trans (T, 3) m) -> vertices (T, N, 3) float32 m,
-        world space; decoded `chunk` frames per ONNX Runtime call, the root frames computed once; `residual`
-        (from `keyframe_residual`) added in character space when given."""
-        return self.decode_motion(latents, self.motion_frames(poses, trans), chunk, residual)
+               chunk: int = DECODE_BLOCK, residual: KeyframeResidual | None = None,
+               fps: float | None = None) -> np.ndarray:
+        """latents (T, Z) and the motion (poses (T, 24, 3) rad, trans (T, 3) m, at fps; None: the model's) ->
+        vertices (T, N, 3) float32 m, world space; decoded `chunk` frames per ONNX Runtime call, the root frames
+        computed once; `residual` (from `keyframe_residual`) added in character space when given."""
+        return self.decode_motion(latents, self.motion_frames(poses, trans, fps), chunk, residual)
 
     def decode_motion(self, latents: np.ndarray, motion: MotionFrames, chunk: int = DECODE_BLOCK,
                       residual: KeyframeResidual | None = None) -> np.ndarray:
@@ -357,22 +366,22 @@ class IntrinsicGarment:
         """Shape keyframes -> the whole stream: shapes (K, N, 3) m world space at frames (K,) of the motion (poses
         (T, 24, 3) rad, trans (T, 3) m, fps), encoded, their latents interpolated and decoded along the motion;
         with match_keyframes, each keyframe's residual is added back (`keyframe_residual`). -> (T, N, 3) float32."""
-        motion = self.motion_frames(poses, trans)
+        motion = self.motion_frames(poses, trans, fps)
         z = self.encode_at(shapes, frames, motion)
         latents = self.interpolate(list(zip([int(f) for f in frames], z, strict=True)), len(motion))
         residual = self.keyframe_residual(shapes, frames, [], latents, motion, fps, fade_s) if match_keyframes else None
         return self.decode_motion(latents, motion, residual=residual)
 
     def sample(self, count: int, seed: int, frame: int, poses: np.ndarray,
-               trans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """`count` design candidates at `frame` of the motion: latents (count, Z) float32 = latent_mean +
-        latent_std * standard normal (numpy default_rng(seed)), and their shapes (count, N, 3) float32 m, world
-        space at that frame (decoded with that frame's motion window)."""
+               trans: np.ndarray, fps: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """`count` design candidates at `frame` of the motion (at fps; None: the model's): latents (count, Z)
+        float32 = latent_mean + latent_std * standard normal (numpy default_rng(seed)), and their shapes (count,
+        N, 3) float32 m, world space at that frame (decoded with that frame's motion window)."""
         if not 0 <= frame < len(poses):
             raise ValueError(f"frame {frame} is outside the motion's {len(poses)} frames")
         rng = np.random.default_rng(seed)
         z = (self.latent_mean + self.latent_std * rng.standard_normal((count, self.latent_size))).astype(np.float32)
-        motion = self.motion_frames(np.asarray(poses)[: frame + 1], np.asarray(trans)[: frame + 1])
+        motion = self.motion_frames(np.asarray(poses)[: frame + 1], np.asarray(trans)[: frame + 1], fps)
         window = motion.windows(frame, frame + 1, self.window)
         local = self._decode_local(z, np.repeat(window, count, axis=0))
         rp = np.repeat(motion.root_position[frame:], count, axis=0)

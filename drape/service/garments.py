@@ -132,11 +132,11 @@ def check_int(value: Any, low: int, high: int, field: str) -> int:
 
 def encode(settings: Settings, garment: IntrinsicGarment, request: dict) -> np.ndarray:
     """request {"vertices": (N, 3) m world space at `frame`, "motion": {...}, "frame": int} -> latent (Z,) float32."""
-    poses, trans, _ = check_motion(request["motion"], settings)
+    poses, trans, fps = check_motion(request["motion"], settings)
     frame = check_frame(request.get("frame"), len(poses), "frame")
     vertices = check_shape(request.get("vertices"), garment, "vertices")
     check_on_body(vertices, garment, poses, trans, frame, "vertices")
-    return check_encoded(garment.encode(vertices, poses, trans, frame), "vertices")
+    return check_encoded(garment.encode(vertices, poses, trans, frame, fps), "vertices")
 
 
 @dataclass(frozen=True)
@@ -210,7 +210,7 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
     refine = check_refine(request.get("refine"))
     if not shapes:
         return KeyframePlan(garment, poses, trans, fps, interpolate(latent_keys, T), refine)
-    motion = garment.motion_frames(poses, trans)
+    motion = garment.motion_frames(poses, trans, fps)
     frames = [f for f, _ in shapes]
     given = [f for f, _ in latent_keys]
     stacked = np.stack([v for _, v in shapes])
@@ -227,10 +227,10 @@ def sample(settings: Settings, garment: IntrinsicGarment, request: dict,
     m world space at the frame); `max_values` bounds the numbers of the answer's format (None: unbounded)."""
     count = check_int(request.get("count"), 1, MAX_SAMPLES, "count")
     seed = check_int(request.get("seed", 0), 0, MAX_SEED, "seed")
-    poses, trans, _ = check_motion(request["motion"], settings)
+    poses, trans, fps = check_motion(request["motion"], settings)
     frame = check_frame(request.get("frame", 0), len(poses), "frame")
     numbers = count * (garment.num_vertices * 3 + garment.latent_size)
     if max_values is not None and numbers > max_values:
         raise LimitExceeded(f"{count} samples of {garment.num_vertices} vertices are {numbers} numbers, over the limit "
                             f"of {max_values} for one answer in this format; ask for application/x-npz", "count")
-    return garment.sample(count, seed, frame, poses, trans)
+    return garment.sample(count, seed, frame, poses, trans, fps)

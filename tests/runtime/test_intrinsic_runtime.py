@@ -185,6 +185,27 @@ def test_many_keyframes_are_encoded_and_matched_in_blocks_as_one_by_one(garment,
     assert np.allclose(together.residuals, np.stack([expected[int(f)] for f in together.frames]), atol=1e-6)
 
 
+def test_a_motion_at_twice_the_models_fps_is_read_over_the_same_seconds(garment, motion):
+    """The motion window spans the model's seconds whatever the motion's fps: the clip at 60 fps (its frames
+    and, between them, the mean of each pair) gives at its even frames the garment the 30 fps clip gives at every
+    frame. The window read frame by frame saw half the time at 60 fps (the same poses labelled 24 or 60 fps
+    answered the same vertices; 60 against 30 fps differed by up to 10 cm)."""
+    poses, trans = motion
+    T = 40
+    p30, t30 = poses[:T], trans[:T]
+    p60 = np.empty((2 * T - 1, 24, 3))
+    t60 = np.empty((2 * T - 1, 3))
+    p60[::2], t60[::2] = p30, t30
+    p60[1::2], t60[1::2] = 0.5 * (p30[1:] + p30[:-1]), 0.5 * (t30[1:] + t30[:-1])
+    z = np.repeat(garment.latent_mean[None], T, axis=0)
+    at30 = garment.decode(z, p30, t30, fps=30.0)
+    at60 = garment.decode(np.repeat(garment.latent_mean[None], 2 * T - 1, axis=0), p60, t60, fps=60.0)
+    np.testing.assert_allclose(at60[::2], at30, atol=2e-5)
+    relabelled = garment.decode(z, p30, t30, fps=60.0)  # the same frames read as 60 fps: a slower motion
+    assert np.abs(relabelled - at30)[garment.window:].max() > 1e-3
+    assert np.array_equal(garment.decode(z, p30, t30), at30)  # None: the model's own fps
+
+
 def test_sample_draws_from_the_latent_statistics(garment, motion):
     poses, trans = motion
     latents, shapes = garment.sample(5, 11, 20, poses, trans)

@@ -111,6 +111,23 @@ def test_a_keyframe_as_vertices_equals_its_encoded_latent(server_url, garment, m
     assert np.abs(by_latent[12] - by_latent[30]).max() > 1e-3
 
 
+def test_every_route_reads_the_motion_at_its_fps(server_url, garment, motion, shape):
+    """encode, animate and sample read the motion window over the model's seconds at the motion's fps (the same
+    poses labelled 24 or 60 fps answered the same vertices: the window was read frame by frame)."""
+    at60 = {**motion, "fps": 60.0}
+    z0 = garment.latent_mean.astype(np.float32)
+    with drape.Client(server_url) as client:
+        frames = client.animate_keyframes(NAME, motion=at60, keyframes=[{"frame": 0, "latent": z0}])
+        latent = client.encode_keyframe(NAME, vertices=shape, motion=at60, frame=12)
+        designs = client.sample_designs(NAME, count=1, seed=3, motion=at60, frame=12)
+    library = garment.decode(np.tile(z0, (40, 1)), motion["poses"], motion["translation"], fps=60.0)
+    assert np.abs(frames - library).max() <= 1e-5
+    assert np.abs(frames - garment.decode(np.tile(z0, (40, 1)), motion["poses"], motion["translation"])).max() > 1e-3
+    assert np.abs(latent - garment.encode(shape, motion["poses"], motion["translation"], 12, fps=60.0)).max() <= 1e-6
+    _, shapes = garment.sample(1, 3, 12, motion["poses"], motion["translation"], fps=60.0)
+    assert np.abs(designs.vertices - shapes).max() <= 1e-5
+
+
 def test_every_answer_format_agrees(server_url, http, garment, motion, shape):
     z0 = garment.latent_mean.astype(np.float32)
     keyframes = [{"frame": 30, "latent": z0}, {"frame": 12, "vertices": shape}]

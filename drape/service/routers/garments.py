@@ -174,7 +174,7 @@ async def animate_keyframes(request: Request, name: str = NAME) -> Response:
 
         def chunks() -> Iterator[np.ndarray]:
             return engine.garment_chunks(garment, p.latents, p.poses, p.translation, settings.stream_chunk_frames,
-                                         refine=p.refine, residual=p.residual)
+                                         refine=p.refine, residual=p.residual, fps=p.fps)
 
         return FrameSource(chunks, garment.faces, p.num_frames, garment.num_vertices, p.fps, "")
 
