@@ -63,7 +63,7 @@ def plan_layers(settings: Settings, engine: Engine, request: dict, max_posed: in
     lo, hi = combo.thickness
     thickness = request["thickness"]
     if not lo <= thickness <= hi:
-        raise InvalidInput(f"{thickness:g} m is outside the served range [{lo:g}, {hi:g}] m", "thickness")
+        raise InvalidInput(f"{thickness!r} m is outside the served range [{lo:g}, {hi:g}] m", "thickness")
     poses, translation, fps = check_motion(request["motion"], settings)
     check_answer_size(len(poses), combo.inner.num_vertices + combo.outer.num_vertices, max_posed, "motion")
     return LayersPlan(combo, float(thickness), poses, translation, fps, check_refine(request["refine"]))

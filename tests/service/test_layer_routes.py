@@ -177,6 +177,8 @@ def test_layers_bad_inputs(http):
     problem(post(inner="cardigan"), 404, "cardigan", "tshirt")
     problem(post(inner="tanktop"), 422, "tanktop", "not served")
     problem(post(thickness=0.5), 422, "thickness", str(LayerCatalog().find("tshirt", "jacket").thickness[1]))
+    just_over = LayerCatalog().find("tshirt", "jacket").thickness[1] + 1e-9  # said "0.012 m is outside [.., 0.012]"
+    problem(post(thickness=just_over), 422, f"{just_over!r} m is outside")
     problem(post(motion={"poses": [[0.0] * 72] * 201}), 413, "frames")
     nan = json.dumps({**ok, "motion": {"poses": [[float("nan")] * 72]}})  # NaN literals: not JSON
     problem(http.post("/v1/layers/animate", content=nan, headers={"content-type": "application/json"}), 422,
