@@ -31,8 +31,10 @@ def test_readyz_is_503_before_startup(settings):
 def test_bodies_list_three_presets_in_smpl_order(client):
     bodies = {b["name"]: b for b in client.get("/v1/bodies").json()["bodies"]}
     assert {"neutral", "female", "male"} <= set(bodies)
-    for b in bodies.values():
+    for b in bodies.values():  # a user body another test registered in this process may be listed too
         assert b["joint_names"] == list(JOINT_NAMES)
+        if not b["preset"]:
+            continue
         assert b["parents"][0] == -1 and len(b["rest_joints"]) == 24
         assert b["num_vertices"] > 10000 and 1000 <= b["proxy_vertices"] <= 2000
 

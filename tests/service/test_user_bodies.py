@@ -403,7 +403,9 @@ def test_a_glb_body_registers_with_smpl_or_mapped_joint_names(http, proxy, shirt
     mapped = http.post("/v1/bodies", files={"body_file": ("me.glb", _glb(proxy, bones))},
                        data={"joint_map": json.dumps(dict(zip(bones, proxy.joint_names, strict=True)))})
     assert mapped.status_code == 201 and mapped.json()["body_id"] == r.json()["body_id"], mapped.text[:300]
-    http.delete(f"/v1/bodies/{r.json()['body_id']}")
+    assert mapped.json()["registrations"] == r.json()["registrations"] + 1  # the same body, registered again
+    for _ in range(2):  # one DELETE a registration
+        assert http.delete(f"/v1/bodies/{r.json()['body_id']}").status_code == 204
 
 
 def test_the_client_animates_a_user_body_with_a_mocap_file(server_url, proxy, shirt, tmp_path):
