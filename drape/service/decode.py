@@ -183,7 +183,8 @@ def npz_scalar(z: dict[str, np.ndarray], name: str) -> float | int | None:
     a = z[name]
     if a.shape != () or a.dtype.kind not in "iuf":
         raise InvalidInput(f"expected a numeric scalar, got dtype {a.dtype} and shape {a.shape}", name)
-    return a.item()
+    value = a.item()  # a Python number, but for longdouble, whose item() is numpy's own and failed float checks
+    return float(value) if a.dtype.kind == "f" else int(value)
 
 
 def npz_options(z: dict[str, np.ndarray]) -> dict | None:

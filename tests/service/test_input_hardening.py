@@ -224,3 +224,13 @@ def test_a_body_file_npz_is_named_body_file_and_a_rest_pose_given_twice_is_refus
     r = http.post("/v1/bodies", files={"body_file": ("b.npz", buf.getvalue())},
                   data={"rest_pose": "[" + ",".join(["[0, 0, 0]"] * 24) + "]"})
     assert problem(r, 422, "given twice")["field"] == "rest_pose"
+
+
+def test_an_npz_scalar_of_long_double_reads_as_a_python_float():
+    """np.array(0.01, np.longdouble).item() is numpy's own long double: the range checks then refused 0.01
+    ("expected ... in (0, 0.05], got 0.0100...")."""
+    from drape.service.decode import npz_scalar
+
+    value = npz_scalar({"thickness": np.array(0.01, np.longdouble)}, "thickness")
+    assert type(value) is float and value == 0.01
+    assert type(npz_scalar({"n": np.array(3, np.uint8)}, "n")) is int
