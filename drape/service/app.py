@@ -40,8 +40,8 @@ from drape.schemas.outfits import (
 from drape.service import catalog, problems
 from drape.service.admission import Admission
 from drape.service.bodies import stored_body
-from drape.service.http import require_api_key
-from drape.service.metrics import CountRequests, HeadAsGet, Metrics
+from drape.service.http import HeadAsGet, require_api_key
+from drape.service.metrics import CountRequests, Metrics
 from drape.service.routers import bodies, garments, health, layers, models, outfits, viewer
 from drape.service.routers import catalog as catalog_router
 from drape.service.settings import Settings

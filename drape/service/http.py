@@ -1,5 +1,5 @@
 """HTTP plumbing shared by the routers: reading bodies within the size and time limits, multipart
-forms and JSON from the bytes read, the engine and the admission control, auth."""
+forms and JSON from the bytes read, the engine and the admission control, auth, HEAD answered as GET."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from typing import Any
 from fastapi import Request
 from python_multipart.exceptions import FormParserError
 from python_multipart.multipart import MAX_BOUNDARY_LENGTH, MultipartParser, parse_options_header
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from drape.runtime.engine import Engine
 from drape.service.admission import Admission
@@ -173,3 +174,26 @@ async def require_api_key(request: Request) -> None:
     scheme, _, token = request.headers.get("authorization", "").partition(" ")
     if not (scheme.lower() == "bearer" and hmac.compare_digest(token.encode(), key.encode())):
         raise Unauthorized("send the API key as 'Authorization: Bearer <key>'", "Authorization")
+
+class HeadAsGet:
+    """ASGI middleware: a HEAD request is answered as its GET, without the body (RFC 9110 9.3.2: HEAD wherever
+    GET is served; FastAPI's routes answered HEAD with a 405). Paths without a GET answer their 405."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope.get("method") != "HEAD":
+            await self.app(scope, receive, send)
+            return
+
+        inner = {**scope, "method": "GET"}
+
+        async def bodiless_send(message: Message) -> None:
+            if message["type"] == "http.response.start" and "route" in inner:
+                scope["route"] = inner["route"]  # the router's match, for CountRequests' route label
+            if message["type"] == "http.response.body":
+                message = {**message, "body": b""}
+            await send(message)
+
+        await self.app(inner, receive, bodiless_send)

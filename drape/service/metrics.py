@@ -8,6 +8,8 @@ import time
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from drape.service.problems import METHODS
+
 
 class Metrics:
     def __init__(self) -> None:
@@ -46,9 +48,6 @@ class Metrics:
         return generate_latest(self.registry)
 
 
-# the method label's values: any other method a client sends is "other" (each made-up method name was a series
-# of its own, kept for good: 6,000 names made /metrics 10 MB, rendered on the event loop, with no key needed)
-METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
 
 
 class CountRequests:
@@ -67,6 +66,8 @@ class CountRequests:
             if message["type"] == "http.response.start":
                 route = getattr(scope.get("route"), "path", "unmatched")
                 method = scope.get("method", "")
+                # any other method a client sends is "other": each made-up name was a series of its own, kept
+                # for good (6,000 names made /metrics 10 MB, rendered on the event loop, with no key needed)
                 method = method if method in METHODS else "other"
                 self.metrics.requests.labels(route=route, method=method, status=str(message["status"])).inc()
                 self.metrics.latency.labels(route=route, method=method).observe(time.perf_counter() - start)
@@ -74,26 +75,3 @@ class CountRequests:
 
         await self.app(scope, receive, counting_send)
 
-
-class HeadAsGet:
-    """ASGI middleware: a HEAD request is answered as its GET, without the body (RFC 9110 9.3.2: HEAD wherever
-    GET is served; FastAPI's routes answered HEAD with a 405). Paths without a GET answer their 405."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope.get("method") != "HEAD":
-            await self.app(scope, receive, send)
-            return
-
-        inner = {**scope, "method": "GET"}
-
-        async def bodiless_send(message: Message) -> None:
-            if message["type"] == "http.response.start" and "route" in inner:
-                scope["route"] = inner["route"]  # the router's match, for CountRequests' route label
-            if message["type"] == "http.response.body":
-                message = {**message, "body": b""}
-            await send(message)
-
-        await self.app(inner, receive, bodiless_send)

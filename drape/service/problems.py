@@ -141,7 +141,7 @@ def allowed_methods(app: ASGIApp, scope: Scope) -> list[str]:
     app's routes (included routers too) as the router would match it."""
     routes = getattr(app, "routes", ())
     found = [m for m in METHODS if any(route.matches({**scope, "method": m})[0] == Match.FULL for route in routes)]
-    return found + ["HEAD"] if "GET" in found and "HEAD" not in found else found  # HEAD as GET (metrics.HeadAsGet)
+    return found + ["HEAD"] if "GET" in found and "HEAD" not in found else found  # HEAD as GET (http.HeadAsGet)
 
 
 def install(app: FastAPI) -> None:
