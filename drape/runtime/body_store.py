@@ -15,6 +15,7 @@ import tempfile
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -108,16 +109,11 @@ class BodyStore:
         if self.directory is None:
             return
         path = self.directory / f"{name}.refs"
-        if count <= 1:
-            path.unlink(missing_ok=True)
+        if count > 1:  # durable as the body's file: a count lost in a power cut would let one DELETE forget it
+            _replace_durably(path, lambda f: f.write(f"{count}\n".encode()))
         else:
-            tmp = path.with_suffix(".refs.tmp")
-            with open(tmp, "w") as f:
-                f.write(f"{count}\n")
-                f.flush()
-                os.fsync(f.fileno())  # as the body's file: a count lost in a power cut would let one DELETE forget it
-            os.replace(tmp, path)
-        _fsync_directory(self.directory)
+            path.unlink(missing_ok=True)
+            _fsync_directory(self.directory)
 
     def registrations(self, name: str) -> int:
         """How many registrations hold the body (0: not held)."""
@@ -126,17 +122,8 @@ class BodyStore:
 
     def _write(self, body: Body) -> None:
         assert self.directory is not None
-        fd, tmp = tempfile.mkstemp(dir=self.directory, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **_arrays(body))  # type: ignore[arg-type]
-                f.flush()
-                os.fsync(f.fileno())  # the bytes on disk before the name points at them
-            os.replace(tmp, self.directory / f"{body.name}.npz")
-            _fsync_directory(self.directory)  # and the rename itself: a registered body survives a power cut
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        _replace_durably(self.directory / f"{body.name}.npz",
+                         lambda f: np.savez(f, **_arrays(body)))  # type: ignore[arg-type]
 
     def get(self, name: str) -> Body | None:
         return self._bodies.get(name)
@@ -171,6 +158,22 @@ class BodyStore:
             self._bodies.clear()
             self._refs.clear()
             self._bytes = 0
+
+
+def _replace_durably(path: Path, write: Callable[[BinaryIO], object]) -> None:
+    """Write `path` whole or not at all: `write` fills a temporary file beside it, whose bytes are fsynced before
+    the rename and the rename after it (a registered body, or its count, survives a power cut)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())  # the bytes on disk before the name points at them
+        os.replace(tmp, path)
+        _fsync_directory(path.parent)  # and the rename itself
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _read_refs(path: Path) -> int:
