@@ -176,7 +176,6 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
         raise InvalidInput(f"{len(keyframes)} keyframes for a motion of {T} frames (one keyframe per frame at most)",
                            "keyframes")
     check_answer_size(T, garment.num_vertices, max_posed, "motion")
-    seen: dict[int, int] = {}
     latent_keys: list[tuple[int, np.ndarray]] = []
     shapes: list[tuple[int, np.ndarray]] = []
     shape_fields: list[str] = []
@@ -191,10 +190,10 @@ def plan_keyframes(settings: Settings, garment: IntrinsicGarment, request: dict,
         frame_field = f"{members[0]}[{members[2]}]" if members else f"{field}.frame"
         value_field = f"{members[1]}[{members[2]}]" if members else f"{field}.{'latent' if given_z else 'vertices'}"
         frame = check_frame(key.get("frame"), T, frame_field)
-        if frame in seen:
+        if frame in frame_fields:
             raise InvalidInput(f"frame {frame} is also the frame of {frame_fields[frame]}: one keyframe per frame",
                                frame_field)
-        seen[frame], frame_fields[frame] = i, frame_field
+        frame_fields[frame] = frame_field  # each keyframe's frame, by where the client wrote it
         if given_v == given_z:
             raise InvalidInput("give exactly one of 'vertices' and 'latent'", field)
         if given_z:
