@@ -41,6 +41,7 @@ MGN_INNER = "mgn_inner"  # MGN's inner-layer network of the template
 MGN_OUTER = "mgn_outer"  # MGN's outer-layer network of the combination
 INNER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_inner"
 OUTER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_outer"
+OUTER_FPS = 30.0  # frames/s an outer network's windows read where its manifest does not say (its config's mocap.fps)
 
 
 def _network_folder(folder: str | Path, graph: str, threads: int) -> tuple[dict, Any, np.ndarray, np.ndarray, Rig]:
@@ -97,6 +98,16 @@ def blend_windows(values: np.ndarray, starts: np.ndarray, frames: int) -> np.nda
     return (acc / norm[:, None]).astype(np.float32)
 
 
+def _interpolate(values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """values (T, K) at frames 0..T-1, read at fractional frames at (n,) -> (n, K), linearly; past the last
+    frame, the last frame's values."""
+    at = np.clip(at, 0.0, len(values) - 1)
+    i0 = np.floor(at + 1e-9).astype(np.int64).clip(0, len(values) - 1)
+    i1 = np.minimum(i0 + 1, len(values) - 1)
+    t = np.clip(at - i0, 0.0, 1.0)[:, None]
+    return values[i0] * (1 - t) + values[i1] * t
+
+
 class OuterModel:
     """MGN's outer-layer network of one combination (drape.export.layers.export_outer): outer.onnx ((motion
     (S, W, 78), thickness (S, 1) m, inner_keys (S, W, Ki)) -> outer_keys (S, W, K)) and rig.npz (vertices (No, 3)
@@ -109,17 +120,33 @@ class OuterModel:
         self.inner_sha256 = self.manifest["inner_network"]["pose_sha256"]
         self.served = self.manifest["served"] == MGN_OUTER
         self.thickness = (float(self.manifest["config"]["thickness"][0]), float(self.manifest["config"]["thickness"][1]))
+        # the simulations and clips it was trained on were all at this rate: a window is `window` frames of it
+        self.fps = float(self.manifest["config"].get("mocap", {}).get("fps", OUTER_FPS))
 
     name = MGN_OUTER
 
     def pose_keys(self, poses: np.ndarray, trans: np.ndarray, fps: float, thickness: float, inner_keys: np.ndarray,
                   rest_joints: np.ndarray) -> np.ndarray:
-        """poses (T, 24, 3) rad, trans (T, 3) m, thickness H_in m, inner_keys (T, Ki) (the inner network's) ->
-        (T, K) float32: `keys_of_features` of the motion's features."""
+        """poses (T, 24, 3) rad, trans (T, 3) m at fps frames/s, thickness H_in m, inner_keys (T, Ki) (the inner
+        network's) -> (T, K) float32: `keys_of_features` of the motion's features.
+
+        The network reads its windows at the rate it was trained at (`self.fps`): a motion at another rate is
+        resampled to it first (slerp, drape.assets.motion.resample; the inner keys linearly), and the keys are
+        interpolated back to the motion's frames (linearly; a last frame past the last resampled one, less than
+        one model frame later, keeps its keys). At the model's rate nothing is resampled."""
+        from drape.assets.motion import Motion, resample
         from drape.geometry.character_space import motion_features
         from drape.geometry.skeleton import PARENTS
 
-        return self.keys_of_features(motion_features(poses, trans, rest_joints, PARENTS, fps), thickness, inner_keys)
+        if abs(float(fps) - self.fps) < 1e-6 or len(poses) < 2:
+            return self.keys_of_features(motion_features(poses, trans, rest_joints, PARENTS, fps), thickness,
+                                         inner_keys)
+        at_model = resample(Motion(np.asarray(poses, np.float64).reshape(len(poses), 24, 3),
+                                   np.asarray(trans, np.float64), float(fps)), self.fps)
+        frames = np.arange(at_model.num_frames) * (float(fps) / self.fps)  # (n,) source frame of each sample
+        keys = self.keys_of_features(motion_features(at_model.poses, at_model.trans, rest_joints, PARENTS, self.fps),
+                                     thickness, _interpolate(np.asarray(inner_keys, np.float64), frames))
+        return _interpolate(keys.astype(np.float64), np.arange(len(poses)) * (self.fps / float(fps))).astype(np.float32)
 
     def keys_of_features(self, features: np.ndarray, thickness: float, inner_keys: np.ndarray) -> np.ndarray:
         """features (T, 78) (`motion_features`), thickness H_in m, inner_keys (T, Ki) -> (T, K) float32: the

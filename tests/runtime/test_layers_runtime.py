@@ -10,10 +10,12 @@ import pytest
 import torch
 
 from drape.assets.body import load_body
-from drape.assets.motion import load_clip
+from drape.assets.motion import Motion, load_clip, resample
 from drape.assets.outfits import split_outfit
 from drape.export.layers import export_inner, export_outer
 from drape.export.onnx_export import sha256
+from drape.geometry.character_space import motion_features
+from drape.geometry.skeleton import PARENTS
 from drape.models.layers import InnerConfig, InnerPSD, OuterConfig, OuterTransformer
 from drape.runtime.deepsd import pose_outfit
 from drape.runtime.engine import Engine
@@ -168,6 +170,31 @@ def test_the_engine_s_outer_stream_is_the_network_s(models, outer_models):
         assert np.abs(other - keys).max() > 1e-4
     finally:
         engine.close()
+
+
+def test_an_outer_network_reads_a_motion_over_the_seconds_it_was_trained_on(models, outer_models):
+    """Its windows are 30 frames at 30 fps (1 s): a motion at 60 fps is resampled to 30 fps first, so the same
+    poses sent at 60 fps give, at their even frames, the 30 fps keys (before, a window read half a second)."""
+    c = LayerCatalog(models=models, outer_models=outer_models).find("tshirt", "jacket")
+    net, inner = c.outer.network, c.inner.network
+    assert net.fps == 30.0
+    joints = load_body(BODY).joints
+    clip = load_clip("dance_b")
+    poses, trans = clip.poses[:75].astype(np.float64), clip.trans[:75].astype(np.float64)
+    fast = resample(Motion(poses, trans, 30.0), 60.0)
+    assert fast.num_frames == 149
+    p60, t60 = fast.poses.astype(np.float64), fast.trans.astype(np.float64)
+    keys30 = net.pose_keys(poses, trans, 30.0, 0.008, inner.pose_keys(poses), joints)
+    keys60 = net.pose_keys(p60, t60, 60.0, 0.008, inner.pose_keys(p60), joints)
+    assert keys60.shape == (149, keys30.shape[1])
+    assert np.abs(keys60[::2] - keys30).max() <= 1e-4
+    # the odd frames lie between their neighbours' keys
+    mid = 0.5 * (keys30[:-1] + keys30[1:])
+    assert np.abs(keys60[1::2] - mid).max() <= 1e-4
+    # read frame by frame (the network's window over half the seconds), the same poses answer other keys
+    frame_by_frame = net.keys_of_features(motion_features(p60, t60, joints, PARENTS, 60.0), 0.008,
+                                          inner.pose_keys(p60))
+    assert np.abs(frame_by_frame[::2] - keys30).max() > 1e-3
 
 
 def test_the_engine_s_warm_up_builds_the_layer_catalog():
