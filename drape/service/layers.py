@@ -8,9 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from drape.runtime.engine import Engine, RefineSettings
-from drape.runtime.layers import LayerCombination
+from drape.runtime.layers import LayerCombination, OuterModel
 from drape.schemas.layers import LayerInfo, LayerList
-from drape.service.errors import InvalidInput, NotFound, quoted
+from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
 from drape.service.handlers import check_answer_size, check_motion, check_refine
 from drape.service.settings import Settings
 
@@ -65,5 +65,12 @@ def plan_layers(settings: Settings, engine: Engine, request: dict, max_posed: in
     if not lo <= thickness <= hi:
         raise InvalidInput(f"{thickness!r} m is outside the served range [{lo:g}, {hi:g}] m", "thickness")
     poses, translation, fps = check_motion(request["motion"], settings)
+    network = combo.outer.network
+    if isinstance(network, OuterModel):  # it reads the motion at its own rate: a slow motion is many more frames
+        seconds = (len(poses) - 1) / fps  # float: an fps of 1e-300 makes it inf, not an overflow
+        if seconds * network.fps + 1 > settings.max_frames:
+            raise LimitExceeded(f"{len(poses)} frames at {fps:g} fps span {seconds:.6g} s, which the outer network "
+                                f"reads at {network.fps:g} fps: over the limit of {settings.max_frames} frames "
+                                f"({(settings.max_frames - 1) / network.fps:g} s)", "motion.fps")
     check_answer_size(len(poses), combo.inner.num_vertices + combo.outer.num_vertices, max_posed, "motion")
     return LayersPlan(combo, float(thickness), poses, translation, fps, check_refine(request["refine"]))

@@ -186,10 +186,15 @@ def test_layers_bad_inputs(http):
     problem(post(refine={"eps": -1.0}), 422, "eps")
     problem(post(colour="red"), 422, "colour")
     problem(http.post("/v1/layers/animate", content=b"x", headers={"content-type": "application/x-npz"}), 415)
-    # a frame rate whose glTF key times (frame / fps s, float32) overflow: a 422 for a GLB answer, not a 500
+    # the outer network reads the motion at 30 fps: a slow motion is many frames there (and at 1e-300 fps, whose
+    # glTF key times would overflow float32, infinitely many): a 413 naming the frame rate, not a 500
     slow = {**ok, "motion": {"poses": [[0.0] * 72] * 2, "fps": 1e-300}}
-    problem(http.post("/v1/layers/animate", json=slow, headers={"accept": "model/gltf-binary"}), 422, "motion.fps",
-            "glTF")
+    for accept in ("model/gltf-binary", "application/json"):
+        problem(http.post("/v1/layers/animate", json=slow, headers={"accept": accept}), 413, "motion.fps",
+                "reads at 30 fps")
+    # 2 frames at 0.15 fps span 6.67 s: 201 frames at 30 fps, one over this server's limit; at 0.16 fps they fit
+    problem(post(motion={"poses": [[0.0] * 72] * 2, "fps": 0.15}), 413, "motion.fps", "limit of 200")
+    assert post(motion={"poses": [[0.0] * 72] * 2, "fps": 0.16}).status_code == 200
 
 
 def test_a_motion_file_animates_the_layers_as_its_imported_poses_would(server_url, tmp_path):
