@@ -143,7 +143,10 @@ def _body_arg(text: str) -> Body:
     from drape.assets.body import load_body
 
     if _body_file(text) is None:
-        return load_body(text)
+        try:
+            return load_body(text)
+        except KeyError as exc:  # the presets are not all --body takes: say what else it reads
+            raise KeyError(f"--body: {exc.args[0]}; or a body file ({', '.join(BODY_FILE_SUFFIXES)})") from None
     from drape.service.bodies import read_body_file
     from drape.service.errors import DrapeError
     from drape.service.settings import Settings

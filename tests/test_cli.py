@@ -413,8 +413,8 @@ def test_a_mesh_that_is_not_a_triangle_mesh_is_named_in_one_line(tmp_path, capsy
     for name, text in files.items():
         (tmp_path / name).write_text(text)
     out = tmp_path / "fitted.obj"
-    for name, code, said in (("nofaces.obj", 2, "the mesh has no triangle faces"),
-                             ("empty.stl", 2, "the mesh has no triangle faces"),
+    for name, code, said in (("nofaces.obj", 2, "the file holds no triangle faces (points or lines only?)"),
+                             ("empty.stl", 2, "the file holds no triangle faces"),
                              ("oob.obj", 2, "not a readable OBJ mesh (IndexError"),
                              ("nan.obj", 2, "vertices hold NaN or infinite values"),
                              ("bad.ply", 2, "not a readable PLY mesh"),
@@ -429,7 +429,7 @@ def test_a_mesh_that_is_not_a_triangle_mesh_is_named_in_one_line(tmp_path, capsy
     assert not out.exists()
     png = tmp_path / "look.png"
     got = _refused(capsys, "render", "--outfit", str(tmp_path / "nofaces.obj"), "--out", str(png))
-    assert got == (2, f"drape: error: {tmp_path / 'nofaces.obj'}: the mesh has no triangle faces (0 vertices)")
+    assert got == (2, f"drape: error: {tmp_path / 'nofaces.obj'}: the file holds no triangle faces (points or lines only?)")
     assert not png.exists()
 
 
@@ -589,3 +589,15 @@ def test_a_name_with_no_committed_config_lists_the_names_there_are(command, opti
     code, line = _refused(capsys, *command, option, "nosuch")
     assert code == 2 and line.startswith(f"drape: error: {option} 'nosuch': no committed config {kind}_nosuch.json; "
                                          f"configs of {kind}: "), line
+
+
+def test_an_unknown_body_names_the_presets_and_the_body_files_body_takes(tmp_path, capsys):
+    """--body takes a body file too (a probe read only the presets in the error and in docs/fitting.md)."""
+    mesh = tmp_path / "tshirt.obj"
+    from drape import cli
+
+    cli.main(["outfits", "generate", "--type", "tshirt", "--vertices", "300", "--out", str(mesh)])
+    capsys.readouterr()
+    got = _refused(capsys, "outfits", "fit", str(mesh), "--body", "nobody", "--out", str(tmp_path / "f.obj"))
+    assert got == (2, "drape: error: --body: unknown body 'nobody'; presets: female, heavy, male, neutral; or a body "
+                      "file (.glb, .gltf, .npz)")

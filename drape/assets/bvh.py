@@ -417,15 +417,18 @@ def has_added_tpose(clip: BvhClip) -> bool:
     return bool(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max() > 10.0)
 
 
+DEFAULT_UP_REASON = "BVH default"  # detect_up's reason where the skeleton does not say
+
+
 def detect_up(clip: BvhClip) -> tuple[str, str]:
     """("y" or "z", why): the axis the rest skeleton's Hips -> Head points along (CMU files are Y-up)."""
     names = {n: i for i, n in enumerate(clip.names)}
     if "Head" not in names:
-        return "y", "BVH default"
+        return "y", DEFAULT_UP_REASON
     d = rest_positions(clip)[names["Head"]]
     if d[2] > abs(d[1]) and d[2] > abs(d[0]):
         return "z", "the rest skeleton's Hips -> Head points along +Z"
-    return "y", "the rest skeleton's Hips -> Head points along +Y" if d[1] > 0 else "BVH default"
+    return "y", "the rest skeleton's Hips -> Head points along +Y" if d[1] > 0 else DEFAULT_UP_REASON
 
 
 def _bridge(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:

@@ -303,6 +303,7 @@ class ImportedMotion:
     dropped_tpose: bool
     floor: FloorFix | None
     flips: tuple[Flip, ...] = ()  # rotation flips repaired (source frames), drape.assets.motion_flips
+    warnings: tuple[str, ...] = ()  # what looks wrong (an `up` the file contradicts; feet left off the floor)
 
     def summary(self) -> str:
         m = self.motion
@@ -320,6 +321,7 @@ class ImportedMotion:
             moved = f"down {f.shift * 1e3:.1f} mm" if f.shift >= 0 else f"up {-f.shift * 1e3:.1f} mm"
             lines.append(f"floor: lowest body point moved {moved}; foot-floor error (median "
                          f"|lowest foot point|) {f.before * 1e3:.1f} mm before, {f.after * 1e3:.1f} mm after")
+        lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
 
@@ -371,6 +373,22 @@ def _finish(motion: Motion, body: Body, fps: float | None, floor: bool,
     return (fix.motion if fix is not None else motion), fix, tuple(found)
 
 
+FLOOR_WARNING_M = 0.1  # a foot-floor error left after the floor step above this (m) is worth a warning (real CMU: <= 47 mm)
+
+
+def _warnings(up: str | None, detected: tuple[str, str], clear: bool, fix: FloorFix | None) -> tuple[str, ...]:
+    """What an import should tell its user: an `up` that the file's own skeleton contradicts (`detected`, when
+    `clear`: a measured direction, not a default), and feet the floor step left far from the floor."""
+    out = []
+    if up is not None and clear and detected[0] != up:
+        out.append(f"{detected[1]}: the file looks {detected[0].upper()}-up, not {up.upper()}-up as asked (the "
+                   f"body may lie on its side; leave out up to detect it)")
+    if fix is not None and fix.after > FLOOR_WARNING_M:
+        out.append(f"the feet stay {fix.after * 1e3:.0f} mm from the floor (median) after the floor step: is the "
+                   f"up axis right?")
+    return tuple(out)
+
+
 def _import_bvh(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, flips: bool, name: str,
                 max_frames: int | None, max_source_frames: int | None) -> ImportedMotion:
     from dataclasses import replace
@@ -394,8 +412,10 @@ def _import_bvh(data: bytes, body: Body, fps: float | None, up: str | None, floo
     except bvh.BvhError as exc:
         raise MotionFileError(str(exc)) from exc
     out, fix, found = _finish(motion, body, fps, floor, flips)
+    detected = bvh.detect_up(clip)
     return ImportedMotion(out, "bvh", f"CMU-named BVH, {len(clip.names)} joints", header.num_frames, clip.fps,
-                          chosen, why, dropped, fix, found)
+                          chosen, why, dropped, fix, found,
+                          _warnings(up, detected, detected[1] != bvh.DEFAULT_UP_REASON, fix))
 
 
 def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floor: bool, flips: bool, name: str,
@@ -438,4 +458,6 @@ def _import_npz(data: bytes, body: Body, fps: float | None, up: str | None, floo
     motion = Motion(poses, trans, src_fps, name)
     out, fix, found = _finish(motion, body, fps, floor, flips)
     layout = clip.layout + ("" if clip.fps is not None else f", no frame rate in the file: {src_fps:g} fps assumed")
-    return ImportedMotion(out, "npz", layout, T, src_fps, chosen, why, False, fix, found)
+    detected = amass.detect_up(clip)
+    return ImportedMotion(out, "npz", layout, T, src_fps, chosen, why, False, fix, found,
+                          _warnings(up, detected, "no clear up axis" not in detected[1], fix))

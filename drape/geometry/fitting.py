@@ -180,6 +180,9 @@ def unpose(vertices: np.ndarray, body: Body, pose: np.ndarray) -> np.ndarray:
         raise FitError(str(exc), "pose") from None
 
 
+INSIDE_AFTER_WARNING = 0.001  # a share of vertices left inside the body at rest worth a warning (the bar: 0.1%)
+
+
 def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: str | None = None,
                 up: str | None = None, pose: str | np.ndarray | None = None, eps: float = EPS,
                 exact_search: bool = False) -> FitResult:
@@ -191,7 +194,7 @@ def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: s
     each was inferred, pose, inside_before / inside_after (shares of vertices inside the body at rest,
     before and after the push-out), max_move_mm / mean_move_mm (the push-out's moves), max_stretch_mm (its
     largest edge lengthening), warnings (sentences: units or up given against what the mesh's size or shape
-    says)). exact_search: `place`'s.
+    says; more than INSIDE_AFTER_WARNING of the vertices left inside)). exact_search: `place`'s.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -242,6 +245,9 @@ def fit_garment(vertices: np.ndarray, faces: np.ndarray, body: Body, *, units: s
     fitted, _ = refine(rest.astype(np.float32), f, rest_body.astype(np.float32), body.faces, eps=eps)
     fitted = fitted[0].astype(np.float64)
     inside_after = float(np.mean(rest_distance.signed_distance(fitted) < 0))
+    if inside_after > INSIDE_AFTER_WARNING:
+        warnings.append(f"{inside_after:.2%} of the vertices are still inside the body after the push-out: does the "
+                        "file hold more than the garment (a body, a second layer)?")
     move = np.linalg.norm(fitted - rest, axis=1)
     e = unique_edges(f)
     before_len = np.linalg.norm(rest[e[:, 1]] - rest[e[:, 0]], axis=1)

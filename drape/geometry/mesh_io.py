@@ -47,8 +47,9 @@ def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                          f"({type(exc).__name__}: {exc})") from exc
     vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float32)
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
-    if len(faces) == 0:
-        raise ValueError(f"{path}: the mesh has no triangle faces ({len(vertices)} vertices)")
+    if len(faces) == 0:  # a file of points or lines reads as an empty mesh: its vertex count would say 0
+        raise ValueError(f"{path}: the file holds no triangle faces" + (f" ({len(vertices)} vertices)" if len(vertices)
+                                                                         else " (points or lines only?)"))
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ValueError(f"{path}: faces index vertices {faces.min()}..{faces.max()}; the mesh has "
                          f"{len(vertices)}")

@@ -53,6 +53,7 @@ def test_every_real_clip_imports_on_the_floor(fps):
         r = import_motion(path.read_bytes(), BODY, fps=fps, name=path.stem)
         m, f = r.motion, r.floor
         assert f is not None and np.isfinite(m.poses).all() and np.isfinite(m.trans).all()
+        assert r.warnings == (), (path.stem, r.warnings)
         assert r.dropped_tpose == (path.stem not in PROCESSED), path.stem
         assert m.num_frames == resampled_count(r.source_frames - r.dropped_tpose, 120.0, fps or 120.0)
         before.append(f.before * 1e3)
@@ -238,6 +239,28 @@ def test_amass_z_up_npz_turns_y_up():
     assert np.allclose(r52.motion.poses, r.motion.poses) and np.allclose(r52.motion.trans, r.motion.trans)
     kept = import_motion(data, BODY, floor=False, up="y")
     assert kept.up == "y" and np.allclose(kept.motion.trans, trans, atol=1e-5)
+    # ... and says the file looks otherwise (the body lies on its side)
+    assert r.warnings == () and len(kept.warnings) == 1 and "looks Z-up, not Y-up as asked" in kept.warnings[0]
+    assert "warning: " in kept.summary()
+
+
+def test_an_up_axis_the_bvh_contradicts_is_honoured_and_warned_of():
+    """A Y-up CMU file imported with up="z" (a probe's 141_16_wave did it: 'Z-up (as asked)', the body lying down,
+    the foot-floor error 237 -> 439 mm): the import does as asked and says what looks wrong."""
+    data = cmu_bvh(8)
+    plain = import_motion(data, BODY)
+    assert plain.up == "y" and plain.warnings == ()
+    forced = import_motion(data, BODY, up="z")
+    assert forced.up == "z" and forced.up_reason == "as asked"
+    assert len(forced.warnings) == 1 and "looks Y-up, not Z-up as asked" in forced.warnings[0]
+
+
+@needs_data
+def test_feet_the_floor_step_leaves_off_the_floor_are_warned_of():
+    """The real 141_16_wave imported Z-up (it is Y-up): lying down, its feet stay ~44 cm from the floor."""
+    r = import_motion((DATA / "141_16_wave.bvh").read_bytes(), BODY, fps=30.0, up="z")
+    assert r.floor is not None and r.floor.after > 0.3
+    assert len(r.warnings) == 2 and "from the floor (median) after the floor step" in r.warnings[1]
 
 
 def test_an_amass_npz_whose_unused_members_are_pickled_imports_without_unpickling():
