@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import numbers
 import os
+import re
 from collections.abc import AsyncIterator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -492,6 +493,40 @@ def _keyframe_arrays(keyframes: Sequence[KeyframeLike]) -> dict[str, np.ndarray]
     return out
 
 
+_KEYFRAME_NAME = re.compile(r"\b(?:latent_frames|latents|vertex_frames|vertices|keyframes)\[\d+\]")
+
+
+def _keyframe_names(keyframes: Sequence[KeyframeLike]) -> dict[str, str]:
+    """How the request names each keyframe (npz: vertex_frames[j] / vertices[j] and latent_frames[j] / latents[j];
+    JSON: keyframes[k], vertex keyframes first, as `_keyframe_arrays` orders them) -> how the caller wrote it
+    (keyframes[i].frame, keyframes[i].vertices or .latent, keyframes[i]: i its index in `keyframes`)."""
+    shapes: list[int] = []
+    latents: list[int] = []
+    for i, key in enumerate(keyframes):
+        is_latent = "latent" in key if isinstance(key, Mapping) else np.ndim(key[1]) == 1
+        (latents if is_latent else shapes).append(i)
+    names: dict[str, str] = {}
+    for frames, values, what, order, start in (("vertex_frames", "vertices", "vertices", shapes, 0),
+                                               ("latent_frames", "latents", "latent", latents, len(shapes))):
+        for j, i in enumerate(order):
+            names[f"{frames}[{j}]"] = f"keyframes[{i}].frame"
+            names[f"{values}[{j}]"] = f"keyframes[{i}].{what}"
+            names[f"keyframes[{start + j}]"] = f"keyframes[{i}]"
+    return names
+
+
+def _caller_names(exc: DrapeAPIError, keyframes: Sequence[KeyframeLike]) -> DrapeAPIError:
+    """An animate_keyframes error with the keyframes named as the caller wrote them (the service names the
+    request's npz members or its reordered JSON list, which the caller never saw)."""
+    names = _keyframe_names(keyframes)
+
+    def said(text: str) -> str:
+        return _KEYFRAME_NAME.sub(lambda m: names.get(m.group(0), m.group(0)), text)
+
+    return DrapeAPIError(exc.status, exc.type, exc.title, said(exc.detail),
+                         field=None if exc.field is None else said(exc.field), retry_after=exc.retry_after)
+
+
 def _motion_form(motion: MotionFile, fields: dict[str, Any], accept: str | None = None) -> dict:
     """A garment or layers route's httpx arguments for a motion file (BVH or AMASS npz): a multipart form with the
     file as `motion_file` (the server retargets it onto the template's body), its fps and up, and the rest of
@@ -818,9 +853,12 @@ class Client(_Base):
         `refine` (True or RefineOptions) then pushes the garment out of its body, moving what of a keyframe lies
         inside it. format="glb" / "pc2": the bytes of a GLB vertex animation / a PC2 point cache."""
         req = _keyframes_npz(motion, keyframes, refine, match_keyframes)
-        if format != "array":
-            return self._file(_garment_path(name, "animate"), _file_type(format), **req)
-        return self._frames(_garment_path(name, "animate"), **req)
+        try:
+            if format != "array":
+                return self._file(_garment_path(name, "animate"), _file_type(format), **req)
+            return self._frames(_garment_path(name, "animate"), **req)
+        except DrapeAPIError as exc:
+            raise _caller_names(exc, keyframes) from None
 
     def sample_designs(self, name: str, *, count: int, seed: int = 0, motion: MotionLike,
                        frame: int = 0) -> DesignSamples:
@@ -927,9 +965,12 @@ class AsyncClient(_Base):
                                 format: Format = "array") -> np.ndarray | bytes:
         """The garment's stream (T, N, 3) float32 m from keyframes (see Client.animate_keyframes)."""
         req = _keyframes_npz(motion, keyframes, refine, match_keyframes)
-        if format != "array":
-            return await self._file(_garment_path(name, "animate"), _file_type(format), **req)
-        return await self._frames(_garment_path(name, "animate"), **req)
+        try:
+            if format != "array":
+                return await self._file(_garment_path(name, "animate"), _file_type(format), **req)
+            return await self._frames(_garment_path(name, "animate"), **req)
+        except DrapeAPIError as exc:
+            raise _caller_names(exc, keyframes) from None
 
     async def sample_designs(self, name: str, *, count: int, seed: int = 0, motion: MotionLike,
                              frame: int = 0) -> DesignSamples:

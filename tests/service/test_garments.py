@@ -269,6 +269,33 @@ def test_the_client_sends_a_motion_file_path(server_url, garment, shape, tmp_pat
         assert np.abs(designs.vertices - again.vertices).max() <= 1e-5
 
 
+def test_the_client_names_keyframes_as_its_caller_wrote_them(server_url, garment, motion, shape, tmp_path):
+    """The client sends keyframes as npz members (latent_frames[j], vertices[j], ...) or, with a motion file, as a
+    JSON list with the shapes first; the service's errors named those, which the caller never wrote (a probe got
+    `latent_frames[1]` for its keyframes[1]). The errors name the caller's keyframes[i] now."""
+    z = np.zeros(100, np.float32)
+    path = tmp_path / "clip.bvh"
+    path.write_bytes(cmu_bvh(60))
+    poses, trans, _ = motion_from_file(path.read_bytes(), "neutral", fps=30.0, up=None, max_frames=200,
+                                       max_decoded_bytes=2**26)
+    on_file = garment.sample(1, 3, 12, poses, trans)[1][0]  # a shape on the file's body at frame 12
+    with drape.Client(server_url) as client:
+        for m, key_shape in ((motion, shape), (path, on_file)):
+            # keyframes[2] (a latent) on keyframes[0]'s frame; the shape keyframe [1] comes first in the request
+            bad = [{"frame": 5, "latent": z}, {"frame": 12, "vertices": key_shape}, {"frame": 5, "latent": z}]
+            with pytest.raises(drape.DrapeAPIError) as info:
+                client.animate_keyframes(NAME, motion=m, keyframes=bad)
+            assert info.value.status == 422 and info.value.field == "keyframes[2].frame", info.value
+            assert "frame 5 is also the frame of keyframes[0].frame" in info.value.detail, info.value.detail
+            with pytest.raises(drape.DrapeAPIError) as info:
+                client.animate_keyframes(NAME, motion=m, keyframes=[{"frame": 2, "latent": z},
+                                                                    {"frame": 100000, "latent": z}])
+            assert info.value.field == "keyframes[1].frame", info.value
+            with pytest.raises(drape.DrapeAPIError) as info:
+                client.animate_keyframes(NAME, motion=m, keyframes=[(3, np.zeros(7, np.float32)), (12, key_shape)])
+            assert info.value.field == "keyframes[0].latent", info.value
+
+
 def test_the_routes_take_a_computing_slot(app, http, motion):
     """With no computing slot free, every POST route answers 503 + Retry-After; the GET routes still answer."""
     admission = app.state.admission
