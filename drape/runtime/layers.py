@@ -41,6 +41,7 @@ MGN_INNER = "mgn_inner"  # MGN's inner-layer network of the template
 MGN_OUTER = "mgn_outer"  # MGN's outer-layer network of the combination
 INNER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_inner"
 OUTER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_outer"
+OUTER_BATCH = 64  # windows per ONNX Runtime call: 600 at once (9,000 frames) peaked 792 MB, 64 at a time 306 MB
 OUTER_FPS = 30.0  # frames/s an outer network's windows read where its manifest does not say (its config's mocap.fps)
 
 
@@ -150,14 +151,16 @@ class OuterModel:
 
     def keys_of_features(self, features: np.ndarray, thickness: float, inner_keys: np.ndarray) -> np.ndarray:
         """features (T, 78) (`motion_features`), thickness H_in m, inner_keys (T, Ki) -> (T, K) float32: the
-        motion's windows run as one batch, blended (`blend_windows`)."""
+        motion's windows run in batches of up to OUTER_BATCH (the memory a call takes grows with its windows),
+        blended (`blend_windows`)."""
         # as float32 once, not once per window
         features, inner_keys = np.asarray(features, np.float32), np.asarray(inner_keys, np.float32)
         starts, length = window_starts(len(features), self.window)
-        out = self.session.run(["outer_keys"], {
-            "motion": np.stack([features[s:s + length] for s in starts]),
-            "thickness": np.full((len(starts), 1), thickness, np.float32),
-            "inner_keys": np.stack([inner_keys[s:s + length] for s in starts])})[0]
+        out = np.concatenate([self.session.run(["outer_keys"], {
+            "motion": np.stack([features[s:s + length] for s in batch]),
+            "thickness": np.full((len(batch), 1), thickness, np.float32),
+            "inner_keys": np.stack([inner_keys[s:s + length] for s in batch])})[0]
+            for batch in np.array_split(starts, -(-len(starts) // OUTER_BATCH))])
         return blend_windows(out, starts, len(features))
 
 
