@@ -6,6 +6,7 @@ the models validate every number. Pure CPU work, no HTTP: the routers call these
 
 from __future__ import annotations
 
+import io
 import re
 from typing import Any
 
@@ -144,16 +145,34 @@ def _document(data: bytes, field: str = "body") -> dict:
 
 # ---- npz ----------------------------------------------------------------------------------------
 
+NPZ_ALIASES = {"trans": "translation", "transl": "translation", "mocap_framerate": "fps", "mocap_frame_rate": "fps",
+               "frame_rate": "fps"}  # other tools' names of a request's members
+
+
 def npz_members(data: bytes, names: tuple[str, ...], settings: Settings,
-                field: str = "body") -> dict[str, np.ndarray]:
+                field: str = "body", strict: bool = False) -> dict[str, np.ndarray]:
     """The members `names` of an npz (others are never read), within DRAPE_MAX_DECODED_BYTES; errors name
-    `field`: the request body, or the form field that carried the archive."""
+    `field`: the request body, or the form field that carried the archive. strict (a request's own npz): a
+    member that is not one of `names` is a 422 naming it, as an unknown JSON field is (it was dropped without a
+    word: `trans` for `translation` animated the garment in place)."""
     try:
-        return decode_npz(data, names, max_bytes=settings.max_decoded_bytes)
+        z = decode_npz(data, names, max_bytes=settings.max_decoded_bytes)
     except NpzTooLarge as exc:
         raise LimitExceeded(str(exc), field) from exc
     except ValueError as exc:
         raise MalformedInput(str(exc), field) from exc
+    if strict:
+        import zipfile
+
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:  # read by decode_npz already: its names only
+            for member in archive.namelist():
+                key = member.removesuffix(".npy")
+                if key not in names:
+                    meant = NPZ_ALIASES.get(key)
+                    hint = f" (did you mean {meant!r}?)" if meant in names else ""
+                    raise InvalidInput(f"not a member this request reads{hint}; it reads {', '.join(names)}",
+                                       key)
+    return z
 
 
 def npz_numbers(z: dict[str, np.ndarray], name: str, integer: bool = False) -> np.ndarray:
@@ -270,7 +289,7 @@ def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
         return (v, f, _text(parts, "body"), _text(parts, "influences"), bool(_form_flag(parts, "fit")),
                 _form_mesh_parts(parts, len(v)))
     if kind == "application/x-npz":
-        z = npz_members(data, ("vertices", "faces", "body", "influences", "fit"), settings)
+        z = npz_members(data, ("vertices", "faces", "body", "influences", "fit"), settings, strict=True)
         if "vertices" not in z or "faces" not in z:
             raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
         return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), npz_text(z, "body"),
@@ -305,7 +324,7 @@ def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings)
         return {"vertices": v, "faces": f, "body": _text(parts, "body"), "units": _text(parts, "units"),
                 "up": _text(parts, "up"), "pose": pose}
     if kind == "application/x-npz":
-        z = npz_members(data, ("vertices", "faces", *FIT_FIELDS), settings)
+        z = npz_members(data, ("vertices", "faces", *FIT_FIELDS), settings, strict=True)
         if "vertices" not in z or "faces" not in z:
             raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
         pose = npz_text(z, "pose") if "pose" in z and z["pose"].dtype.kind == "U" else (
@@ -353,7 +372,7 @@ def _animate_npz(data: bytes, settings: Settings, engine: Engine) -> dict:
     outfit_id = npz_text(first, "outfit_id")
     if outfit_id is not None:
         _known(outfit_id, engine)
-    z = npz_members(data, ANIMATE_NPZ, settings)
+    z = npz_members(data, ANIMATE_NPZ, settings, strict=True)
     if (outfit_id is None) == ("vertices" not in z or "faces" not in z):
         raise InvalidInput("give exactly one of 'outfit_id' and the arrays 'vertices' and 'faces'", "body")
     fps = npz_scalar(z, "fps")
@@ -395,7 +414,7 @@ def refine_arguments(kind: str, data: bytes, settings: Settings, content_type: s
     if kind == "application/x-npz":
         names = ("vertices", "faces", "poses", "translation", "fps", "clip", "body", *REFINE_OPTIONS, *INNER_NPZ,
                  "rest_vertices")
-        z = npz_members(data, names, settings)
+        z = npz_members(data, names, settings, strict=True)
         missing = [k for k in ("vertices", "faces") if k not in z] + ([] if "poses" in z or "clip" in z else ["poses"])
         if missing:
             raise InvalidInput(f"the archive lacks {missing}", "body")
@@ -604,7 +623,7 @@ def npz_integer(z: dict[str, np.ndarray], name: str) -> int | None:
 
 
 def _garment_npz(route: str, data: bytes, settings: Settings) -> dict:
-    z = npz_members(data, (*MOTION_NPZ, *GARMENT_NPZ[route]), settings)
+    z = npz_members(data, (*MOTION_NPZ, *GARMENT_NPZ[route]), settings, strict=True)
     request: dict[str, Any] = {"motion": _npz_motion(z)}
     if route == "encode":
         if "vertices" not in z or "frame" not in z:

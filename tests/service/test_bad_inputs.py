@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 from svc_env import problem
 
+from tests.intrinsic_model import NAME
+
 V = [[0.0, 1.0, 0.2], [0.1, 1.0, 0.2], [0.0, 1.1, 0.2], [0.1, 1.1, 0.25]]
 F = [[0, 1, 2], [1, 3, 2]]
 
@@ -230,3 +232,25 @@ def test_refine_inner_layer_bad_inputs(http):
     problem(post(inner_vertices=np.array(frames, np.float32), inner_faces=np.array(F), thickness=np.array(-1.0)),
             422, "thickness")
     assert post(inner_vertices=np.array(frames, np.float32), inner_faces=np.array(F)).status_code == 200
+
+
+@pytest.mark.parametrize("url, members", [
+    ("/v1/outfits/animate", {"vertices": np.array(V), "faces": np.array(F)}),
+    ("/v1/refine", {"vertices": np.tile(np.array(V), (3, 1, 1)), "faces": np.array(F)}),
+    (f"/v1/garments/{NAME}/sample", {"count": np.array(1), "frame": np.array(0)}),
+])
+def test_an_npz_member_the_request_does_not_read_is_named(http, url, members):
+    """A probe sent AMASS's `trans` for `translation`: the npz request dropped it without a word and animated the
+    garment in place (200), where JSON answers an unknown field with a 422. Now the npz does too."""
+    from drape.schemas.binary import encode_npz
+
+    poses = np.zeros((3, 72))
+    p = problem(http.post(url, content=encode_npz({**members, "poses": poses, "trans": np.ones((3, 3))}),
+                          headers={"content-type": "application/x-npz"}), 422, "did you mean 'translation'?")
+    assert p["field"] == "trans"
+    p = problem(http.post(url, content=encode_npz({**members, "poses": poses, "refine_eps": np.array(0.01)}),
+                          headers={"content-type": "application/x-npz"}), 422, "not a member this request reads")
+    assert p["field"] == "refine_eps"
+    ok = http.post(url, content=encode_npz({**members, "poses": poses, "translation": np.ones((3, 3))}),
+                   headers={"content-type": "application/x-npz", "accept": "application/x-npz"})
+    assert ok.status_code == 200, ok.text[:300]

@@ -63,7 +63,7 @@ def cases() -> list[tuple[str, int, dict]]:
         ("ply declaring 1e9 vertices", 413, {"url": "/v1/outfits/rig", "files": {"mesh": ("a.ply", (
             b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\nproperty float x\nproperty float y\n"
             b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"))}}),
-        ("npz with an unused 320 MB member", 200, {"url": "/v1/outfits/rig", "content": npz_with_bomb("unused"),
+        ("npz with an unused 320 MB member", 422, {"url": "/v1/outfits/rig", "content": npz_with_bomb("unused"),
                                                    "headers": {"content-type": "application/x-npz"}}),
         ("npz whose vertices inflate to 320 MB", 413, {"url": "/v1/outfits/rig", "content": npz_with_bomb("vertices"),
                                                        "headers": {"content-type": "application/x-npz"}}),
