@@ -26,7 +26,8 @@ from drape.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 AMASS_KEYS = ("mocap_framerate", "mocap_frame_rate", "gender", "betas", "dmpls")
 FPS_KEYS = ("fps", "mocap_framerate", "mocap_frame_rate")
-NPZ_MEMBERS = ("poses", "trans", "root_orient", "pose_body", *FPS_KEYS)  # the members whose values are read
+TRANS_KEYS = ("trans", "transl", "translation")  # AMASS / SMPL-X / drape's request name of the root translation
+NPZ_MEMBERS = ("poses", *TRANS_KEYS, "root_orient", "pose_body", *FPS_KEYS)  # the members whose values are read
 # AMASS's own members whose presence marks the file and whose values are never read (an AMASS gender is often a
 # pickled object array: decoding it refused the whole file)
 MARKER_KEYS = ("gender", "betas", "dmpls")
@@ -92,10 +93,13 @@ def read_pose_arrays(z: Mapping[str, np.ndarray], names: Collection[str] = ()) -
     else:
         raise PoseArrayError(f"no 'poses' array (nor 'root_orient' + 'pose_body'); expected {EXPECTED}")
     T = len(poses)
-    if "trans" in z:
-        trans = _numbers(z, "trans")
+    given = [k for k in TRANS_KEYS if k in z]
+    if len(given) > 1:  # which one is meant is anyone's guess
+        raise PoseArrayError(f"the root translation is given as {' and '.join(map(repr, given))}: give one")
+    if given:
+        trans = _numbers(z, given[0])
         if trans.shape != (T, 3):
-            raise PoseArrayError(f"'trans' must be ({T}, 3) to match the poses, got {trans.shape}")
+            raise PoseArrayError(f"'{given[0]}' must be ({T}, 3) to match the poses, got {trans.shape}")
     else:
         trans = np.zeros((T, 3))
     fps = None

@@ -315,6 +315,17 @@ def test_amass_split_arrays():
                                                 atol=1e-6)
 
 
+@pytest.mark.parametrize("key", ["trans", "transl", "translation"])
+def test_the_root_translation_is_read_under_each_tools_name(key):
+    """AMASS writes trans, SMPL-X fits transl, drape's requests translation: a probe's file with transl or
+    translation imported in place (the root path dropped without a word)."""
+    path = np.c_[np.linspace(0.0, 2.0, 5), np.zeros(5), np.zeros(5)]
+    buf = io.BytesIO()
+    np.savez(buf, poses=np.zeros((5, 72)), **{key: path})
+    r = import_motion(buf.getvalue(), BODY, floor=False, up="y")
+    assert np.allclose(r.motion.trans, path, atol=1e-6)
+
+
 BAD_NPZ = [
     ({"poses": np.zeros((5, 24, 4))}, "quaternions"),
     ({"poses": np.zeros((5, 96))}, "quaternions"),
@@ -322,6 +333,9 @@ BAD_NPZ = [
     ({"poses": np.zeros((5, 50))}, "expected axis-angle poses"),
     ({"poses": np.zeros((5, 30, 3))}, "expected axis-angle poses"),
     ({"poses": np.zeros((5, 72)), "trans": np.zeros((4, 3))}, "'trans' must be (5, 3)"),
+    ({"poses": np.zeros((5, 72)), "transl": np.zeros((4, 3))}, "'transl' must be (5, 3)"),
+    ({"poses": np.zeros((5, 72)), "trans": np.zeros((5, 3)), "translation": np.zeros((5, 3))},
+     "given as 'trans' and 'translation': give one"),
     ({"poses": np.full((5, 72), np.nan)}, "NaN"),
     ({"poses": np.array(["a"] * 5)}, "real numbers"),
     ({"trans": np.zeros((5, 3))}, "no 'poses' array"),
