@@ -33,7 +33,7 @@ from drape.schemas.outfits import (
     RigRequest,
 )
 from drape.service import uploads
-from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, quoted
+from drape.service.errors import InvalidInput, LimitExceeded, MalformedInput, field_name, quoted
 from drape.service.garments import NPZ_MEMBERS_KEY
 from drape.service.handlers import unknown_outfit
 from drape.service.http import loads, parse_form, parse_json
@@ -70,7 +70,7 @@ def _request_errors(exc: ValidationError, doc: Any = None) -> list[tuple[str, st
     that string, not every value the (T, 72) member found to be a list)."""
     errors = exc.errors()
     if doc is None:
-        return [(".".join(str(x) for x in e["loc"]), e["msg"]) for e in errors]
+        return [(field_name(e["loc"]), e["msg"]) for e in errors]
     located = [(*_request_path(e, doc), e) for e in errors]
     members: dict[tuple, dict[tuple, list[int]]] = {}  # the union (loc before the tag) -> member -> loc lengths
     for _, member, e in located:
@@ -84,7 +84,7 @@ def _request_errors(exc: ValidationError, doc: Any = None) -> list[tuple[str, st
     for union, options in members.items():
         top = max(map(closeness, options.values()))
         best[union] = {m for m, lengths in options.items() if closeness(lengths) == top}
-    return [(".".join(str(x) for x in path), e["msg"]) for path, member, e in located
+    return [(field_name(path), e["msg"]) for path, member, e in located
             if member is None or member in best[member[:-1]]]
 
 

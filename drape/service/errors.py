@@ -11,6 +11,15 @@ def quoted(value: object, limit: int = DETAIL_CHARS) -> str:
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
+def field_name(path: tuple | list) -> str:
+    """A location in the request as the service names fields everywhere: ("keyframes", 0, "frame") ->
+    "keyframes[0].frame" (pydantic's own "keyframes.0.frame" differed from the names the handlers give)."""
+    out = ""
+    for x in path:
+        out += f"[{x}]" if isinstance(x, int) else (f".{x}" if out else str(x))
+    return out
+
+
 class DrapeError(Exception):
     """Base: `field` names the part of the request that is wrong, `detail` says how."""
 

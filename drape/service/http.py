@@ -22,7 +22,7 @@ from drape.service.errors import (
     MalformedInput,
     RequestTimeout,
     Unauthorized,
-    quoted,
+    field_name,
 )
 from drape.service.settings import Settings
 
@@ -99,7 +99,7 @@ def parse_form(body: bytes, content_type: str, max_parts: int = 16) -> dict[str,
         if len(parts) >= max_parts:
             raise MalformedInput(f"more than {max_parts} parts", "body")
         if name in parts:
-            raise InvalidInput("the form gives this field more than once", quoted(name, 40))
+            raise InvalidInput("the form gives this field more than once", name[:40])
         parts[name] = FormPart(filename.decode("utf-8", "replace") if filename is not None else None, bytes(data))
         headers.clear()
         data.clear()
@@ -142,6 +142,35 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def _duplicate_path(data: bytes | str) -> tuple | None:
+    """Where in a JSON document (already parsed once, so well formed) an object first gives a key twice:
+    (key, index, ..., key), or None."""
+
+    class Twice(dict):
+        key: str
+
+    def mark(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                out = Twice(pairs)
+                out.key = key
+                return out
+            seen.add(key)
+        return dict(pairs)
+
+    stack: list[tuple[tuple, Any]] = [((), json.loads(data, object_pairs_hook=mark))]
+    while stack:  # without recursion: the document may nest as deep as json.loads allows
+        path, value = stack.pop()
+        if isinstance(value, Twice):
+            return (*path, value.key)
+        if isinstance(value, dict):
+            stack.extend(((*path, k), v) for k, v in value.items())
+        elif isinstance(value, list):
+            stack.extend(((*path, i), v) for i, v in enumerate(value))
+    return None
+
+
 def loads(data: bytes | str) -> Any:
     """json.loads that refuses an object naming a key twice (DuplicateKey), as a form field or npz member given
     twice is refused: `{"refine": true, "refine": false}` was read as false without a word."""
@@ -155,8 +184,10 @@ def parse_json(data: bytes, field: str = "body") -> Any:
         return loads(data)
     except RecursionError:
         raise MalformedInput("JSON nested too deeply", field) from None
-    except DuplicateKey as exc:  # the key in a request body; the form field that holds the JSON text otherwise
-        raise InvalidInput(str(exc), exc.key[:40] if field == "body" else field) from None
+    except DuplicateKey as exc:  # the key's path in a request body; the form field that holds the JSON text otherwise
+        path = _duplicate_path(data) if field == "body" else None
+        raise InvalidInput(str(exc), (field_name(path) if path else exc.key)[:80] if field == "body" else field
+                           ) from None
     except (ValueError, UnicodeDecodeError) as exc:
         raise MalformedInput(f"not valid JSON ({str(exc)[:200]})", field) from exc
 

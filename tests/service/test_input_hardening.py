@@ -42,7 +42,8 @@ def test_a_field_given_twice_is_refused_not_last_wins(http):
     files = [("mesh", ("a.obj", OBJ)), ("mesh", ("b.obj", OBJ))]
     problem(http.post("/v1/outfits/rig", files=files), 422, "mesh", "more than once")
     files = [("motion_file", ("m.bvh", b"HIERARCHY")), ("outfit_id", (None, b"a")), ("outfit_id", (None, b"b"))]
-    problem(http.post("/v1/outfits/animate", files=files), 422, "outfit_id", "more than once")
+    p = problem(http.post("/v1/outfits/animate", files=files), 422, "outfit_id", "more than once")
+    assert p["field"] == "outfit_id"  # the field's name, not its repr ("'outfit_id'")
 
 
 def test_the_rig_form_refuses_an_unknown_field_as_the_other_forms_do(http):
@@ -179,11 +180,11 @@ def test_poses_with_one_wrong_value_name_that_value_not_the_other_union_member(h
     outfit_id = rig.json()["outfit_id"]
     nested = [[[0, 0, 0]] * 24, [[0, 0, 0]] * 3 + [[0, 0, "a"]] + [[0, 0, 0]] * 20]
     p = problem(http.post("/v1/outfits/animate", json={"outfit_id": outfit_id, "motion": {"poses": nested}}), 422,
-                "motion.poses.1.3.2: Input should be a valid number")
-    assert p["field"] == "motion.poses.1.3.2" and "poses.0." not in p["detail"], p
+                "motion.poses[1][3][2]: Input should be a valid number")
+    assert p["field"] == "motion.poses[1][3][2]" and "poses[0]" not in p["detail"], p
     flat = [[0.0] * 71 + ["a"]]
     p = problem(http.post("/v1/outfits/animate", json={"outfit_id": outfit_id, "motion": {"poses": flat}}), 422)
-    assert p["field"] == "motion.poses.0.71" and "valid list" not in p["detail"], p
+    assert p["field"] == "motion.poses[0][71]" and "valid list" not in p["detail"], p
 
 
 def test_a_json_object_that_names_a_key_twice_is_refused_not_last_wins(http):
@@ -195,8 +196,13 @@ def test_a_json_object_that_names_a_key_twice_is_refused_not_last_wins(http):
                 "'refine' more than once")
     assert p["field"] == "refine"
     nested = b'{"outfit_id": "x", "motion": {"clip": "kick", "clip": "walk"}}'
-    problem(http.post("/v1/outfits/animate", content=nested, headers={"content-type": "application/json"}), 422,
-            "'clip' more than once")
+    p = problem(http.post("/v1/outfits/animate", content=nested, headers={"content-type": "application/json"}), 422,
+                "'clip' more than once")
+    assert p["field"] == "motion.clip"  # its path in the document (was "clip")
+    listed = b'{"motion": {"clip": "kick"}, "keyframes": [{"frame": 0}, {"frame": 1, "frame": 2}]}'
+    p = problem(http.post("/v1/outfits/animate", content=listed, headers={"content-type": "application/json"}), 422,
+                "'frame' more than once")
+    assert p["field"] == "keyframes[1].frame"
     form = {"motion_file": ("m.bvh", b"HIERARCHY"), "request": (None, b'{"inner": "tshirt", "inner": "tanktop"}')}
     p = problem(http.post("/v1/layers/animate", files=form), 422, "'inner' more than once")
     assert p["field"] == "request"  # the form field that holds the JSON text
