@@ -22,6 +22,7 @@ from drape.service.errors import (
     MalformedInput,
     RequestTimeout,
     Unauthorized,
+    UnsupportedMediaType,
     field_name,
 )
 from drape.service.settings import Settings
@@ -42,6 +43,10 @@ def admission_of(request: Request) -> Admission:
 async def read_body(request: Request) -> bytes:
     """The request body: a 413 problem as soon as it passes DRAPE_MAX_BODY_BYTES (declared or sent), a 408
     when it has not all arrived within DRAPE_BODY_TIMEOUT_S."""
+    encoding = request.headers.get("content-encoding", "identity").strip().lower()
+    if encoding not in ("", "identity"):  # a gzip body read as JSON said "not valid JSON (... byte 0x8b ...)"
+        raise UnsupportedMediaType(f"the body is {encoding[:40]!r}-encoded; send it unencoded (the upload limits "
+                                   "count the bytes as sent)", "Content-Encoding")
     settings = settings_of(request)
     limit = settings.max_body_bytes
     declared = request.headers.get("content-length")

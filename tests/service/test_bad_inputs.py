@@ -133,6 +133,18 @@ def test_unsupported_accept_and_content_type(http):
             "Accept")
     problem(http.post("/v1/outfits/animate", content=b"x", headers={"content-type": "text/plain"}), 415,
             "Content-Type")
+    # a compressed body: a 415 naming the encoding (read as JSON it was "not valid JSON (... byte 0x8b ...)")
+    import gzip
+    import json
+
+    body = json.dumps({"vertices": V, "faces": F}).encode()
+    for url in ("/v1/outfits/rig", "/v1/outfits/animate"):
+        p = problem(http.post(url, content=gzip.compress(body), headers={"content-type": "application/json",
+                                                                          "content-encoding": "gzip"}), 415, "'gzip'")
+        assert p["field"] == "Content-Encoding"
+    ok = http.post("/v1/outfits/rig", content=body, headers={"content-type": "application/json",
+                                                              "content-encoding": "identity"})
+    assert ok.status_code == 200, ok.text[:200]
 
 
 def test_refine_bad_inputs(http):
