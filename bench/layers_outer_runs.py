@@ -10,8 +10,14 @@ outer rig (as served without a network) is measured beside them by the same code
 against the simulation, plus layers_outer.PENALTY where a cap is exceeded). The held-out evaluation (`drape eval
 layers`) plays no part.
 
+With `--thickness`, each network's response to the inner thickness H_in too: the 10th percentile of the outer
+layer's distance to the served inner layer (over the vertex-frames over it, as drape.sim.quality measures the
+simulation's `outer_inner_gap_p10_m`) on each validation sequence at its own H_in, against the simulation's own
+figure (|error| mm, mean over the sequences), and posed at both ends of the config's thickness range (the gap's
+change over the range's change: the simulation keeps its 10th percentile at about H_in + 0.5 mm, a slope of 1).
+
 Run: .venv/bin/python -m bench.layers_outer_runs --config drape/training/configs/X.json checkpoints/A checkpoints/B
-     [--shipped drape/assets/models/mgn_outer/<inner>_<outer>]
+     [--shipped drape/assets/models/mgn_outer/<inner>_<outer>] [--thickness]
 (a few minutes on the 2-core machine; needs the pair's sequences under data/layers)
 """
 
@@ -19,6 +25,8 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +59,29 @@ def pose_shipped(net: OuterModel, task: layers_outer.OuterTask, seq: layers_oute
     return pose_outfit(net.vertices, net.rig, keys, task.body.joints, seq.poses, seq.trans)
 
 
+def gap_p10(task: layers_outer.OuterTask, seq: layers_outer.Sequence, v: np.ndarray) -> float:
+    """The 10th percentile (m) of an outer layer's (T, No, 3) distance to the served inner layer along seq, over
+    the vertex-frames over it (drape.sim.quality.outer_inner_distance's `covered`), every 3rd frame."""
+    from drape.sim.quality import outer_inner_distance
+
+    sd, covered = outer_inner_distance(v[::3], seq.inner[::3], task.inner_faces)
+    return float(np.percentile(sd[covered], 10))
+
+
+def thickness_response(task: layers_outer.OuterTask, seqs: list[layers_outer.Sequence],
+                       pose: Callable[[layers_outer.Sequence], np.ndarray]) -> str:
+    """The --thickness line of a poser (see the module docstring)."""
+    items = {it["key"]: it for it in json.loads((task.data_dir / "manifest.json").read_text())["items"]
+             + json.loads((task.data_dir / "manifest.json").read_text())["rejected"]}
+    low, high = task.cfg["thickness"]
+    errors, slopes = [], []
+    for s in seqs:
+        errors.append(abs(gap_p10(task, s, pose(s)) - items[s.key]["stats"]["outer_inner_gap_p10_m"]))
+        ends = [gap_p10(task, s, pose(replace(s, thickness=h))) for h in (low, high)]
+        slopes.append((ends[1] - ends[0]) / (high - low))
+    return f"gap p10 |error| {1e3 * np.mean(errors):.2f} mm, slope over H_in [{low}, {high}] m {np.mean(slopes):.2f}"
+
+
 def row(name: str, figures: dict) -> str:
     return (f"{name:44} {figures['score']:9.2f} {figures['rmse_mm']:8.2f} {figures['l_coll_pct']:7.2f} "
             f"{figures['h_coll_pct']:7.2f} {figures['clip_l_coll_pct']:7.2f} {figures['clip_h_coll_pct']:7.2f}")
@@ -62,6 +93,7 @@ def main() -> None:
     parser.add_argument("runs", nargs="*", type=Path, help="checkpoint folders (best.pt, step_*.pt)")
     parser.add_argument("--shipped", type=Path, action="append", default=[],
                         help="an exported network's folder (outer.onnx, rig.npz, manifest.json); repeatable")
+    parser.add_argument("--thickness", action="store_true", help="also measure each network's response to H_in")
     args = parser.parse_args()
     cfg = read_config(args.config, "mgn_outer")
     task = layers_outer.OuterTask(cfg)
@@ -75,12 +107,17 @@ def main() -> None:
             model, step = run_network(folder, task)
             figures = layers_outer.measure_all(task, seqs, clips, lambda s, m=model: layers_outer.pose_outer(m, task, s))
             print(row(f"{folder.name} (step {step})", figures), flush=True)
+            if args.thickness:
+                print("    " + thickness_response(task, seqs, lambda s, m=model: layers_outer.pose_outer(m, task, s)),
+                      flush=True)
     for folder in args.shipped:
         net = OuterModel(folder)
         if net.inner_sha256 != task.inner_model.sha256:
             raise SystemExit(f"{folder} was trained beside another inner network than the one served")
         figures = layers_outer.measure_all(task, seqs, clips, lambda s, n=net: pose_shipped(n, task, s))
         print(row(f"{folder.name} (exported)", figures), flush=True)
+        if args.thickness:
+            print("    " + thickness_response(task, seqs, lambda s, n=net: pose_shipped(n, task, s)), flush=True)
     print(row("DeePSD's outer rig", layers_outer.deepsd_validation(task, seqs, clips)))
 
 

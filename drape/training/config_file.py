@@ -82,7 +82,8 @@ SETTINGS: dict[str, dict[str, Names]] = {
     "mgn_outer": {
         "batch_windows": None, "body": None, "body_triangles": None, "candidates": None, "cover": None, "data": None,
         "inner": None,
-        "loss": {"body", "body_frames", "edge", "eps", "eps_body", "laplacian", "repulsion", "temporal", "vertex"},
+        "loss": {"body", "body_frames", "edge", "eps", "eps_body", "laplacian", "margin_thickness", "repulsion", "temporal",
+                 "vertex"},
         "loss_frames": None, "lr": None, "max_clip_h_coll_pct": None, "max_clip_l_coll_pct": None,
         "max_h_coll_pct": None, "max_l_coll_pct": None,
         "mocap": {"dir", "embedded", "flips", "fps", "loss", "loss_frames", "max_frames", "train", "validation",

@@ -247,12 +247,18 @@ class OuterTask:
         return v, trans, transforms
 
     def collision_terms(self, v: torch.Tensor, inner: torch.Tensor, trans: torch.Tensor, transforms: torch.Tensor,
-                        lw: dict) -> tuple[torch.Tensor, torch.Tensor, dict[str, float]]:
+                        lw: dict, thickness: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, dict[str, float]]:
         """MGN Eq. 12's repulsion from the inner layer and the body term on `lw["body_frames"]` of the frames:
-        v (B, No, 3), inner (B, Ni, 3) m -> (repulsion, body, stats: shares behind the inner / inside the body)."""
-        sd_inner, judged = self.repulsion_distance(v, inner)
-        sd_inner = sd_inner[judged]
-        l_rep = torch.relu(lw["eps"] - sd_inner).sum() / max(len(sd_inner), 1)
+        v (B, No, 3), inner (B, Ni, 3) m -> (repulsion, body, stats: shares behind the inner / inside the body).
+        The repulsion's margin is `lw["eps"]` m, or with `lw["margin_thickness"]` each frame's H_in (thickness (B,)
+        m; at least eps): the simulated outer keeps about H_in from the inner (its gap's 10th percentile is H_in +
+        0.5 mm across the sampled range), where a fixed margin taught the network to ignore H_in."""
+        sd_all, judged = self.repulsion_distance(v, inner)
+        sd_inner = sd_all[judged]
+        margin: torch.Tensor | float = lw["eps"]
+        if lw.get("margin_thickness") and thickness is not None:
+            margin = torch.clamp(thickness, min=lw["eps"])[:, None].expand_as(sd_all)[judged]
+        l_rep = torch.relu(margin - sd_inner).sum() / max(len(sd_inner), 1)
         few = torch.linspace(0, len(v) - 1, min(lw["body_frames"], len(v))).long()  # spread over the windows
         sd_body = self.collider.signed_distance(v[few] - trans[few, None], transforms[few])
         l_body = physics.collision_loss(sd_body, lw["eps_body"])
@@ -265,7 +271,8 @@ class OuterTask:
         against the outer template at rest)."""
         lw = {**self.cfg["loss"], **self.cfg["mocap"]["loss"]}
         v, trans, transforms = self.posed_batch(model, batch)
-        l_rep, l_body, stats = self.collision_terms(v, batch["inner"].flatten(0, 1), trans, transforms, lw)
+        l_rep, l_body, stats = self.collision_terms(v, batch["inner"].flatten(0, 1), trans, transforms, lw,
+                                                    frame_thickness(batch))
         l_edge = edge_length_loss(v, self.rest[None], self.edges)
         loss = 1e3 * (lw["repulsion"] * l_rep + lw["body"] * l_body + lw["edge"] * l_edge)
         return loss, {"clip_" + k: v for k, v in stats.items()} | {"clip_edge": float(l_edge.detach().sqrt())}
@@ -276,7 +283,8 @@ class OuterTask:
         gt = batch["outer"].flatten(0, 1)
         l_vert = ((v - gt) ** 2).sum(-1).mean()
         l_lap = ((self.laplacian(v) - self.laplacian(gt)) ** 2).sum(-1).mean()
-        l_rep, l_body, collisions = self.collision_terms(v, batch["inner"].flatten(0, 1), trans, transforms, lw)
+        l_rep, l_body, collisions = self.collision_terms(v, batch["inner"].flatten(0, 1), trans, transforms, lw,
+                                                         frame_thickness(batch))
         loss = 1e3 * (lw["vertex"] * l_vert + lw["laplacian"] * l_lap + lw["repulsion"] * l_rep + lw["body"] * l_body)
         stats = {"rmse_mm": float(l_vert.detach().sqrt()) * 1e3, **collisions}
         if lw.get("edge", 0.0) > 0:  # against a crumpled layer
@@ -333,6 +341,11 @@ def step_loss(v: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     """Mean squared error of the per-frame vertex steps: v, truth (2P, N, 3) m holding P pairs of consecutive
     frames (t, t + 1) in that order -> scalar, m^2 (per frame)."""
     return ((v.unflatten(0, (-1, 2)).diff(dim=1) - truth.unflatten(0, (-1, 2)).diff(dim=1)) ** 2).sum(-1).mean()
+
+
+def frame_thickness(batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Each picked frame's H_in: thickness (B, 1) m over pick (B, F) -> (B * F,), in posed_batch's order."""
+    return batch["thickness"].expand(-1, batch["pick"].shape[1]).flatten()
 
 
 def sample_batch(seqs: list[Sequence], window: int, count: int, frames: int, rng: np.random.Generator,
