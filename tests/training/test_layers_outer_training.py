@@ -157,3 +157,25 @@ def test_refined_targets_leave_the_body_and_keep_what_was_outside():
     assert np.mean(signed_distance_to_mesh(moved, rest, body.faces) < 0) <= 0.001
     far = np.linalg.norm(outer[:, None] - outer[near][None], axis=-1).min(1) > 0.1  # 10 cm from every dent
     assert far.sum() > 1000 and np.abs(moved[far] - undented[far]).max() < 2e-3  # there: as without the dents
+
+
+def test_the_repulsion_margin_is_each_frames_thickness_when_asked():
+    """loss.margin_thickness: each posed frame's margin is its window's H_in (at least eps), in posed_batch's
+    frame order (frame_thickness); without it, eps for all (the served networks learned to ignore H_in)."""
+    from types import SimpleNamespace
+
+    from drape.training.layers_outer import OuterTask, frame_thickness
+
+    batch = {"thickness": torch.tensor([[0.002], [0.008]]), "pick": torch.zeros((2, 3), dtype=torch.int64)}
+    h = frame_thickness(batch)
+    assert np.allclose(h.numpy(), [0.002] * 3 + [0.008] * 3)
+    sd = torch.full((6, 4), 0.005)  # every outer vertex 5 mm out of the inner layer
+    fake = SimpleNamespace(repulsion_distance=lambda v, inner: (sd, torch.ones_like(sd, dtype=torch.bool)),
+                           collider=SimpleNamespace(signed_distance=lambda v, t: torch.ones(v.shape[:2])))
+    v, trans, transforms = torch.zeros((6, 4, 3)), torch.zeros((6, 3)), torch.zeros((6, 24, 3, 4))
+    lw = {"eps": 0.003, "eps_body": 0.003, "body_frames": 2}
+    fixed, _, _ = OuterTask.collision_terms(fake, v, None, trans, transforms, lw, h)
+    assert float(fixed) == 0.0  # 5 mm clears a 3 mm margin
+    ours, _, _ = OuterTask.collision_terms(fake, v, None, trans, transforms, {**lw, "margin_thickness": True}, h)
+    # the 2 mm frames take eps (3 mm): clear; the 8 mm frames are 3 mm short, half the vertex-frames
+    assert abs(float(ours) - 0.0015) < 1e-9
