@@ -71,8 +71,8 @@ def gap_p10(task: layers_outer.OuterTask, seq: layers_outer.Sequence, v: np.ndar
 def thickness_response(task: layers_outer.OuterTask, seqs: list[layers_outer.Sequence],
                        pose: Callable[[layers_outer.Sequence], np.ndarray]) -> str:
     """The --thickness line of a poser (see the module docstring)."""
-    items = {it["key"]: it for it in json.loads((task.data_dir / "manifest.json").read_text())["items"]
-             + json.loads((task.data_dir / "manifest.json").read_text())["rejected"]}
+    manifest = json.loads((task.data_dir / "manifest.json").read_text())
+    items = {it["key"]: it for it in manifest["items"] + manifest["rejected"]}
     low, high = task.cfg["thickness"]
     errors, slopes = [], []
     for s in seqs:

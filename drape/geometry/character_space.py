@@ -34,6 +34,18 @@ def world_space_numpy(points: np.ndarray, root_position: np.ndarray, root_rotati
     return (p + root_position[:, None, :]).reshape(shape)
 
 
+def frames_at(values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """values (T, ...) at frames 0..T-1, read at fractional frames `at` (any shape) -> at.shape + values.shape[1:],
+    linearly between the two frames around each; `at` is clamped to [0, T - 1] (before the first frame, the first
+    frame's values; past the last, the last's)."""
+    T = len(values)
+    at = np.clip(at, 0.0, T - 1)
+    lo = np.floor(at).astype(np.int64)
+    hi = np.minimum(lo + 1, T - 1)
+    a = (at - lo).reshape(at.shape + (1,) * (values.ndim - 1))
+    return values[lo] * (1.0 - a) + values[hi] * a
+
+
 def motion_windows(joints: np.ndarray, root_position: np.ndarray, root_rotation: np.ndarray,
                    window: int, step: float = 1.0) -> np.ndarray:
     """joints (T, 24, 3) world -> (T, window + 1, 24, 3) float32: frames t - window .. t (clamped at 0),
@@ -47,11 +59,7 @@ def motion_windows(joints: np.ndarray, root_position: np.ndarray, root_rotation:
         idx = np.clip(np.arange(T)[:, None] + np.arange(-window, 1)[None, :], 0, None)  # (T, W + 1)
         picked = joints[idx]
     else:
-        at = np.clip(np.arange(T)[:, None] + step * np.arange(-window, 1)[None, :], 0.0, None)  # (T, W + 1)
-        lo = np.floor(at).astype(np.int64)
-        hi = np.minimum(lo + 1, T - 1)
-        a = (at - lo)[..., None, None]
-        picked = joints[lo] * (1.0 - a) + joints[hi] * a
+        picked = frames_at(joints, np.arange(T)[:, None] + step * np.arange(-window, 1)[None, :])  # (T, W + 1, ..)
     w = (picked - root_position[:, None, None, :]).reshape(T, -1, 3)  # (T, (W + 1) * 24, 3)
     return np.matmul(w, root_rotation).reshape(T, window + 1, -1, 3).astype(np.float32)
 

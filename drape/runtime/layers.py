@@ -99,16 +99,6 @@ def blend_windows(values: np.ndarray, starts: np.ndarray, frames: int) -> np.nda
     return (acc / norm[:, None]).astype(np.float32)
 
 
-def _interpolate(values: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """values (T, K) at frames 0..T-1, read at fractional frames at (n,) -> (n, K), linearly; past the last
-    frame, the last frame's values."""
-    at = np.clip(at, 0.0, len(values) - 1)
-    i0 = np.floor(at + 1e-9).astype(np.int64).clip(0, len(values) - 1)
-    i1 = np.minimum(i0 + 1, len(values) - 1)
-    t = np.clip(at - i0, 0.0, 1.0)[:, None]
-    return values[i0] * (1 - t) + values[i1] * t
-
-
 class OuterModel:
     """MGN's outer-layer network of one combination (drape.export.layers.export_outer): outer.onnx ((motion
     (S, W, 78), thickness (S, 1) m, inner_keys (S, W, Ki)) -> outer_keys (S, W, K)) and rig.npz (vertices (No, 3)
@@ -136,7 +126,7 @@ class OuterModel:
         interpolated back to the motion's frames (linearly; a last frame past the last resampled one, less than
         one model frame later, keeps its keys). At the model's rate nothing is resampled."""
         from drape.assets.motion import Motion, resample
-        from drape.geometry.character_space import motion_features
+        from drape.geometry.character_space import frames_at, motion_features
         from drape.geometry.skeleton import PARENTS
 
         if abs(float(fps) - self.fps) < 1e-6 or len(poses) < 2:
@@ -146,8 +136,8 @@ class OuterModel:
                                    np.asarray(trans, np.float64), float(fps)), self.fps)
         frames = np.arange(at_model.num_frames) * (float(fps) / self.fps)  # (n,) source frame of each sample
         keys = self.keys_of_features(motion_features(at_model.poses, at_model.trans, rest_joints, PARENTS, self.fps),
-                                     thickness, _interpolate(np.asarray(inner_keys, np.float64), frames))
-        return _interpolate(keys.astype(np.float64), np.arange(len(poses)) * (self.fps / float(fps))).astype(np.float32)
+                                     thickness, frames_at(np.asarray(inner_keys, np.float64), frames))
+        return frames_at(keys.astype(np.float64), np.arange(len(poses)) * (self.fps / float(fps))).astype(np.float32)
 
     def keys_of_features(self, features: np.ndarray, thickness: float, inner_keys: np.ndarray) -> np.ndarray:
         """features (T, 78) (`motion_features`), thickness H_in m, inner_keys (T, Ki) -> (T, K) float32: the
