@@ -9,13 +9,13 @@ from typing import TYPE_CHECKING
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
-    from drape.client import AsyncClient, Client, DrapeAPIError
+    from drape.client import AsyncClient, Client, DrapeAPIError, DrapeWarning
 
-__all__ = ["AsyncClient", "Client", "DrapeAPIError", "__version__"]
+__all__ = ["AsyncClient", "Client", "DrapeAPIError", "DrapeWarning", "__version__"]
 
 
 def __getattr__(name: str):
-    if name in ("AsyncClient", "Client", "DrapeAPIError"):
+    if name in ("AsyncClient", "Client", "DrapeAPIError", "DrapeWarning"):
         import drape.client
 
         return getattr(drape.client, name)

@@ -20,7 +20,8 @@ object with `.vertices` and `.faces` (a trimesh.Trimesh). Motions: an embedded c
 name, a poses array (T, 24, 3) or (T, 72), an object/mapping with poses, trans or
 translation, fps, or a motion capture file the service imports (`MotionFile("walk.bvh", fps=30,
 up="y")`, or a bare Path). Refinement: `refine=True` or `refine=RefineOptions(eps=0.005)`.
-Answers travel as npz or the binary frame stream by default.
+Answers travel as npz or the binary frame stream by default. What the service did as asked but found
+suspicious (a motion file that looks Z-up sent as Y-up) arrives as a `DrapeWarning` (Python's warnings).
 """
 
 from drape.client.client import (
@@ -29,6 +30,7 @@ from drape.client.client import (
     Client,
     DesignSamples,
     DrapeAPIError,
+    DrapeWarning,
     FitResult,
     GarmentTemplate,
     LayerFrames,
@@ -37,5 +39,5 @@ from drape.client.client import (
     RigResult,
 )
 
-__all__ = ["AsyncClient", "BodyArrays", "Client", "DesignSamples", "DrapeAPIError", "FitResult", "GarmentTemplate", "LayerFrames",
+__all__ = ["AsyncClient", "BodyArrays", "Client", "DesignSamples", "DrapeAPIError", "DrapeWarning", "FitResult", "GarmentTemplate", "LayerFrames",
            "MotionFile", "RefineOptions", "RigResult"]

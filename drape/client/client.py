@@ -6,6 +6,7 @@ import json
 import numbers
 import os
 import re
+import warnings
 from collections.abc import AsyncIterator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,6 +16,7 @@ from urllib.parse import quote
 import httpx
 import numpy as np
 
+from drape.schemas import WARNINGS_HEADER
 from drape.schemas.binary import FRAMES, NPZ, FrameDecoder, FrameReader, decode_npz, encode_npz
 from drape.schemas.catalog import BodyList, BodyRegistered, Health, MotionList
 from drape.schemas.garments import GarmentList
@@ -207,10 +209,31 @@ def _layer_frames(response: httpx.Response) -> LayerFrames:
                        z["outer_vertices"], z["outer_faces"])
 
 
+class DrapeWarning(UserWarning):
+    """The service did as asked but says something looks wrong (an answer's Drape-Warnings header), e.g. a motion
+    file whose skeleton contradicts the `up` given. Raised with `warnings.warn`: shown once per place by default;
+    `warnings.simplefilter("error", DrapeWarning)` makes them errors."""
+
+
+def _warn_for(response: httpx.Response) -> None:
+    """Each sentence of a successful answer's Drape-Warnings header, as a DrapeWarning."""
+    text = response.headers.get(WARNINGS_HEADER)
+    if not text:
+        return
+    try:
+        sentences = json.loads(text)
+    except ValueError:
+        sentences = [text]
+    for sentence in sentences if isinstance(sentences, list) else [sentences]:
+        warnings.warn(f"drape: {sentence}", DrapeWarning, stacklevel=4)
+
+
 def _raise_for(response: httpx.Response) -> None:
     """DrapeAPIError for an error answer: its problem details, or (an answer that is not a problem: a proxy's
-    HTML page, other JSON) the reason phrase as title and the start of the body as detail."""
+    HTML page, other JSON) the reason phrase as title and the start of the body as detail. A successful answer's
+    warnings are raised as DrapeWarnings."""
     if response.status_code < 400:
+        _warn_for(response)
         return
     try:
         p = response.json()
@@ -762,7 +785,7 @@ class Client(_Base):
         with self._http.stream("POST", path, headers=headers, **request) as r:
             if r.status_code >= 400:
                 r.read()
-                _raise_for(r)
+            _raise_for(r)
             reader = FrameReader()
             for data in r.iter_bytes():
                 reader.feed(data)
@@ -814,7 +837,7 @@ class Client(_Base):
         with self._http.stream("POST", "/v1/outfits/animate", **req) as r:
             if r.status_code >= 400:
                 r.read()
-                _raise_for(r)
+            _raise_for(r)
             dec = FrameDecoder()
             for data in r.iter_bytes():
                 yield from dec.feed(data)
@@ -1072,7 +1095,7 @@ class AsyncClient(_Base):
         async with self._http.stream("POST", path, headers=headers, **request) as r:
             if r.status_code >= 400:
                 await r.aread()
-                _raise_for(r)
+            _raise_for(r)
             reader = FrameReader()
             async for data in r.aiter_bytes():
                 reader.feed(data)
@@ -1116,7 +1139,7 @@ class AsyncClient(_Base):
         async with self._http.stream("POST", "/v1/outfits/animate", **req) as r:
             if r.status_code >= 400:
                 await r.aread()
-                _raise_for(r)
+            _raise_for(r)
             dec = FrameDecoder()
             async for data in r.aiter_bytes():
                 for frame in dec.feed(data):

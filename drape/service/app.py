@@ -42,6 +42,7 @@ from drape.service.admission import Admission
 from drape.service.bodies import stored_body
 from drape.service.http import HeadAsGet, require_api_key
 from drape.service.metrics import CountRequests, Metrics
+from drape.service.notices import WARNINGS_HEADER, WarningsHeader
 from drape.service.routers import bodies, garments, health, layers, models, outfits, viewer
 from drape.service.routers import catalog as catalog_router
 from drape.service.settings import Settings
@@ -85,8 +86,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     problems.install(app)
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
-                           allow_headers=["*"])
+                           allow_headers=["*"], expose_headers=[WARNINGS_HEADER])
 
+    app.add_middleware(WarningsHeader)  # innermost: each request's warnings list, read when its answer starts
     app.add_middleware(HeadAsGet)  # inside CountRequests: HEAD is counted as HEAD
     app.add_middleware(CountRequests, metrics=metrics)  # outside problems.CatchAll: counts its 500s too
 

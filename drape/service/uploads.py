@@ -56,6 +56,7 @@ from typing import Any, NoReturn, cast
 import numpy as np
 
 from drape.service.errors import DrapeError, InvalidInput, LimitExceeded, MalformedInput, NotFound
+from drape.service.notices import warn
 
 MESH_FILE_TYPES = {".obj": "obj", ".ply": "ply", ".glb": "glb", ".gltf": "gltf"}
 FIELD = "mesh"
@@ -918,7 +919,9 @@ def motion_from_file(data: bytes, body_name: str, *, fps: float, up: str | None,
 
     Bounded: the file is already within the body limit; its frames within MOTION_SOURCE_FACTOR x
     max_frames before any number is worked on, and within max_frames after resampling (413s); an npz's
-    arrays within max_decoded_bytes. Anything else wrong is a 422; all name the field "motion_file".
+    arrays within max_decoded_bytes. Anything else wrong is a 422; all name the field "motion_file". What the
+    import warns of (an `up` the file contradicts, feet left off the floor) goes to the answer's warnings
+    (drape.service.notices).
     """
     from drape.assets.body import load_body
     from drape.assets.motion import MotionFileError, MotionTooLong, import_motion
@@ -936,5 +939,7 @@ def motion_from_file(data: bytes, body_name: str, *, fps: float, up: str | None,
         raise LimitExceeded(str(exc), MOTION_FIELD) from exc
     except MotionFileError as exc:
         raise InvalidInput(str(exc), MOTION_FIELD) from exc
+    for sentence in imported.warnings:  # done as asked, and said (the Drape-Warnings header)
+        warn(f"{MOTION_FIELD}: {sentence}")
     m = imported.motion
     return m.poses.astype(np.float64), m.trans.astype(np.float64), m.fps

@@ -238,3 +238,45 @@ def test_a_motion_file_jumping_every_frame_imports_in_linear_time(http, outfit_i
     r = animate(http, data, "jumps.npz", outfit_id=outfit_id, fps="1", up="y")
     assert r.status_code == 200, r.text[:300]
     assert time.perf_counter() - start < 5.0
+
+
+def test_an_uploads_import_warnings_travel_in_the_answer(http, outfit_id, server_url, tmp_path):
+    """A Y-up BVH sent with up=z is done as asked (the body lies on its side) and said: the answer's
+    Drape-Warnings header (a JSON array) carries what `drape motions import` prints, in every answer format and
+    on refine too; the client raises each as a DrapeWarning. The same file with its own up axis has no header
+    (a probe's Y-up 141_16_wave with up=z was a silent 200)."""
+    import json
+    import warnings
+
+    import drape
+    from drape.schemas import WARNINGS_HEADER
+
+    bvh = cmu_bvh(121)
+    plain = animate(http, bvh, outfit_id=outfit_id)
+    assert plain.status_code == 200 and WARNINGS_HEADER not in plain.headers
+    for accept in (NPZ, "application/json", "application/x-drape-frames", "model/gltf-binary"):
+        r = animate(http, bvh, accept=accept, outfit_id=outfit_id, up="z")
+        assert r.status_code == 200, (accept, r.text[:300])
+        said = json.loads(r.headers[WARNINGS_HEADER])
+        assert said and all(s.startswith("motion_file: ") for s in said), said
+        assert "looks Y-up, not Z-up as asked" in said[0], said
+    garment = encode_npz({k: v for k, v in decode_npz(plain.content).items() if k in ("vertices", "faces")})
+    r = http.post("/v1/refine", files={"garment": ("g.npz", garment), "motion_file": ("m.bvh", bvh)},
+                  data={"up": "z", "relief_iterations": "0"}, headers={"accept": NPZ})
+    assert r.status_code == 200 and "not Z-up as asked" in r.headers[WARNINGS_HEADER]
+    bad = animate(http, bvh, outfit_id=outfit_id, up="z", fps="0")  # an error answer: its problem says it all
+    assert bad.status_code == 422 and WARNINGS_HEADER not in bad.headers
+
+    take = tmp_path / "take.bvh"  # the client's MotionFile over a real server (uvicorn, answers streamed)
+    take.write_bytes(bvh)
+    with drape.Client(server_url) as client, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        o = generate_outfit("tshirt", vertices=600, seed=5)
+        served_id = client.rig((o.vertices, o.faces)).outfit_id  # that server's own cache
+        client.animate(outfit_id=served_id, motion=drape.client.MotionFile(take, up="z"))
+        assert not [w for w in caught if w.category is not drape.DrapeWarning]
+        told = [str(w.message) for w in caught if w.category is drape.DrapeWarning]
+        assert told and "not Z-up as asked" in told[0] and told[0].startswith("drape: motion_file: ")
+        caught.clear()
+        client.animate(outfit_id=served_id, motion=drape.client.MotionFile(take))
+        assert not [w for w in caught if w.category is drape.DrapeWarning]

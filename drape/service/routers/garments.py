@@ -42,6 +42,7 @@ from drape.service.routers.outfits import (
     STREAM_FORMATS,
     STREAM_NPZ,
     VERTEX_GLB,
+    WARNINGS_ANSWER,
     max_posed,
     npz_answer,
     stream_answer,
@@ -129,7 +130,7 @@ def get_garment(request: Request, name: str = NAME) -> Response:
 
 
 @router.post("/{name}/encode", responses={200: {"description": "the keyframe's latent (Z,)", "content": {
-    JSON: {"schema": {"$ref": "#/components/schemas/EncodeResponse"}}, NPZ: npz_answer("latent (Z,)")}}, **ERRORS},
+    JSON: {"schema": {"$ref": "#/components/schemas/EncodeResponse"}}, NPZ: npz_answer("latent (Z,)")}, "headers": WARNINGS_ANSWER}, **ERRORS},
     openapi_extra=_request_body("EncodeRequest", "vertices (N, 3), frame (integer scalar)", "EncodeFields",
                                 "vertices, frame"))
 async def encode_keyframe(request: Request, name: str = NAME) -> Response:
@@ -152,7 +153,7 @@ async def encode_keyframe(request: Request, name: str = NAME) -> Response:
     "description": "the garment's frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB (a vertex "
                    "animation)", "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: STREAM_NPZ, FRAMES: FRAMES_ANSWER,
-        PC2: PC2_ANSWER, GLB: VERTEX_GLB}}, **ERRORS},
+        PC2: PC2_ANSWER, GLB: VERTEX_GLB}, "headers": WARNINGS_ANSWER}, **ERRORS},
     openapi_extra=_request_body(
         "KeyframeAnimateRequest", "vertex_frames (Kv,) integers with vertices (Kv, N, 3) and/or latent_frames (Kl,) "
         "with latents (Kl, Z); match_keyframes (boolean scalar); refine (boolean scalar) and/or the refine options as "
@@ -189,7 +190,7 @@ async def animate_keyframes(request: Request, name: str = NAME) -> Response:
 @router.post("/{name}/sample", responses={200: {
     "description": "latents (count, Z) and their shapes (count, N, 3) at the frame", "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/SampleResponse"}},
-        NPZ: npz_answer("latents (count, Z), vertices (count, N, 3) metres")}}, **ERRORS},
+        NPZ: npz_answer("latents (count, Z), vertices (count, N, 3) metres")}, "headers": WARNINGS_ANSWER}, **ERRORS},
     openapi_extra=_request_body("SampleRequest", "count, seed, frame (integer scalars)", "SampleFields",
                                 "count, seed, frame"))
 async def sample_designs(request: Request, name: str = NAME) -> Response:

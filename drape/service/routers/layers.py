@@ -33,6 +33,7 @@ from drape.service.routers.outfits import (
     PC2_ANSWER,
     STREAM_FORMATS,
     VERTEX_GLB,
+    WARNINGS_ANSWER,
     max_posed,
     npz_answer,
     stream_answer,
@@ -58,7 +59,7 @@ def list_layers(request: Request) -> LayerList:
         JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateResponse"}},
         NPZ: npz_answer("inner, outer (text), fps (scalar), inner_vertices (T, Ni, 3) and outer_vertices (T, No, 3) "
                         "float32 metres, inner_faces (Fi, 3), outer_faces (Fo, 3)"),
-        FRAMES: FRAMES_ANSWER, PC2: PC2_ANSWER, GLB: VERTEX_GLB}}, **ERRORS},
+        FRAMES: FRAMES_ANSWER, PC2: PC2_ANSWER, GLB: VERTEX_GLB}, "headers": WARNINGS_ANSWER}, **ERRORS},
     openapi_extra={"requestBody": {"required": True, "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/LayersAnimateRequest"}},
         FORM: {"schema": {"type": "object", "required": ["motion_file", "request"], "properties": {

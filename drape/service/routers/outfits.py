@@ -17,6 +17,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from drape.runtime.engine import RiggedOutfit
+from drape.schemas import WARNINGS_HEADER
 from drape.schemas.binary import FRAMES, NPZ, encode_npz
 from drape.schemas.gltf import GLB, vertex_animation_glb
 from drape.schemas.outfits import FIT_HELP, INFLUENCES_HELP, RefineOptions
@@ -250,7 +251,14 @@ def frame_answers(glb: dict) -> dict:
     return {200: {"description": "frames (T, N, 3): JSON, npz, the frame stream, PC2 (point cache) or GLB "
                                  "(animate: the rig and its animation; refine: a vertex animation)", "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: STREAM_NPZ, FRAMES: FRAMES_ANSWER,
-        PC2: PC2_ANSWER, GLB: glb}}, **ERRORS}
+        PC2: PC2_ANSWER, GLB: glb}, "headers": WARNINGS_ANSWER}, **ERRORS}
+
+
+# a 200 done as asked that looks wrong says so (drape.service.notices): every route that reads a motion_file
+WARNINGS_ANSWER = {WARNINGS_HEADER: {"required": False, "description": "present when something looks wrong in "
+                                     "what was done as asked (a motion file whose skeleton contradicts `up`, feet "
+                                     "left off the floor): a JSON array of sentences, each naming its field",
+                                     "schema": {"type": "string"}}}
 
 
 STREAM_FORMATS = [JSON, NPZ, FRAMES, PC2, GLB]
