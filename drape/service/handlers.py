@@ -29,6 +29,7 @@ from drape.schemas.gltf import (
     skinned_glb,
 )
 from drape.service.errors import InvalidInput, LimitExceeded, NotFound, quoted
+from drape.service.notices import warn
 from drape.service.settings import Settings
 
 MAX_WORLD_M = MAX_TRANSLATION_M + 100.0  # |a garment stream's coordinate|: the motion's translation bound plus reach
@@ -389,17 +390,21 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
         check_answer_size(len(poses), len(outfit.vertices), max_posed, "motion")
     else:  # every cheap check before the rig
         assert outfit_in is not None
+        said: list[str] = []  # what a rig answer's diagnostics and a fit's report would say: the answer's warnings
         if request.get("fit"):
             fitted = fit(settings, outfit_in["vertices"], outfit_in["faces"], request.get("body"), field="outfit")
             outfit_in = {**outfit_in, "vertices": fitted.vertices}
+            said += fitted.report.get("warnings", [])
         v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
         body = check_body(request.get("body"))
         influences = check_influences(request.get("influences"))
         poses, trans, fps = check_motion(request["motion"], settings)
         check_answer_size(len(poses), len(v), max_posed, "motion")
         with computing_on(body):
-            check_on_body(v, body, "outfit.vertices")
+            said += check_on_body(v, body, "outfit.vertices")["warnings"] + body_scale_warnings(engine, body)
             outfit = engine.rig(v, f, body, influences)
+        for sentence in said:
+            warn(f"outfit: {sentence}")
     return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")), held_body(outfit.body))
 
 

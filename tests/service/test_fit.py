@@ -89,6 +89,27 @@ def test_rig_and_animate_with_fit_first(http, foreign):
                                                    "motion": {"clip": "walk"}}), 422, "fit")
 
 
+def test_animate_says_what_a_rig_would_of_the_outfits_placement(http):
+    """animate with an outfit mesh rigs it on the way; the rig's diagnostics (e.g. "37% of the vertices are inside
+    the body") were dropped, so a garment made for another body animated inside it with a plain 200. They travel
+    in the Drape-Warnings header now, named `outfit:`; a mesh that sits well has none."""
+    from drape.schemas import WARNINGS_HEADER
+
+    o = generate_outfit("tshirt", vertices=500, seed=8)
+    centre = o.vertices.mean(0)
+    shrunk = (o.vertices - centre) * 0.8 + centre  # made for a smaller body: much of it inside this one
+    motion = {"poses": np.zeros((2, 72)).tolist()}
+    for v, inside in ((shrunk, True), (o.vertices, False)):
+        r = http.post("/v1/outfits/animate", json={"outfit": {"vertices": v.tolist(), "faces": o.faces.tolist()},
+                                                   "motion": motion}, headers={"Accept": NPZ})
+        assert r.status_code == 200, r.text[:300]
+        said = json.loads(r.headers.get(WARNINGS_HEADER, "[]"))
+        if inside:
+            assert [s for s in said if s.startswith("outfit: ") and "inside the body at rest" in s], said
+        else:
+            assert said == [], said
+
+
 @pytest.mark.parametrize(("field", "value", "words"), [
     ("units", "km", ("units",)),
     ("up", "x", ("up",)),
