@@ -229,12 +229,41 @@ def _outfits_generate(args: argparse.Namespace) -> None:
     print(f"{args.out}: {len(outfit.vertices)} vertices, {len(outfit.faces)} faces, garments {outfit.garments}")
 
 
+def _write_fitted(mesh: str, out: str, vertices: np.ndarray, faces: np.ndarray, normal_turn: np.ndarray | None,
+                  ) -> str:
+    """Write the fitted mesh to `out`; -> a sentence saying what of the input file it kept.
+
+    OBJ to OBJ: the input file itself with its vertices moved (drape.geometry.mesh_io.rewrite_obj): UVs,
+    materials, objects and groups kept, normals turned with the fit's transform (normal_turn (3, 3)) or, after
+    an un-posing (None), left out. Otherwise the geometry alone, an OBJ's objects kept as objects."""
+    from drape.geometry.mesh_io import obj_parts, rewrite_obj, save_mesh
+
+    data = Path(mesh).read_bytes()
+    if Path(mesh).suffix.lower() == Path(out).suffix.lower() == ".obj":
+        try:
+            text, normals = rewrite_obj(data, vertices, normal_turn)
+        except ValueError:
+            pass  # the file's v lines are not what was read: the geometry alone, below
+        else:
+            Path(out).write_bytes(text)
+            return (f"kept from {mesh}: every line but the vertex positions (texture coordinates, materials, objects, "
+                    f"groups); normals: {normals}")
+    # an OBJ's objects (one garment each) stay objects: the fit keeps the vertex order
+    found = obj_parts(data, mesh, len(vertices))
+    try:
+        save_mesh(out, vertices, faces, [(p["name"], p["start"], p["stop"]) for p in found or []])
+    except ValueError:  # a face joins two objects (OBJ indices are global): written as one mesh
+        save_mesh(out, vertices, faces)
+    return (f"written: the geometry only (vertices, triangles{', objects' if found else ''}); texture coordinates, "
+            "normals and materials are kept only from an .obj to an .obj")
+
+
 def _outfits_fit(args: argparse.Namespace) -> None:
     import json
     import time
 
     from drape.geometry.fitting import FitError, fit_garment
-    from drape.geometry.mesh_io import load_mesh, obj_parts, save_mesh
+    from drape.geometry.mesh_io import load_mesh
 
     _out_path(args.out, args.mesh, _body_file(args.body))
     if args.report:
@@ -248,19 +277,16 @@ def _outfits_fit(args: argparse.Namespace) -> None:
         result = fit_garment(vertices, faces, body, units=args.units, up=args.up, pose=args.pose)
     except FitError as exc:
         raise SystemExit(f"drape: error: {args.mesh}: {exc}") from None
-    # an OBJ's objects (one garment each) stay objects: the fit keeps the vertex order
-    found = obj_parts(Path(args.mesh).read_bytes(), str(args.mesh), len(vertices))
-    try:
-        save_mesh(args.out, result.vertices, faces, [(p["name"], p["start"], p["stop"]) for p in found or []])
-    except ValueError:  # a face joins two objects (OBJ indices are global): written as one mesh
-        save_mesh(args.out, result.vertices, faces)
     r = result.report
+    kept = _write_fitted(args.mesh, args.out, result.vertices, faces, result.transform[:3, :3] if r["pose"] == "t"
+                         else None)
     print(f"{args.out}: {len(vertices)} vertices fitted onto {args.body} in {time.perf_counter() - start:.1f} s; "
           f"units {r['units']}{' (inferred)' if r['units_inferred'] else ''}, "
           f"up {r['up']}{' (inferred)' if r['up_inferred'] else ''}, pose {r['pose']}")
     print(f"inside the body at rest: {100 * r['inside_before']:.2f}% before the push-out, "
           f"{100 * r['inside_after']:.2f}% after; moves {r['mean_move_mm']:.1f} mm mean, {r['max_move_mm']:.1f} mm "
           f"max; largest edge lengthening {r['max_stretch_mm']:.1f} mm")
+    print(kept)
     for warning in r["warnings"]:
         print(f"warning: {warning}")
     if args.report:  # its folder was made with the checks, before the fit (_out_path)

@@ -3,11 +3,14 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from drape.geometry.mesh_io import load_mesh
+
+EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "external"
 
 
 def drape(*args):
@@ -68,6 +71,29 @@ def test_outfits_fit_keeps_an_objs_garments_as_objects(tmp_path):
     before = obj_parts(made.read_bytes(), made.name, len(load_mesh(made)[0]))
     assert [p["name"] for p in before] == ["trousers", "tshirt"]
     assert obj_parts(out.read_bytes(), out.name, len(load_mesh(out)[0])) == before
+
+
+@pytest.mark.skipif(not (EXTERNAL / "ncsim_arcsim_tshirt_no_sleeves.obj").exists(), reason="../shared/data absent")
+def test_outfits_fit_writes_an_obj_back_with_its_uvs_materials_and_normals(tmp_path):
+    """A real garment OBJ made elsewhere (ArcSim, Meshlab's export: mtllib, one vn per v) fitted to an OBJ: the
+    same file with its vertices moved (it was written as bare v/f lines, its material and normals gone); its
+    normals turned with the fit (Z-up to Y-up, faced front) and still on the outer side of the fitted cloth."""
+    mesh = EXTERNAL / "ncsim_arcsim_tshirt_no_sleeves.obj"
+    out = tmp_path / "fitted.obj"
+    text = drape("outfits", "fit", str(mesh), "--body", "neutral", "--out", str(out))
+    assert "normals: turned" in text, text
+    old, new = mesh.read_text().splitlines(), out.read_text().splitlines()
+    assert [a for a in old if not a.startswith(("v ", "vn "))] == [b for b in new if not b.startswith(("v ", "vn "))]
+    assert "mtllib ./tshirt.obj.mtl" in new
+    v, f = load_mesh(out)
+    normals = np.array([[float(c) for c in line.split()[1:]] for line in new if line.startswith("vn ")])
+    assert normals.shape == v.shape  # this file has one normal per vertex, in order
+    import trimesh
+
+    smooth = trimesh.Trimesh(v, f, process=False).vertex_normals  # the fitted geometry's own
+    used = np.unique(f)  # 100 of its 330 vertices are in no face: no normal of their own to compare with
+    agree = np.einsum("ij,ij->i", normals[used], smooth[used])
+    assert np.median(agree) > 0.9 and (agree > 0).mean() > 0.95, np.percentile(agree, [5, 50])
 
 
 def test_motions_generate_and_render(tmp_path):

@@ -27,6 +27,7 @@ from drape.schemas.outfits import RefineOptions
 OutfitLike = Any  # path | (vertices, faces) | object with .vertices/.faces
 Format = Literal["array", "glb", "pc2"]  # frames as one (T, N, 3) array, or the file bytes of an engine format
 _FILE_TYPES = {"glb": "model/gltf-binary", "pc2": "application/x-pc2"}
+FitFormat = Literal["array", "obj"]  # the fit as a FitResult, or the bytes of an OBJ file
 RigFormat = Literal["array", "glb"]  # the rig's arrays (a RigResult), or the bytes of a GLB
 MotionLike = Any  # clip name | poses array | object or mapping with poses/trans/fps | MotionFile | Path of a file
 # the collision refinement post step: on/off, or its options (RefineOptions or a mapping of its fields: eps,
@@ -363,9 +364,15 @@ def _fit_request(outfit: OutfitLike, body: str, units: str | None, up: str | Non
     return _mesh_request(outfit, body=body, units=units, up=up, pose=pose)
 
 
-def _fit_answer(response: httpx.Response) -> FitResult:
+def _fit_accept(format: str) -> str:
+    if format not in ("array", "obj"):
+        raise ValueError(f"format must be 'array' or 'obj', not {format!r}")
+    return NPZ if format == "array" else "model/obj"
+
+
+def _fit_answer(response: httpx.Response, format: str = "array") -> FitResult | bytes:
     _raise_for(response)
-    return _fit_result(decode_npz(response.content))
+    return _fit_result(decode_npz(response.content)) if format == "array" else response.content
 
 
 BodyLike = Any  # path to a .glb / .gltf / .npz, the file's bytes, or a mapping of the body's arrays
@@ -709,12 +716,22 @@ class Client(_Base):
                             **_rig_request(outfit, body, influences, fit))
         return _rig_answer(r, format)
 
+    @overload
     def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None, up: str | None = None,
-            pose: str | np.ndarray = "t") -> FitResult:
+            pose: str | np.ndarray = "t", format: Literal["array"] = "array") -> FitResult: ...
+
+    @overload
+    def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None, up: str | None = None,
+            pose: str | np.ndarray = "t", format: Literal["obj"]) -> bytes: ...
+
+    def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None, up: str | None = None,
+            pose: str | np.ndarray = "t", format: FitFormat = "array") -> FitResult | bytes:
         """Fit a garment made for another body onto `body` at rest: units ("m", "cm", "mm"; None: inferred),
-        up axis ("y", "z"; None: inferred), the pose it was made in ("t", "a" or (24, 3) radians)."""
-        return _fit_answer(self._http.post("/v1/outfits/fit", headers={"Accept": NPZ},
-                                           **_fit_request(outfit, body, units, up, pose)))
+        up axis ("y", "z"; None: inferred), the pose it was made in ("t", "a" or (24, 3) radians).
+        format="obj": the fitted garment as OBJ bytes; an OBJ file sent comes back as itself with its vertices
+        moved (texture coordinates, materials, objects kept), the report as its first line (a comment)."""
+        return _fit_answer(self._http.post("/v1/outfits/fit", headers={"Accept": _fit_accept(format)},
+                                           **_fit_request(outfit, body, units, up, pose)), format)
 
     def register_body(self, body: BodyLike, *, joint_map: Mapping[str, str] | None = None,
                       rest_pose: np.ndarray | None = None) -> BodyRegistered:
@@ -1036,11 +1053,21 @@ class AsyncClient(_Base):
                                   **_rig_request(outfit, body, influences, fit))
         return _rig_answer(r, format)
 
+    @overload
     async def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None,
-                  up: str | None = None, pose: str | np.ndarray = "t") -> FitResult:
+                  up: str | None = None, pose: str | np.ndarray = "t",
+                  format: Literal["array"] = "array") -> FitResult: ...
+
+    @overload
+    async def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None,
+                  up: str | None = None, pose: str | np.ndarray = "t", format: Literal["obj"]) -> bytes: ...
+
+    async def fit(self, outfit: OutfitLike, *, body: str = "neutral", units: str | None = None,
+                  up: str | None = None, pose: str | np.ndarray = "t", format: FitFormat = "array",
+                  ) -> FitResult | bytes:
         """See Client.fit."""
-        return _fit_answer(await self._http.post("/v1/outfits/fit", headers={"Accept": NPZ},
-                                                 **_fit_request(outfit, body, units, up, pose)))
+        return _fit_answer(await self._http.post("/v1/outfits/fit", headers={"Accept": _fit_accept(format)},
+                                                 **_fit_request(outfit, body, units, up, pose)), format)
 
     async def register_body(self, body: BodyLike, *, joint_map: Mapping[str, str] | None = None,
                             rest_pose: np.ndarray | None = None) -> BodyRegistered:

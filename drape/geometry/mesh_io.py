@@ -96,6 +96,50 @@ def _save_obj_parts(path: Path, vertices: np.ndarray, faces: np.ndarray, parts: 
     path.write_text("\n".join(lines) + "\n")
 
 
+def rewrite_obj(data: bytes, vertices: np.ndarray, normal_turn: np.ndarray | None = None) -> tuple[bytes, str]:
+    """An OBJ file's bytes with its `v` lines moved to `vertices` (N, 3) (in the file's order, as `load_mesh`
+    reads them) and every other line kept: texture coordinates, materials (mtllib, usemtl), objects, groups,
+    smoothing groups, comments, a vertex's extra values (w, or colours).
+
+    normal_turn: (3, 3), the linear map the geometry went through (a similarity): each `vn` is turned by its
+    inverse transpose and made unit length. None: the file's normals no longer fit the geometry (e.g. sleeves
+    un-posed), so the `vn` lines and the faces' normal indices are left out (a DCC tool smooths them again).
+    -> (the new bytes, what became of the normals: "turned", "dropped" or "none in the file").
+
+    ValueError when the file's `v` lines are not N (a line continued with a backslash, or another mesh).
+    """
+    text = data.decode("utf-8", "surrogateescape")
+    lines = text.split("\n")
+    count = sum(1 for line in lines if line.split(None, 1)[:1] == ["v"])
+    if count != len(vertices) or "\\\n" in text:
+        raise ValueError(f"the OBJ's v lines ({count}) are not the {len(vertices)} vertices read from it")
+    turn = None if normal_turn is None else np.linalg.inv(np.asarray(normal_turn, np.float64)).T
+    has_normals = False
+    out, i = [], 0
+    for line in lines:
+        end = "\r" if line.endswith("\r") else ""
+        words = line.rstrip("\r").split()
+        key = words[0] if words else ""
+        if key == "v":
+            x, y, z = (float(c) for c in vertices[i])
+            out.append(" ".join([f"v {x:.9g} {y:.9g} {z:.9g}", *words[4:]]) + end)
+            i += 1
+        elif key == "vn":
+            has_normals = True
+            if turn is None:
+                continue
+            n = turn @ np.array([float(c) for c in words[1:4]])
+            n /= max(float(np.linalg.norm(n)), 1e-12)
+            out.append(f"vn {n[0]:.7g} {n[1]:.7g} {n[2]:.7g}" + end)
+        elif key == "f" and turn is None:
+            corners = [c.split("/") for c in words[1:]]
+            out.append(" ".join(["f", *("/".join(c[:2]).rstrip("/") for c in corners)]) + end)
+        else:
+            out.append(line)
+    said = "none in the file" if not has_normals else "turned" if turn is not None else "dropped"
+    return "\n".join(out).encode("utf-8", "surrogateescape"), said
+
+
 def obj_parts(data: bytes, filename: str, num_vertices: int) -> list[dict] | None:
     """The named parts of a mesh file's bytes, in the order of the file, as vertex ranges of what `load_mesh`
     (and the service's upload reader) read: [{"name", "start", "stop"}, ...] (stop exclusive), or None for a

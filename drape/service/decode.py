@@ -306,7 +306,7 @@ FIT_FIELDS = ("body", "units", "up", "pose")
 def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings) -> dict[str, Any]:
     """A fit request's body (JSON FitRequest; multipart: mesh file + body, units, up, pose ('t', 'a' or JSON
     (24, 3)); npz: vertices, faces + the same as text, pose also as a (24, 3) array) -> keyword arguments of
-    handlers.fit, not yet checked."""
+    handlers.fit, not yet checked; a multipart upload adds `source`: (the mesh file's name, its bytes)."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
         known_form_fields(parts, ("mesh", *FIT_FIELDS), f"mesh and some of {', '.join(FIT_FIELDS)}")
@@ -322,7 +322,7 @@ def fit_arguments(kind: str, content_type: str, data: bytes, settings: Settings)
                 raise InvalidInput("expected numbers in nested lists (24, 3), got strings, booleans or nulls",
                                    "pose")
         return {"vertices": v, "faces": f, "body": _text(parts, "body"), "units": _text(parts, "units"),
-                "up": _text(parts, "up"), "pose": pose}
+                "up": _text(parts, "up"), "pose": pose, "source": (parts["mesh"].filename, parts["mesh"].data)}
     if kind == "application/x-npz":
         z = npz_members(data, ("vertices", "faces", *FIT_FIELDS), settings, strict=True)
         if "vertices" not in z or "faces" not in z:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -275,6 +276,27 @@ def body_scale_warnings(engine: Engine, body: str) -> list[str]:
     return [f"the {body} body is {height:.3f} m tall, outside the {lo:.3f}-{hi:.3f} m of the bodies the rig model "
             f"was trained on: it reads the garment scaled to {height * scale.scale[1]:.3f} m; expect more of it inside "
             "the body when posed (refine: true removes it)"]
+
+
+def fit_obj(result: FitResult, faces: np.ndarray, source: tuple[str, bytes] | None) -> bytes:
+    """The fitted garment as an OBJ: an uploaded OBJ (source: (file name, bytes)) with its vertices moved and every
+    other line kept (UVs, materials, objects; normals turned with the fit, or left out after an un-posing:
+    drape.geometry.mesh_io.rewrite_obj), else plain v/f lines; the report as a first comment line, its warnings
+    also said (the Drape-Warnings header)."""
+    from drape.geometry.mesh_io import rewrite_obj
+
+    for sentence in result.report.get("warnings", []):
+        warn(f"report: {sentence}")
+    head = f"# drape fit report: {json.dumps(result.report)}\n".encode()
+    if source is not None and source[0].lower().endswith(".obj"):
+        turn = result.transform[:3, :3] if result.report.get("pose") == "t" else None
+        try:
+            return head + rewrite_obj(source[1], result.vertices, turn)[0]
+        except ValueError:  # its v lines are not the vertices read: plain lines, below
+            pass
+    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(result.vertices, np.float64).tolist()]
+    lines += [f"f {a} {b} {c}" for a, b, c in (np.asarray(faces, np.int64) + 1).tolist()]
+    return head + ("\n".join(lines) + "\n").encode()
 
 
 def fit_answer(result: FitResult, faces: np.ndarray) -> dict:

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from drape.geometry.mesh_io import load_mesh, obj_parts, save_mesh
+from drape.geometry.mesh_io import load_mesh, obj_parts, rewrite_obj, save_mesh
 
 VERTICES = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1], [0, 1, 1], [1, 0, 1]], np.float32) * 0.1
 FACES = np.array([[0, 1, 2], [0, 2, 1], [3, 4, 5], [5, 4, 6], [3, 6, 4]], np.int32)
@@ -30,3 +30,58 @@ def test_other_formats_ignore_parts(tmp_path):
     v, f = load_mesh(save_mesh(tmp_path / "two.ply", VERTICES, FACES, [("shirt", 0, 3), ("coat", 3, 7)]))
     np.testing.assert_allclose(v, VERTICES, atol=1e-7)
     assert len(f) == len(FACES)
+
+
+TEXTURED_OBJ = b"""# made in a DCC tool\r
+mtllib shirt.mtl\r
+o shirt\r
+v 0 0 0 1 0 0\r
+v 1 0 0\r
+v 0 1 0\r
+v 1 1 0\r
+vt 0 0\r
+vt 1 0\r
+vt 0 1\r
+vt 1 1\r
+vn 0 0 1\r
+usemtl cotton\r
+s 1\r
+f 1/1/1 2/2/1 4/4/1 3/3/1\r
+f 1//1 3//1 2//1\r
+"""
+
+
+def test_an_obj_rewritten_keeps_every_line_but_the_positions_and_turns_its_normals():
+    """Fitting moves vertices; a studio's OBJ keeps its UVs, materials, objects, smoothing groups, a vertex's
+    colour and its line endings. Normals turn with the geometry's linear map (the inverse transpose, unit
+    length), checked against the moved quad's own normal computed from its corners."""
+    v, _ = load_mesh_bytes(TEXTURED_OBJ)
+    turn = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]) * 0.01  # Z-up -> Y-up, centimetres -> metres
+    moved = v @ turn.T + [0.0, 1.0, 0.0]
+    data, normals = rewrite_obj(TEXTURED_OBJ, moved, turn)
+    assert normals == "turned"
+    old, new = TEXTURED_OBJ.decode().split("\n"), data.decode().split("\n")
+    assert len(old) == len(new) and all(a == b for a, b in zip(old, new, strict=True) if not a.startswith("v"))
+    assert all(line.endswith("\r") for line in new[:-1]) and new[3].endswith(" 1 0 0\r")  # the colour kept
+    again, _ = load_mesh_bytes(data)
+    np.testing.assert_allclose(again, moved, atol=1e-7)
+    n = np.array([float(c) for c in new[[i for i, line in enumerate(new) if line.startswith("vn")][0]].split()[1:]])
+    face = np.cross(moved[1] - moved[0], moved[2] - moved[0])
+    np.testing.assert_allclose(n, face / np.linalg.norm(face), atol=1e-6)
+    # without a turn (the garment was un-posed: its normals no longer fit) they are left out, faces keep UVs
+    data, normals = rewrite_obj(TEXTURED_OBJ, moved)
+    text = data.decode()
+    assert normals == "dropped" and "vn " not in text and "f 1/1 2/2 4/4 3/3\r" in text and "f 1 3 2\r" in text
+    np.testing.assert_allclose(load_mesh_bytes(data)[0], moved, atol=1e-7)
+    with pytest.raises(ValueError, match="v lines"):
+        rewrite_obj(TEXTURED_OBJ, moved[:3])
+
+
+def load_mesh_bytes(data: bytes):
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "m.obj"
+        path.write_bytes(data)
+        return load_mesh(path)

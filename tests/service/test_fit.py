@@ -137,11 +137,53 @@ def test_a_mesh_taller_than_the_body_is_a_422(http):
                                                "up": "y"}), 422, "vertices", "taller than the body")
 
 
-def test_the_client_fits_and_rigs_with_fit(server_url, foreign):
+def test_the_client_fits_and_rigs_with_fit(server_url, foreign, tmp_path):
     v, f = foreign
+    path = tmp_path / "shirt.obj"
+    path.write_text("mtllib shirt.mtl\n" + "".join(f"v {a} {b} {c}\n" for a, b, c in v)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
     with drape.Client(server_url) as client:
         fitted = client.fit((v, f), body="male", units="cm")
         rig = client.rig((v, f), body="male", fit=True)
+        obj = client.fit(path, body="male", units="cm", format="obj")  # the file back, moved
+        with pytest.raises(ValueError, match="format"):
+            client.fit(path, format="glb")  # type: ignore[call-overload]
+    lines = obj.decode().splitlines()
+    assert lines[0].startswith("# drape fit report: ") and lines[1] == "mtllib shirt.mtl"
+    got = np.array([[float(c) for c in x.split()[1:]] for x in lines if x.startswith("v ")])
+    np.testing.assert_allclose(got, fitted.vertices, atol=1e-4)
     assert isinstance(fitted, drape.client.FitResult) and fitted.report["units"] == "cm" and fitted.transform.shape == (4, 4)
     assert rig.fit is not None and rig.fit.vertices.shape == (len(v), 3)
     np.testing.assert_allclose(rig.fit.vertices, fitted.vertices, atol=1e-3)
+
+
+def test_a_fit_answers_an_uploaded_obj_as_the_same_file_moved(http, foreign):
+    """Accept: model/obj. An uploaded OBJ comes back as itself with the fitted vertices (its texture coordinates,
+    material and objects kept; the report as a first comment line); a JSON or npz request gets plain v/f lines.
+    The vertices are the JSON answer's."""
+    from drape.geometry.mesh_io import load_mesh
+
+    v, f = foreign
+    obj = ("mtllib shirt.mtl\no shirt\n" + "".join(f"v {a} {b} {c}\n" for a, b, c in v)
+           + "".join(f"vt {i / len(v)} 0.5\n" for i in range(len(v))) + "usemtl cotton\n"
+           + "".join(f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}\n" for a, b, c in f)).encode()
+    form = {"files": {"mesh": ("shirt.obj", obj)}, "data": {"body": "male"}}
+    doc = http.post("/v1/outfits/fit", **form).json()
+    r = http.post("/v1/outfits/fit", **form, headers={"Accept": "model/obj"})
+    assert r.status_code == 200 and r.headers["content-type"].startswith("model/obj"), r.text[:300]
+    lines = r.text.splitlines()
+    assert lines[0].startswith("# drape fit report: ") and json.loads(lines[0][20:]) == doc["report"]
+    assert [x for x in lines[1:] if not x.startswith("v ")] == [x for x in obj.decode().splitlines()
+                                                                if not x.startswith("v ")]
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        (Path(d) / "fitted.obj").write_bytes(r.content)
+        got, faces = load_mesh(Path(d) / "fitted.obj")
+        np.testing.assert_allclose(got, doc["vertices"], atol=1e-6)
+        assert faces.tolist() == f.tolist()
+        plain = http.post("/v1/outfits/fit", json={"vertices": v.tolist(), "faces": f.tolist(), "body": "male"},
+                          headers={"Accept": "model/obj"})
+        (Path(d) / "plain.obj").write_bytes(plain.content)
+        np.testing.assert_allclose(load_mesh(Path(d) / "plain.obj")[0], doc["vertices"], atol=1e-6)

@@ -39,6 +39,17 @@ FORM_BODY = {"type": "string", "description": "a preset (GET /v1/bodies) or a bo
 FORM_INFLUENCES = {"type": "string", "enum": ["4", "8"], "description": INFLUENCES_HELP + " (default 4)"}
 
 
+# a 200 done as asked that looks wrong says so (drape.service.notices): the routes that read a motion_file, animate
+# with an outfit mesh, a fit answered as OBJ
+WARNINGS_ANSWER = {WARNINGS_HEADER: {"required": False, "description": "present when something looks wrong in "
+                                     "what was done as asked (a motion file whose skeleton contradicts `up`, feet "
+                                     "left off the floor; an outfit mostly inside the body): a JSON array of "
+                                     "sentences, each naming its field",
+                                     "schema": {"type": "string"}}}
+OBJ = "model/obj"  # a fit's answer as a mesh file (IANA registered)
+
+
+
 def npz_answer(members: str) -> dict:
     """An npz answer's content entry, naming its members."""
     return {"schema": {"type": "string", "format": "binary", "description": f"npz with {members}"}}
@@ -157,7 +168,12 @@ def _fit_members(fit: dict, prefix: str = "") -> dict[str, np.ndarray]:
 @router.post(
     "/fit",
     responses={200: {"description": "the garment fitted onto the body at rest", "content": {
-        JSON: {"schema": {"$ref": "#/components/schemas/FitResponse"}}, NPZ: FIT_NPZ}}, **ERRORS},
+        JSON: {"schema": {"$ref": "#/components/schemas/FitResponse"}}, NPZ: FIT_NPZ,
+        OBJ: {"schema": {"type": "string", "description": "the fitted garment as an OBJ: an uploaded OBJ with its "
+                         "vertices moved and every other line kept (texture coordinates, materials, objects; "
+                         "normals turned with the fit, or left out after un-posing), else v/f lines; the report "
+                         "as its first line, a comment: '# drape fit report: {...}'"}}},
+        "headers": WARNINGS_ANSWER}, **ERRORS},
     openapi_extra={"requestBody": {"required": True, "content": {
         JSON: {"schema": {"$ref": "#/components/schemas/FitRequest"}},
         "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
@@ -179,7 +195,7 @@ async def fit_outfit(request: Request) -> Response:
     units converted, up axis turned, placed on the body (rigid), un-posed, pushed out of the body keeping its
     local shape. Answers vertices (N, 3) m, faces, the transform (4, 4) applied before the push-out, and a report
     (units and up as given or inferred, inside shares before and after, the push-out's moves and stretch)."""
-    answer = choose(request.headers.get("accept"), [JSON, NPZ])
+    answer = choose(request.headers.get("accept"), [JSON, NPZ, OBJ])
     kind = media_type(request)
     if kind not in ("multipart/form-data", NPZ, JSON, ""):
         raise UnsupportedMediaType(f"send {JSON}, multipart/form-data or {NPZ}, not {kind!r}", "Content-Type")
@@ -189,7 +205,10 @@ async def fit_outfit(request: Request) -> Response:
 
     def work() -> Response:
         args = decode.fit_arguments(kind, content_type, data, settings)
+        source = args.pop("source", None)
         result = handlers.fit(settings, **args, field=mesh_field(kind))
+        if answer == OBJ:
+            return Response(handlers.fit_obj(result, np.asarray(args["faces"]), source), media_type=OBJ)
         doc = handlers.fit_answer(result, np.asarray(args["faces"]))
         if answer == NPZ:
             return Response(encode_npz(_fit_members(doc)), media_type=NPZ)
@@ -253,12 +272,6 @@ def frame_answers(glb: dict) -> dict:
         JSON: {"schema": {"$ref": "#/components/schemas/AnimateResponse"}}, NPZ: STREAM_NPZ, FRAMES: FRAMES_ANSWER,
         PC2: PC2_ANSWER, GLB: glb}, "headers": WARNINGS_ANSWER}, **ERRORS}
 
-
-# a 200 done as asked that looks wrong says so (drape.service.notices): every route that reads a motion_file
-WARNINGS_ANSWER = {WARNINGS_HEADER: {"required": False, "description": "present when something looks wrong in "
-                                     "what was done as asked (a motion file whose skeleton contradicts `up`, feet "
-                                     "left off the floor): a JSON array of sentences, each naming its field",
-                                     "schema": {"type": "string"}}}
 
 
 STREAM_FORMATS = [JSON, NPZ, FRAMES, PC2, GLB]
