@@ -41,7 +41,7 @@ MGN_INNER = "mgn_inner"  # MGN's inner-layer network of the template
 MGN_OUTER = "mgn_outer"  # MGN's outer-layer network of the combination
 INNER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_inner"
 OUTER_MODELS = Path(__file__).resolve().parents[1] / "assets" / "models" / "mgn_outer"
-OUTER_BATCH = 64  # windows per ONNX Runtime call: 600 at once (9,000 frames) peaked 792 MB, 64 at a time 306 MB
+OUTER_BATCH = 64  # windows per ONNX Runtime call: 664 at once (10k frames) peak 4.3x 64 at a time (bench.layers_memory)
 OUTER_FPS = 30.0  # frames/s an outer network's windows read where its manifest does not say (its config's mocap.fps)
 
 
