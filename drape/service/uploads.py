@@ -55,6 +55,7 @@ from typing import Any, NoReturn, cast
 
 import numpy as np
 
+from drape.geometry.mesh_io import without_materials
 from drape.service.errors import DrapeError, InvalidInput, LimitExceeded, MalformedInput, NotFound
 from drape.service.notices import warn
 
@@ -91,7 +92,7 @@ def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
         elif suffix == ".gltf":
             data, file_type = _checked_gltf(data, max_vertices, max_faces), "glb"
         elif suffix == ".obj":
-            data = _without_materials(data)
+            data = without_materials(data)
             _check_obj(data, max_vertices, max_faces)
         else:
             _check_ply(data, max_vertices, max_faces)
@@ -632,17 +633,6 @@ _DIGIT = np.zeros(256, bool)
 _DIGIT[48:58] = True
 _INDEX_BATCH = 4 * 2**20  # bytes of face lines gathered for one index check
 _INDEX_WINDOW = 2**20  # bytes of them scanned at a time
-
-
-_MATERIAL_LINES = re.compile(rb"(?m)^[ \t]*(?:usemtl|mtllib)\b[^\n]*")
-
-
-def _without_materials(data: bytes) -> bytes:
-    """An OBJ's bytes without its `usemtl` and `mtllib` lines. Materials are not read, and trimesh's reader
-    (maintain_order) gives each `usemtl` block a copy of every vertex: a 1,000-block file of 20,000 `v` lines
-    built 20 million vertices (2 GB) before the count could be refused, and a two-material garment came back
-    with its vertices twice over."""
-    return _MATERIAL_LINES.sub(b"", data) if b"mtl" in data else data
 
 
 def _check_obj(data: bytes, max_vertices: int, max_faces: int) -> None:

@@ -85,3 +85,14 @@ def load_mesh_bytes(data: bytes):
         path = Path(d) / "m.obj"
         path.write_bytes(data)
         return load_mesh(path)
+
+
+def test_an_obj_with_two_materials_reads_as_one_mesh_in_the_files_order(tmp_path):
+    """trimesh's reader (keeping the order) gave each `usemtl` block its own copy of every vertex: a two-material
+    garment read by the CLI (outfits fit, render, sim run) had its vertices twice over and was cut apart at the
+    material border. The service already read such uploads without their materials; load_mesh does too now."""
+    path = tmp_path / "two.obj"
+    path.write_text("mtllib x.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 2 4 3\n")
+    v, f = load_mesh(path)
+    np.testing.assert_array_equal(v, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    assert f.tolist() == [[0, 1, 2], [1, 3, 2]]
