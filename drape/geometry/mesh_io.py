@@ -41,6 +41,34 @@ def without_materials(data: bytes) -> bytes:
     return _MATERIAL_LINES.sub(b"", data) if b"mtl" in data else data
 
 
+_RELATIVE_FACE = re.compile(rb"(?m)^[ \t]*f[ \t][^\n]*-")
+
+
+def absolute_indices(data: bytes) -> bytes:
+    """An OBJ's faces with their relative (negative) indices made absolute: -1 is the last `v` (`vt`, `vn`)
+    before the face. trimesh counts them back from the end of the file, which moves every face of an object but
+    the last onto the last object's vertices (faces lost, no error). Files without them come back as they are."""
+    if not _RELATIVE_FACE.search(data):
+        return data
+    counts = {b"v": 0, b"vt": 0, b"vn": 0}
+    out = []
+    for line in data.split(b"\n"):
+        words = line.split()
+        if words and words[0] in counts:
+            counts[words[0]] += 1
+        elif words and words[0] == b"f" and b"-" in line:
+            corners = []
+            for corner in words[1:]:
+                refs = corner.split(b"/")
+                for k, (ref, key) in enumerate(zip(refs, (b"v", b"vt", b"vn"), strict=False)):
+                    if ref.startswith(b"-") and ref[1:].isdigit():
+                        refs[k] = str(counts[key] + 1 + int(ref)).encode()
+                corners.append(b"/".join(refs))
+            line = b" ".join([b"f", *corners]) + (b"\r" if line.endswith(b"\r") else b"")
+        out.append(line)
+    return b"\n".join(out)
+
+
 def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a triangle mesh; several meshes in one file (glTF scenes) are concatenated.
 
@@ -54,8 +82,9 @@ def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     with open(path, "rb"):  # FileNotFoundError / IsADirectoryError / PermissionError, with the path
         pass
     try:
-        if path.suffix.lower() == ".obj":  # materials left out: one vertex per `v` line (without_materials)
-            mesh = read_trimesh(io.BytesIO(without_materials(path.read_bytes())), file_type="obj")
+        if path.suffix.lower() == ".obj":  # one vertex per `v` line (without_materials), relative faces kept right
+            data = absolute_indices(without_materials(path.read_bytes()))
+            mesh = read_trimesh(io.BytesIO(data), file_type="obj")
         else:
             mesh = read_trimesh(str(path))
     except Exception as exc:  # noqa: BLE001 - trimesh's parsers raise anything (IndexError, KeyError, ...)
@@ -127,7 +156,7 @@ def rewrite_obj(data: bytes, vertices: np.ndarray, normal_turn: np.ndarray | Non
     text = data.decode("utf-8", "surrogateescape")
     lines = text.split("\n")
     count = sum(1 for line in lines if line.split(None, 1)[:1] == ["v"])
-    if count != len(vertices) or "\\\n" in text:
+    if count != len(vertices) or "\\\n" in text or "\\\r\n" in text:
         raise ValueError(f"the OBJ's v lines ({count}) are not the {len(vertices)} vertices read from it")
     turn = None if normal_turn is None else np.linalg.inv(np.asarray(normal_turn, np.float64)).T
     has_normals = False
@@ -154,6 +183,57 @@ def rewrite_obj(data: bytes, vertices: np.ndarray, normal_turn: np.ndarray | Non
             out.append(line)
     said = "none in the file" if not has_normals else "turned" if turn is not None else "dropped"
     return "\n".join(out).encode("utf-8", "surrogateescape"), said
+
+
+def obj_uv_corners(data: bytes, faces: np.ndarray) -> np.ndarray | None:
+    """The texture coordinates of an OBJ's face corners, as `faces` (F, 3) (the triangles `load_mesh` read from
+    it: polygons fanned from their first corner) -> (F, 3, 2) float32 (OBJ's convention: v up from the image's
+    bottom), or None: the file has no `vt`, a face without them, an index out of range, or triangles that do not
+    match `faces`.
+
+    Read here because trimesh's reader, keeping the file's vertex order, drops them. A vertex on a UV seam has
+    one texture coordinate per face around it: corners, not vertices."""
+    text = data.replace(b"\r\n", b"\n").replace(b"\\\n", b"")
+    if b"vt" not in text:
+        return None
+    uvs: list[tuple[float, float]] = []
+    count = 0  # v lines so far (negative indices count back from here)
+    by_triangle: dict[tuple[int, int, int], tuple[int, int, int]] = {}
+    try:
+        for line in text.split(b"\n"):
+            words = line.split()
+            if not words:
+                continue
+            key = words[0]
+            if key == b"v":
+                count += 1
+            elif key == b"vt":
+                uvs.append((float(words[1]), float(words[2]) if len(words) > 2 else 0.0))
+            elif key == b"f":
+                corners = []
+                for c in words[1:]:
+                    ids = c.split(b"/")
+                    if len(ids) < 2 or not ids[1]:
+                        return None  # a face without texture coordinates
+                    v, t = int(ids[0]), int(ids[1])
+                    corners.append((v - 1 if v > 0 else count + v, t - 1 if t > 0 else len(uvs) + t))
+                for a, b in zip(corners[1:-1], corners[2:], strict=True):
+                    tri = (corners[0], a, b)
+                    for r in range(3):  # every rotation: trimesh may start a triangle at another corner
+                        rot = tri[r:] + tri[:r]
+                        by_triangle.setdefault((rot[0][0], rot[1][0], rot[2][0]),
+                                               (rot[0][1], rot[1][1], rot[2][1]))
+    except (ValueError, IndexError):
+        return None
+    table = np.asarray(uvs, np.float64).reshape(-1, 2)
+    try:
+        refs = np.array([by_triangle[(int(a), int(b), int(c))] for a, b, c in np.asarray(faces)], np.int64)
+    except KeyError:
+        return None
+    if refs.size == 0 or refs.min() < 0 or refs.max() >= len(table):
+        return None
+    corners_uv = table[refs].astype(np.float32)
+    return corners_uv if np.isfinite(corners_uv).all() else None
 
 
 def obj_parts(data: bytes, filename: str, num_vertices: int) -> list[dict] | None:

@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -71,10 +71,12 @@ class RiggedOutfit:
     diagnostics: dict | None = None  # where the mesh sits on the body at rest (drape.geometry.placement)
     fit: dict | None = None  # with rig's fit: the fitted mesh, transform and report (POST /v1/outfits/fit's answer)
     parts: list[dict] | None = None  # the mesh file's named parts: [{"name", "start", "stop"}] vertex ranges
+    uv_corners: np.ndarray | None = None  # (F, 3, 2) float32: the mesh file's texture coordinates, for its GLBs
 
     @property
     def nbytes(self) -> int:
-        return self.vertices.nbytes + self.faces.nbytes + self.rig.weights.nbytes + self.rig.blend_shapes.nbytes
+        uv = 0 if self.uv_corners is None else self.uv_corners.nbytes
+        return self.vertices.nbytes + self.faces.nbytes + self.rig.weights.nbytes + self.rig.blend_shapes.nbytes + uv
 
 
 @dataclass(frozen=True)
@@ -342,25 +344,43 @@ class Engine:
         """The collision fit's poses and their pose keys; None when it is off."""
         return self.served_frames()[1] if self.collision_fit else None
 
-    def outfit_id(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> str:
+    def outfit_id(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4,
+                  uv_corners: np.ndarray | None = None) -> str:
         """Content hash of the canonical mesh (float32 vertices, int32 faces, and their shapes), the body, the rig's
-        influences per vertex and the model."""
+        influences per vertex and the model; and of the texture coordinates (F, 3, 2) when given (the same garment
+        with other UVs is another outfit: its GLBs differ)."""
         h = hashlib.sha256()
         v, f = np.ascontiguousarray(vertices, dtype="<f4"), np.ascontiguousarray(faces, dtype="<i4")
         h.update(f"{v.shape}{f.shape}".encode())  # where the vertices' bytes end and the faces' begin
         h.update(v.tobytes())
         h.update(f.tobytes())
         h.update(f"|{body}|{self.model_tag}|i{influences}|c{int(self.collision_fit)}".encode())
+        if uv_corners is not None:
+            h.update(b"|uv" + np.ascontiguousarray(uv_corners, dtype="<f4").tobytes())
         return h.hexdigest()[:32]
 
-    def rig(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> RiggedOutfit:
+    def rig(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4,
+            uv_corners: np.ndarray | None = None) -> RiggedOutfit:
         """The served rig of an outfit: at most `influences` (4 or 8) skin weights per vertex, blend shapes
         refit for them (drape.runtime.sparse_rig) and to keep the garment out of the body
-        (drape.runtime.collision_fit); cached by content."""
+        (drape.runtime.collision_fit); cached by content. uv_corners (F, 3, 2): the mesh's texture coordinates,
+        kept with the rig (they do not change it: the rig of the same mesh without them is reused)."""
         if influences not in INFLUENCES:
             raise ValueError(f"influences must be one of {INFLUENCES}, got {influences}")
         v = np.ascontiguousarray(vertices, dtype=np.float32)
         f = np.ascontiguousarray(faces, dtype=np.int32)
+        uv = None if uv_corners is None else np.ascontiguousarray(uv_corners, dtype=np.float32)
+        if uv is not None and uv.shape != (len(f), 3, 2):
+            raise ValueError(f"uv_corners must be (F, 3, 2) = ({len(f)}, 3, 2), got {uv.shape}")
+        if uv is not None:
+            key = self.outfit_id(v, f, body, influences, uv)
+            cached = self.cache.get(key)
+            if cached is not None:
+                return cached
+            plain = self.rig(v, f, body, influences)
+            out = replace(plain, outfit_id=key, uv_corners=uv)
+            self.cache.put(key, out)
+            return out
         oid = self.outfit_id(v, f, body, influences)
         cached = self.cache.get(oid)
         if cached is not None:

@@ -48,7 +48,9 @@ class Skeleton:
 @dataclass(frozen=True)
 class SkinnedMesh:
     """A mesh in rest pose: vertices (N, 3) float32 m, faces (F, 3) int, weights (N, K) rows summing to 1,
-    morph targets (M, N, 3) float32 m (offsets from the rest vertices) with their names, or none."""
+    morph targets (M, N, 3) float32 m (offsets from the rest vertices) with their names, or none; uv_corners
+    (F, 3, 2): the texture coordinates of each face's corners (OBJ's convention, v from the image's bottom), or
+    none. With them, a vertex on a UV seam is written once per side (`split_uv_seams`)."""
 
     name: str
     vertices: np.ndarray
@@ -56,6 +58,26 @@ class SkinnedMesh:
     weights: np.ndarray
     targets: np.ndarray | None = None
     target_names: tuple[str, ...] = ()
+    uv_corners: np.ndarray | None = None
+
+
+def split_uv_seams(faces: np.ndarray, uv_corners: np.ndarray, num_vertices: int,
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """glTF keeps one TEXCOORD_0 per vertex: faces (F, 3) and their corners' texture coordinates (F, 3, 2) ->
+    (source (C,) int64: the mesh vertex each written vertex copies, in the mesh's order, every vertex at least
+    once (one in no face with uv 0), faces (F, 3) into the written vertices, uv (C, 2) float32). One written
+    vertex per distinct (vertex, uv) pair: a vertex on a seam becomes one copy per side, at the same place."""
+    vid = np.asarray(faces, np.int64).reshape(-1)
+    bits = np.ascontiguousarray(uv_corners, np.float32).reshape(-1, 2).view(np.uint32).astype(np.int64)
+    pairs, inverse = np.unique(np.column_stack([vid, bits]), axis=0, return_inverse=True)
+    unused = np.setdiff1d(np.arange(num_vertices), pairs[:, 0])
+    source = np.concatenate([pairs[:, 0], unused])
+    uv_bits = np.concatenate([pairs[:, 1:], np.zeros((len(unused), 2), np.int64)]).astype(np.uint32)
+    order = np.argsort(source, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    uv = np.ascontiguousarray(uv_bits[order]).view(np.float32).reshape(-1, 2)
+    return source[order], rank[inverse.reshape(-1)].reshape(-1, 3), uv
 
 
 @dataclass(frozen=True)
@@ -177,10 +199,26 @@ def _add_skeleton(w: _Writer, skeleton: Skeleton) -> list[int]:
     return [base + k for k in range(len(skeleton.joint_names))]
 
 
-def _add_skinned_mesh(w: _Writer, mesh: SkinnedMesh, skin: int, extra_targets: list[int] | None = None) -> int:
-    """A mesh node (skinned by `skin`) for `mesh`; extra targets (accessor indices) follow its own. -> node."""
+def _seams_split(mesh: SkinnedMesh) -> tuple[SkinnedMesh, np.ndarray | None, np.ndarray | None]:
+    """-> (the mesh as written: with uv_corners, one vertex per (vertex, uv) pair, vertices, weights and targets
+    copied; the written vertices' uv (C, 2) or None; their source vertices (C,) or None)."""
+    if mesh.uv_corners is None:
+        return mesh, None, None
+    source, faces, uv = split_uv_seams(mesh.faces, mesh.uv_corners, len(mesh.vertices))
+    targets = None if mesh.targets is None else np.asarray(mesh.targets)[:, source]
+    return (SkinnedMesh(mesh.name, np.asarray(mesh.vertices)[source], faces, np.asarray(mesh.weights)[source],
+                        targets, mesh.target_names), uv, source)
+
+
+def _add_skinned_mesh(w: _Writer, mesh: SkinnedMesh, skin: int, extra_targets: list[int] | None = None,
+                      uv: np.ndarray | None = None) -> int:
+    """A mesh node (skinned by `skin`) for `mesh`; extra targets (accessor indices) follow its own; uv (N, 2)
+    (OBJ's convention) as TEXCOORD_0 (glTF's: v from the image's top). -> node."""
     v = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
     attrs = gl.Attributes(POSITION=w.accessor(v, gl.VEC3, target=gl.ARRAY_BUFFER, bounds=True))
+    if uv is not None:
+        gl_uv = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]).astype(np.float32)
+        attrs.TEXCOORD_0 = w.accessor(gl_uv, gl.VEC2, target=gl.ARRAY_BUFFER)
     joints, weights = skin_sets(mesh.weights)
     for s in range(joints.shape[1] // 4):
         setattr(attrs, f"JOINTS_{s}", w.accessor(joints[:, 4 * s:4 * s + 4], gl.VEC4, target=gl.ARRAY_BUFFER))
@@ -224,15 +262,30 @@ def skinned_glb(skeleton: Skeleton, meshes: list[SkinnedMesh], animation: Animat
     ibm[:, :3, 3] = -rest  # the joints' rest frames are the world frame translated to each joint
     w.doc.skins.append(gl.Skin(name="skeleton", joints=joint_nodes, skeleton=joint_nodes[0],
                                inverseBindMatrices=w.accessor(ibm.transpose(0, 2, 1).reshape(-1, 16), gl.MAT4)))
+    written = [_seams_split(m) for m in meshes]
+    meshes = [m for m, _, _ in written]
     extra: list[int] = []
     if animation is not None and animation.corrections is not None:
-        n = len(meshes[0].vertices)
-        extra = [w.sparse_vec3(n, idx, off) for idx, off in animation.corrections]
-    mesh_nodes = [_add_skinned_mesh(w, m, 0, extra if i == 0 else None) for i, m in enumerate(meshes)]
+        n, source = len(meshes[0].vertices), written[0][2]
+        extra = [w.sparse_vec3(n, *_corrections_of(idx, off, source)) for idx, off in animation.corrections]
+    mesh_nodes = [_add_skinned_mesh(w, m, 0, extra if i == 0 else None, uv) for i, (m, uv, _) in enumerate(written)]
     w.doc.scenes.append(gl.Scene(name="drape", nodes=[joint_nodes[0], *mesh_nodes]))
     if animation is not None:
         _add_animation(w, animation, rest, joint_nodes, mesh_nodes[0], meshes[0], len(extra))
     return w.glb()
+
+
+def _corrections_of(indices: np.ndarray, offsets: np.ndarray, source: np.ndarray | None,
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's correction (vertex indices (k,), offsets (k, 3)) on the written vertices: each copy of a
+    corrected vertex gets its offset (source: the written vertices' source vertices, or None: the same)."""
+    if source is None:
+        return indices, offsets
+    slot = np.full(int(source.max(initial=-1)) + 1, -1, np.int64)
+    slot[np.asarray(indices, np.int64)] = np.arange(len(indices))
+    at = slot[source]
+    written = np.nonzero(at >= 0)[0]
+    return written, np.asarray(offsets)[at[written]]
 
 
 def _add_animation(w: _Writer, a: Animation, rest: np.ndarray, joint_nodes: list[int], mesh_node: int,

@@ -252,11 +252,17 @@ def _form_flag(parts: dict[str, Any], name: str) -> bool | None:
 
 
 def _form_mesh(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarray, np.ndarray]:
+    v, f, _ = _form_mesh_file(parts, settings)
+    return v, f
+
+
+def _form_mesh_file(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The form's mesh file -> (vertices, faces, texture coordinates of the faces' corners (F, 3, 2) or None)."""
     mesh = parts.get("mesh")
     if mesh is None or mesh.filename is None:
         raise InvalidInput("a mesh file is required", "mesh")
-    return uploads.mesh_from_file(mesh.data, mesh.filename, max_vertices=settings.max_vertices,
-                                  max_faces=settings.max_faces)
+    return uploads.mesh_file(mesh.data, mesh.filename, max_vertices=settings.max_vertices,
+                             max_faces=settings.max_faces)
 
 
 def _form_mesh_parts(parts: dict[str, Any], num_vertices: int) -> list[dict] | None:
@@ -279,25 +285,26 @@ def known_form_fields(parts: dict[str, Any], allowed: tuple[str, ...], expected:
 
 
 def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
-                  ) -> tuple[Any, Any, str | None, Any, bool, list[dict] | None]:
+                  ) -> tuple[Any, Any, str | None, Any, bool, list[dict] | None, np.ndarray | None]:
     """A rig request's body -> (vertices, faces, body preset or None, influences or None, fit, the mesh file's
-    named parts or None), not yet checked."""
+    named parts or None, the mesh file's texture coordinates of the faces' corners (F, 3, 2) or None), not yet
+    checked."""
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
         known_form_fields(parts, RIG_FORM, "mesh and some of body, influences, fit")
-        v, f = _form_mesh(parts, settings)
+        v, f, uv = _form_mesh_file(parts, settings)
         return (v, f, _text(parts, "body"), _text(parts, "influences"), bool(_form_flag(parts, "fit")),
-                _form_mesh_parts(parts, len(v)))
+                _form_mesh_parts(parts, len(v)), uv)
     if kind == "application/x-npz":
         z = npz_members(data, ("vertices", "faces", "body", "influences", "fit"), settings, strict=True)
         if "vertices" not in z or "faces" not in z:
             raise InvalidInput("the archive needs arrays 'vertices' and 'faces'", "body")
         return (npz_numbers(z, "vertices"), npz_numbers(z, "faces", integer=True), npz_text(z, "body"),
-                npz_scalar(z, "influences"), bool(npz_flag(z, "fit")), None)
+                npz_scalar(z, "influences"), bool(npz_flag(z, "fit")), None, None)
     doc = _document(data)
     _precheck_mesh(doc, settings)
     req = _model(RigRequest, doc)
-    return req.vertices, req.faces, req.body, req.influences, req.fit, None
+    return req.vertices, req.faces, req.body, req.influences, req.fit, None, None
 
 
 FIT_FIELDS = ("body", "units", "up", "pose")

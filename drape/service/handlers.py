@@ -292,8 +292,9 @@ def fit_obj(result: FitResult, faces: np.ndarray, source: tuple[str, bytes] | No
         turn = result.transform[:3, :3] if result.report.get("pose") == "t" else None
         try:
             return head + rewrite_obj(source[1], result.vertices, turn)[0]
-        except ValueError:  # its v lines are not the vertices read: plain lines, below
-            pass
+        except ValueError as exc:  # its v lines are not the vertices read: plain lines, below, and said
+            warn(f"mesh: the OBJ could not be written back line for line ({exc}): answered as plain v and f lines, "
+                 "without its texture coordinates, normals and materials")
     lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(result.vertices, np.float64).tolist()]
     lines += [f"f {a} {b} {c}" for a, b, c in (np.asarray(faces, np.int64) + 1).tolist()]
     return head + ("\n".join(lines) + "\n").encode()
@@ -307,18 +308,20 @@ def fit_answer(result: FitResult, faces: np.ndarray) -> dict:
 
 def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str | None,
         influences: Any = None, fit_first: bool = False, parts: list[dict] | None = None,
-        field: str = "") -> RiggedOutfit:
+        field: str = "", uv_corners: np.ndarray | None = None) -> RiggedOutfit:
     """Rig an outfit (fitted onto the body first with fit_first); the answer carries its placement
     diagnostics, with fit_first the fit (RiggedOutfit.fit: vertices, faces, transform, report), and the
     mesh file's named parts (vertex ranges) when it has several. field: the mesh's field prefix in errors
-    (e.g. "mesh" for an uploaded file: "mesh.faces")."""
+    (e.g. "mesh" for an uploaded file: "mesh.faces"). uv_corners (F, 3, 2): the mesh file's texture
+    coordinates, kept with the rig for its GLB (and the GLBs animate makes of its outfit_id)."""
     fitted = fit(settings, vertices, faces, body, field=field) if fit_first else None
     v, f = check_mesh(vertices if fitted is None else fitted.vertices, faces, settings, field)
     body_name = check_body(body)
     with computing_on(body_name):
         diagnostics = check_on_body(v, body_name, f"{field}.vertices" if field else "vertices")
         diagnostics["warnings"] += body_scale_warnings(engine, body_name)
-        outfit = engine.rig(v, f, body_name, check_influences(influences))
+        uv = uv_corners if uv_corners is not None and np.shape(uv_corners) == (len(f), 3, 2) else None
+        outfit = engine.rig(v, f, body_name, check_influences(influences), uv_corners=uv)
     return replace(outfit, diagnostics=diagnostics, fit=None if fitted is None else fit_answer(fitted, f),
                    parts=parts)
 
@@ -529,7 +532,7 @@ def outfit_glb(engine: Engine, outfit: RiggedOutfit, plan: AnimationPlan | None 
     body = plan.body if plan is not None and plan.body is not None else held_body(outfit.body)
     rig = outfit.rig
     meshes = [SkinnedMesh("outfit", outfit.vertices, outfit.faces, rig.weights, rig.blend_shapes,
-                          tuple(f"psd_{p}" for p in range(len(rig.blend_shapes)))),
+                          tuple(f"psd_{p}" for p in range(len(rig.blend_shapes))), outfit.uv_corners),
               SkinnedMesh("body", body.vertices, body.faces, body.weights)]
     animation = None
     if plan is not None:

@@ -88,11 +88,12 @@ class SharedOutfitEngine(Engine):
                 self.cache.put(outfit_id, outfit)
         return super().lookup(outfit_id)
 
-    def rig(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4) -> RiggedOutfit:
-        known = self.lookup(self.outfit_id(vertices, faces, body, influences))
+    def rig(self, vertices: np.ndarray, faces: np.ndarray, body: str, influences: int = 4,
+            uv_corners: np.ndarray | None = None) -> RiggedOutfit:
+        known = self.lookup(self.outfit_id(vertices, faces, body, influences, uv_corners))
         if known is not None:
             return known
-        outfit = super().rig(vertices, faces, body, influences)
+        outfit = super().rig(vertices, faces, body, influences, uv_corners=uv_corners)
         try:  # waited for: once the rig is answered, its outfit_id works on every replica
             self._store.put.remote(outfit).result(timeout_s=self._timeout_s)
         except Exception:  # the store down or slow: this replica still has the rig

@@ -55,7 +55,7 @@ from typing import Any, NoReturn, cast
 
 import numpy as np
 
-from drape.geometry.mesh_io import without_materials
+from drape.geometry.mesh_io import absolute_indices, without_materials
 from drape.service.errors import DrapeError, InvalidInput, LimitExceeded, MalformedInput, NotFound
 from drape.service.notices import warn
 
@@ -81,6 +81,15 @@ def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
     files, are a MalformedInput); see the module docstring for what is checked before trimesh sees
     the file, and which domain error answers what.
     """
+    v, f, _ = mesh_file(data, filename, max_vertices=max_vertices, max_faces=max_faces)
+    return v, f
+
+
+def mesh_file(data: bytes, filename: str, *, max_vertices: int,
+              max_faces: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """`mesh_from_file` with the texture coordinates of the faces' corners (F, 3, 2) float32 (OBJ's convention),
+    or None where the file has none (or they do not map onto the faces read): an OBJ's `vt`
+    (drape.geometry.mesh_io.obj_uv_corners), a GLB's TEXCOORD_0."""
     suffix = "." + filename.rsplit(".", 1)[-1].lower() if "." in filename else ""
     if suffix not in MESH_FILE_TYPES:
         raise InvalidInput(f"file name must end in one of {sorted(MESH_FILE_TYPES)}, "
@@ -92,7 +101,7 @@ def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
         elif suffix == ".gltf":
             data, file_type = _checked_gltf(data, max_vertices, max_faces), "glb"
         elif suffix == ".obj":
-            data = without_materials(data)
+            data = absolute_indices(without_materials(data))
             _check_obj(data, max_vertices, max_faces)
         else:
             _check_ply(data, max_vertices, max_faces)
@@ -104,12 +113,13 @@ def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
     return _load(data, file_type, suffix)
 
 
-def _load(data: bytes, file_type: str, suffix: str) -> tuple[np.ndarray, np.ndarray]:
-    from drape.geometry.mesh_io import read_trimesh
+def _load(data: bytes, file_type: str, suffix: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    from drape.geometry.mesh_io import obj_uv_corners, read_trimesh
 
     try:
         mesh = read_trimesh(io.BytesIO(data), file_type=file_type)
         v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        uv = getattr(mesh.visual, "uv", None)  # a GLB's TEXCOORD_0 (trimesh turns it to OBJ's convention)
     except Exception as exc:  # trimesh raises many kinds on broken files
         raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: {exc})",
                              FIELD) from exc
@@ -118,7 +128,13 @@ def _load(data: bytes, file_type: str, suffix: str) -> tuple[np.ndarray, np.ndar
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
         raise MalformedInput(f"the {suffix} file reads as vertices {v.shape} and faces {f.shape}, "
                              "not (N, 3) and (F, 3)", FIELD)
-    return v, f
+    corners = None
+    if suffix == ".obj":
+        corners = obj_uv_corners(data, f)
+    elif uv is not None and np.shape(uv) == (len(v), 2) and f.min() >= 0 and f.max() < len(v):
+        corners = np.asarray(uv, np.float32)[f]
+        corners = corners if np.isfinite(corners).all() else None
+    return v, f, corners
 
 
 def _bad(detail: str) -> NoReturn:
@@ -346,7 +362,7 @@ def _accessors(tree: dict[str, Any], views: list[_View]) -> list[_Accessor]:
 class _Mesh:
     vertices: int
     faces: int
-    primitives: list[tuple[int, int | None]]  # (POSITION accessor, indices accessor or None)
+    primitives: list[tuple[int, int | None, int | None]]  # (POSITION, indices or None, TEXCOORD_0 or None) accessors
 
 
 def _meshes(tree: dict[str, Any], accessors: list[_Accessor]) -> list[_Mesh]:
@@ -363,7 +379,7 @@ def _meshes(tree: dict[str, Any], accessors: list[_Accessor]) -> list[_Mesh]:
         if not isinstance(primitives, list) or not all(isinstance(p, dict) for p in primitives):
             _bad(f"meshes[{i}].primitives must be a list of objects")
         vertices = faces = 0
-        prims: list[tuple[int, int | None]] = []
+        prims: list[tuple[int, int | None, int | None]] = []
         for j, p in enumerate(primitives):
             where = f"meshes[{i}].primitives[{j}]"
             extensions = p.get("extensions")
@@ -394,7 +410,13 @@ def _meshes(tree: dict[str, Any], accessors: list[_Accessor]) -> list[_Mesh]:
                 _bad(f"{where} has {corners} triangle corners, not a multiple of 3")
             vertices += position.count
             faces += corners // 3
-            prims.append((attributes["POSITION"], indices))
+            texcoord = attributes.get("TEXCOORD_0")  # kept when float VEC2, one per vertex (else left out)
+            if texcoord is not None:
+                tex_acc = accessors[_index(texcoord, len(accessors), f"{where}.attributes.TEXCOORD_0")]
+                if (tex_acc.view is None or tex_acc.kind != "VEC2" or tex_acc.component != 5126
+                        or tex_acc.count != position.count):
+                    texcoord = None
+            prims.append((attributes["POSITION"], indices, texcoord))
         out.append(_Mesh(vertices, faces, prims))
     return out
 
@@ -577,7 +599,7 @@ def _check_required_extensions(tree: dict[str, Any]) -> None:
 
 def _rewrite(tree: dict[str, Any], buffers: list[memoryview], max_vertices: int,
              max_faces: int) -> bytes:
-    """Check the declarations, then build a GLB of the placed geometry alone."""
+    """Check the declarations, then build a GLB of the placed geometry alone (and float texture coordinates)."""
     _check_required_extensions(tree)
     views = _views(tree, buffers)
     accessors = _accessors(tree, views)
@@ -606,8 +628,11 @@ def _rewrite(tree: dict[str, Any], buffers: list[memoryview], max_vertices: int,
     new_meshes = []
     for m in sorted(used):
         prims = []
-        for position, indices in meshes[m].primitives:
+        for position, indices, texcoord in meshes[m].primitives:
             prim: dict[str, Any] = {"attributes": {"POSITION": copy(position)}, "mode": 4}
+            if texcoord is not None:  # the garment's texture coordinates, for the rig's GLB (trimesh reads a
+                prim["attributes"]["TEXCOORD_0"] = copy(texcoord)  # primitive's UVs only with a material: a plain one)
+                prim["material"] = 0
             if indices is not None:
                 prim["indices"] = copy(indices)
             prims.append(prim)
@@ -618,7 +643,7 @@ def _rewrite(tree: dict[str, Any], buffers: list[memoryview], max_vertices: int,
     blob.extend(bytes(-len(blob) % 4))
     header = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": roots}], "nodes": nodes,
               "meshes": new_meshes, "accessors": new_accessors, "bufferViews": new_views,
-              "buffers": [{"byteLength": len(blob)}]}
+              "buffers": [{"byteLength": len(blob)}], "materials": [{"name": "plain"}]}
     text = json.dumps(header, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
     total = 12 + 8 + len(text) + 8 + len(blob)

@@ -17,6 +17,7 @@ from drape.schemas.gltf import (
     SkinnedMesh,
     skin_sets,
     skinned_glb,
+    split_uv_seams,
     vertex_animation_glb,
 )
 
@@ -78,6 +79,41 @@ def test_an_animated_skinned_morphed_mesh_plays_back_as_drape_poses_it(scene):
     assert np.abs(player.positions("outfit") - verts).max() < 1e-6  # rest: no animation applied
     assert player.doc.meshes[0].extras["targetNames"][:6] == list("abcdef")
     assert [n.name for n in player.doc.nodes[:24]] == list(body.joint_names)
+
+
+def test_texture_coordinates_split_seams_and_play_back_as_the_mesh_without_them(scene):
+    """A garment's UVs (per face corner, OBJ's convention) go out as TEXCOORD_0 (glTF's: v from the top). A vertex
+    with two UVs (a seam) is written twice, at the same place, with the same weights, morph targets and
+    corrections: posed by an independent player, every copy is where the vertex is without UVs."""
+    body, verts, faces, weights, targets, poses, trans, keys = scene
+    rng = np.random.default_rng(3)
+    per_vertex = rng.uniform(0, 1, size=(len(verts), 2)).astype(np.float32)
+    uv_corners = per_vertex[faces]
+    uv_corners[::2, 0] += 1.0  # every other face another island: their shared vertices lie on seams
+    transforms, _ = forward_kinematics(poses[:4], body.joints, body.parents, trans[:4])
+    world = np.zeros((4, 400, 3), np.float32)
+    world[1, 10:30, 0] = 0.004
+    moved = world[1].any(1)
+    corrections = [(np.zeros(0, np.int64), np.zeros((0, 3), np.float32))] * 4
+    corrections[1] = (np.flatnonzero(moved), rest_space_offsets(world[1][moved], weights[moved],
+                                                                 transforms[1, :, :3, :3]))
+    skeleton = Skeleton(body.joint_names, body.parents, body.joints)
+    glb = skinned_glb(skeleton, [SkinnedMesh("outfit", verts, faces, weights, targets, tuple("abcdef"),
+                                             uv_corners)], Animation(poses[:4], trans[:4], 30.0, keys[:4], corrections))
+    report = validate(glb)
+    assert report["errors"] == 0, report["messages"]
+    source, written_faces, uv = split_uv_seams(faces, uv_corners, len(verts))
+    assert len(source) > len(verts) and set(source.tolist()) == set(range(len(verts)))
+    assert np.array_equal(source[written_faces], faces)  # every face on copies of its own vertices
+    player = GlbPlayer(glb)
+    prim = player.doc.meshes[0].primitives[0]
+    texcoord = player.accessor(prim.attributes.TEXCOORD_0)
+    np.testing.assert_allclose(texcoord[written_faces][..., 0], uv_corners[..., 0])
+    np.testing.assert_allclose(1.0 - texcoord[written_faces][..., 1], uv_corners[..., 1], atol=1e-7)
+    rest = verts[None] + np.einsum("tp,pnc->tnc", keys[:4], targets)
+    want = linear_blend_skinning(rest, weights, transforms) + world
+    for t in range(4):
+        assert np.abs(player.positions("outfit", t) - want[t][source]).max() < 1e-5, t
 
 
 def test_a_vertex_animation_replays_its_stream_dense_and_sparse():

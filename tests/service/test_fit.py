@@ -183,6 +183,12 @@ def test_a_fit_answers_an_uploaded_obj_as_the_same_file_moved(http, foreign):
         got, faces = load_mesh(Path(d) / "fitted.obj")
         np.testing.assert_allclose(got, doc["vertices"], atol=1e-6)
         assert faces.tolist() == f.tolist()
+        # an OBJ the answer cannot keep line for line (a continued line) is answered as plain lines, and said
+        cut = obj.replace(b"\nv ", b"\nv \\\n", 1)
+        r2 = http.post("/v1/outfits/fit", files={"mesh": ("shirt.obj", cut)}, data={"body": "male"},
+                       headers={"Accept": "model/obj"})
+        assert r2.status_code == 200 and b"vt " not in r2.content, r2.text[:300]
+        assert "could not be written back line for line" in r2.headers["Drape-Warnings"]
         plain = http.post("/v1/outfits/fit", json={"vertices": v.tolist(), "faces": f.tolist(), "body": "male"},
                           headers={"Accept": "model/obj"})
         (Path(d) / "plain.obj").write_bytes(plain.content)

@@ -112,8 +112,10 @@ async def rig_outfit(request: Request) -> Response:
     content_type = request.headers.get("content-type", "")
 
     def work() -> Response:
-        vertices, faces, body_name, influences, fit, parts = decode.rig_arguments(kind, content_type, data, settings)
+        vertices, faces, body_name, influences, fit, parts, uv = decode.rig_arguments(kind, content_type, data,
+                                                                                     settings)
         outfit = handlers.rig(engine, settings, vertices, faces, body_name, influences, fit_first=fit, parts=parts,
+                              uv_corners=uv,
                               field=mesh_field(kind))
         if answer == GLB:
             return Response(handlers.outfit_glb(engine, outfit), media_type=GLB)
