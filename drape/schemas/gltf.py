@@ -68,7 +68,8 @@ def split_uv_seams(faces: np.ndarray, uv_corners: np.ndarray, num_vertices: int,
     once (one in no face with uv 0), faces (F, 3) into the written vertices, uv (C, 2) float32). One written
     vertex per distinct (vertex, uv) pair: a vertex on a seam becomes one copy per side, at the same place."""
     vid = np.asarray(faces, np.int64).reshape(-1)
-    bits = np.ascontiguousarray(uv_corners, np.float32).reshape(-1, 2).view(np.uint32).astype(np.int64)
+    uv_f32 = np.asarray(uv_corners, np.float32).reshape(-1, 2) + np.float32(0.0)  # -0.0 -> 0.0: one UV, not two
+    bits = np.ascontiguousarray(uv_f32).view(np.uint32).astype(np.int64)
     pairs, inverse = np.unique(np.column_stack([vid, bits]), axis=0, return_inverse=True)
     unused = np.setdiff1d(np.arange(num_vertices), pairs[:, 0])
     source = np.concatenate([pairs[:, 0], unused])
