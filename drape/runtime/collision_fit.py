@@ -58,6 +58,7 @@ SETTLE = 0
 # push_g3_r1_deep3_relax20h_repush): rounds (0: none), then what it leaves near the body pushed out again
 RELAX = 20
 REPUSH = True
+FIT_BLOCK_VERTEX_FRAMES = 1_000_000  # vertex-frames of the targets made at once: all 150 fit frames up to 6,666 vertices
 HOLD: float | None = 0.015  # m: cloth this near the body's vertices at rest is held by the relaxation
 # fit poses: every 4th of the sparse rig's 300 (frames of the embedded clips DeePSD trained on) and every 12th frame
 # of three of its procedural training motions (drape.training.deepsd_data: seeds 500 + i, 300 frames)
@@ -184,21 +185,30 @@ def collision_fit(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, 
         on_body = cKDTree(np.asarray(body_vertices, np.float64)).query(np.asarray(rest_vertices, np.float64))[0] < hold
     out = rig
 
-    def push(points: np.ndarray) -> np.ndarray:  # points (T, N, 3) at the fit poses, pushed out of the body
-        return pushed_targets(rest_vertices, out, rest_joints, poses, keys, body_vertices, body_faces, body_weights,
-                              eps, reach, tight=tight, deepest=deepest, far_k=far_k, settle=settle, start=points)
+    def push(points: np.ndarray, frames: slice) -> np.ndarray:  # points (t, N, 3) at those fit poses, pushed out
+        return pushed_targets(rest_vertices, out, rest_joints, poses[frames], keys[frames], body_vertices, body_faces,
+                              body_weights, eps, reach, tight=tight, deepest=deepest, far_k=far_k, settle=settle,
+                              start=points)
 
+    # the targets are made FIT_BLOCK frames at a time (each frame's push and relaxation is its own): the
+    # float64 working arrays of every fit frame at once held ~1 GB for a 48k-vertex garment (bench.rig_scale)
+    frames = len(poses)
+    block = max(1, FIT_BLOCK_VERTEX_FRAMES // max(len(rest_vertices), 1))
     for _ in range(rounds):
-        posed = pose_outfit(rest_vertices, out, keys, rest_joints, poses)
-        pushed = push(posed)
-        targets = posed + np.float32(gain) * (pushed - posed)
-        if welded is not None:
-            first, group, edges, rest = welded
-            moved = np.any(pushed != posed, axis=2) | on_body[None]  # the same for coincident vertices
-            targets = relax_edges(targets[:, first], edges, rest, relax, fixed=moved[:, first],
-                                  stretch_only=stretch_only)[:, group]
-            if repush:  # what the relaxation drew back into the body (or within eps of it) put out again
-                targets = push(targets)
+        targets = np.empty((frames, len(rest_vertices), 3), np.float32)
+        for s in range(0, frames, block):
+            part = slice(s, s + block)
+            posed = pose_outfit(rest_vertices, out, keys[part], rest_joints, poses[part])
+            pushed = push(posed, part)
+            target = posed + np.float32(gain) * (pushed - posed)
+            if welded is not None:
+                first, group, edges, rest = welded
+                moved = np.any(pushed != posed, axis=2) | on_body[None]  # the same for coincident vertices
+                target = relax_edges(target[:, first], edges, rest, relax, fixed=moved[:, first],
+                                     stretch_only=stretch_only)[:, group]
+                if repush:  # what the relaxation drew back into the body (or within eps of it) put out again
+                    target = push(target, part)
+            targets[part] = target
         out = sparse_rig(rest_vertices, out, rest_joints, influences, poses, keys, targets=targets)
     return out
 

@@ -23,6 +23,7 @@ from drape.runtime.deepsd import Rig, pose_outfit
 INFLUENCES = (4, 8)  # what the service offers; 4 by default (three.js, most engines)
 RIDGE = 1e-3
 BLOCK_VERTEX_FRAMES = 400_000  # vertices x frames refit at once (64 frames up to 6,250 vertices)
+SOLVE_COLUMNS = 16_384  # columns of the ridge solve at once (3 per vertex): 16 MB of float64 at 128 keys
 FIT_FRAMES = 300  # 300 and 1,000 fit frames gave the same held-out figures (runs/sparse_rig_check.py)
 # the embedded clips DeePSD trained on: all but its held-out evaluation clips (walk, kick, dance_b;
 # tests/runtime/test_sparse_rig.py checks this against the training config)
@@ -95,6 +96,15 @@ def sparse_rig(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, inf
         residual = residual.transpose(1, 0, 2)  # (t, N, 3)
         rhs += keys64[s:s + block].T @ residual.reshape(len(p), -1)
     gram = keys64.T @ keys64 + RIDGE * T * np.eye(P)
-    delta = np.linalg.solve(gram, rhs).reshape(P, -1, 3)
-    return Rig(weights, (rig.blend_shapes + delta).astype(np.float32))
+    # solved a slice of columns at a time, in place, and added shape by shape: the whole (P, 3N) float64 solve
+    # and sum held four copies of rhs (~560 MB for a 48k-vertex garment, bench.rig_scale); each column's solve is
+    # its own, so the blend shapes are the same
+    step = max(1, SOLVE_COLUMNS)
+    for s in range(0, rhs.shape[1], step):
+        rhs[:, s:s + step] = np.linalg.solve(gram, rhs[:, s:s + step])
+    delta = rhs.reshape(P, -1, 3)
+    shapes = np.empty(rig.blend_shapes.shape, np.float32)
+    for p in range(P):  # float32 + float64 is float64, rounded to float32 on assignment: (a + b).astype(float32)
+        shapes[p] = rig.blend_shapes[p] + delta[p]
+    return Rig(weights, shapes)
 
