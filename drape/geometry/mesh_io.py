@@ -61,7 +61,7 @@ def absolute_indices(data: bytes) -> bytes:
             for corner in words[1:]:
                 refs = corner.split(b"/")
                 for k, (ref, key) in enumerate(zip(refs, (b"v", b"vt", b"vn"), strict=False)):
-                    if ref.startswith(b"-") and ref[1:].isdigit():
+                    if ref.startswith(b"-") and ref[1:].isdigit() and len(ref) <= 19:  # longer: left for the reader
                         refs[k] = str(counts[key] + 1 + int(ref)).encode()
                 corners.append(b"/".join(refs))
             line = b" ".join([b"f", *corners]) + (b"\r" if line.endswith(b"\r") else b"")

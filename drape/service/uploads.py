@@ -101,8 +101,9 @@ def mesh_file(data: bytes, filename: str, *, max_vertices: int,
         elif suffix == ".gltf":
             data, file_type = _checked_gltf(data, max_vertices, max_faces), "glb"
         elif suffix == ".obj":
-            data = absolute_indices(without_materials(data))
+            data = without_materials(data)
             _check_obj(data, max_vertices, max_faces)
+            data = absolute_indices(data)  # after the counts are bounded: it reads the face lines one by one
         else:
             _check_ply(data, max_vertices, max_faces)
     except DrapeError:

@@ -128,3 +128,13 @@ def test_an_obj_continued_across_lines_is_not_rewritten_line_for_line():
         data = b"v 0 1 \\" + end + b"0" + end + b"v 1 0 0" + end + b"v 0 0 1" + end + b"f 1 2 3" + end
         with pytest.raises(ValueError, match="v lines"):
             rewrite_obj(data, np.zeros((3, 3)))
+
+
+def test_a_relative_index_too_long_for_an_integer_is_a_malformed_file_not_a_crash():
+    """absolute_indices leaves a 5,000-digit index to the reader (int() refuses past 4,300 digits: a 500)."""
+    from drape.service.errors import MalformedInput
+    from drape.service.uploads import mesh_file
+
+    data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -" + b"9" * 5000 + b"\n"
+    with pytest.raises(MalformedInput):
+        mesh_file(data, "huge.obj", max_vertices=100, max_faces=100)
