@@ -104,7 +104,7 @@ def sparse_rig(rest_vertices: np.ndarray, rig: Rig, rest_joints: np.ndarray, inf
         rhs[:, s:s + step] = np.linalg.solve(gram, rhs[:, s:s + step])
     delta = rhs.reshape(P, -1, 3)
     shapes = np.empty(rig.blend_shapes.shape, np.float32)
-    for p in range(P):  # float32 + float64 is float64, rounded to float32 on assignment: (a + b).astype(float32)
-        shapes[p] = rig.blend_shapes[p] + delta[p]
+    for shape in range(P):  # float32 + float64 is float64, rounded to float32 on assignment: (a + b).astype(float32)
+        shapes[shape] = rig.blend_shapes[shape] + delta[shape]
     return Rig(weights, shapes)
 
