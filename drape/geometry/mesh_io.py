@@ -33,6 +33,27 @@ def read_trimesh(source: str | BinaryIO, file_type: str | None = None):  # noqa:
 _MATERIAL_LINES = re.compile(rb"(?m)^[ \t]*(?:usemtl|mtllib)\b[^\n]*")
 
 
+def read_trimesh_parts(source: BinaryIO, file_type: str):  # noqa: ANN201 (a trimesh.Trimesh, parts)
+    """A scene file (glTF) read as `read_trimesh` reads it (its meshes placed and concatenated, nothing merged),
+    with the named parts: [{"name", "start", "stop"}] vertex ranges of the concatenated mesh, one per placed mesh
+    (named by its node), in the order trimesh concatenates them; None for a single mesh."""
+    import trimesh
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        scene = cast(trimesh.Scene, trimesh.load(source, file_type=file_type, process=False, force="scene",
+                                                 maintain_order=True))
+    pieces = [p for p in scene.dump(concatenate=False) if isinstance(p, trimesh.Trimesh)]
+    if not pieces:
+        raise ValueError("the scene places no triangle mesh")
+    if len(pieces) == 1:
+        return pieces[0], None
+    stops = np.cumsum([len(p.vertices) for p in pieces])
+    parts = [{"name": str(p.metadata.get("node") or p.metadata.get("name") or "")[:200], "start": int(start),
+              "stop": int(stop)} for p, start, stop in zip(pieces, [0, *stops[:-1]], stops, strict=True)]
+    return trimesh.util.concatenate(pieces), parts
+
+
 def without_materials(data: bytes) -> bytes:
     """An OBJ's bytes without its `usemtl` and `mtllib` lines. Materials are not read, and trimesh's reader
     (maintain_order) gives each `usemtl` block a copy of every vertex: a two-material garment came back with its

@@ -252,12 +252,12 @@ def _form_flag(parts: dict[str, Any], name: str) -> bool | None:
 
 
 def _form_mesh(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarray, np.ndarray]:
-    v, f, _ = _form_mesh_file(parts, settings)
-    return v, f
+    read = _form_mesh_file(parts, settings)
+    return read.vertices, read.faces
 
 
-def _form_mesh_file(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """The form's mesh file -> (vertices, faces, texture coordinates of the faces' corners (F, 3, 2) or None)."""
+def _form_mesh_file(parts: dict[str, Any], settings: Settings) -> uploads.MeshFile:
+    """The form's mesh file, read (uploads.MeshFile: vertices, faces, texture coordinates, a GLB's parts)."""
     mesh = parts.get("mesh")
     if mesh is None or mesh.filename is None:
         raise InvalidInput("a mesh file is required", "mesh")
@@ -265,9 +265,10 @@ def _form_mesh_file(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarr
                              max_faces=settings.max_faces)
 
 
-def _form_mesh_parts(parts: dict[str, Any], num_vertices: int) -> list[dict] | None:
+def _form_mesh_parts(parts: dict[str, Any], read: uploads.MeshFile) -> list[dict] | None:
+    """The mesh file's named parts: an OBJ's objects (or groups), a GLB's placed meshes; None for one part."""
     mesh = parts["mesh"]
-    return obj_parts(mesh.data, mesh.filename, num_vertices)
+    return read.parts if read.parts is not None else obj_parts(mesh.data, mesh.filename, len(read.vertices))
 
 
 RIG_FORM = ("mesh", "body", "influences", "fit")
@@ -292,9 +293,9 @@ def rig_arguments(kind: str, content_type: str, data: bytes, settings: Settings,
     if kind == "multipart/form-data":
         parts = parse_form(data, content_type)
         known_form_fields(parts, RIG_FORM, "mesh and some of body, influences, fit")
-        v, f, uv = _form_mesh_file(parts, settings)
-        return (v, f, _text(parts, "body"), _text(parts, "influences"), bool(_form_flag(parts, "fit")),
-                _form_mesh_parts(parts, len(v)), uv)
+        read = _form_mesh_file(parts, settings)
+        return (read.vertices, read.faces, _text(parts, "body"), _text(parts, "influences"),
+                bool(_form_flag(parts, "fit")), _form_mesh_parts(parts, read), read.uv_corners)
     if kind == "application/x-npz":
         z = npz_members(data, ("vertices", "faces", "body", "influences", "fit"), settings, strict=True)
         if "vertices" not in z or "faces" not in z:

@@ -81,15 +81,26 @@ def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
     files, are a MalformedInput); see the module docstring for what is checked before trimesh sees
     the file, and which domain error answers what.
     """
-    v, f, _ = mesh_file(data, filename, max_vertices=max_vertices, max_faces=max_faces)
-    return v, f
+    read = mesh_file(data, filename, max_vertices=max_vertices, max_faces=max_faces)
+    return read.vertices, read.faces
 
 
-def mesh_file(data: bytes, filename: str, *, max_vertices: int,
-              max_faces: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """`mesh_from_file` with the texture coordinates of the faces' corners (F, 3, 2) float32 (OBJ's convention),
-    or None where the file has none (or they do not map onto the faces read): an OBJ's `vt`
-    (drape.geometry.mesh_io.obj_uv_corners), a GLB's TEXCOORD_0."""
+@dataclass(frozen=True)
+class MeshFile:
+    """An uploaded mesh as read: vertices (N, 3), faces (F, 3); uv_corners (F, 3, 2) float32, the texture
+    coordinates of the faces' corners (OBJ's convention), or None where the file has none (or they do not map
+    onto the faces read): an OBJ's `vt` (drape.geometry.mesh_io.obj_uv_corners), a GLB's TEXCOORD_0; parts: a
+    GLB's placed meshes as named vertex ranges [{"name", "start", "stop"}] (an OBJ's: drape.geometry.mesh_io.
+    obj_parts), or None."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    uv_corners: np.ndarray | None = None
+    parts: list[dict] | None = None
+
+
+def mesh_file(data: bytes, filename: str, *, max_vertices: int, max_faces: int) -> MeshFile:
+    """`mesh_from_file` with the file's texture coordinates and, for a GLB/glTF, its parts (MeshFile)."""
     suffix = "." + filename.rsplit(".", 1)[-1].lower() if "." in filename else ""
     if suffix not in MESH_FILE_TYPES:
         raise InvalidInput(f"file name must end in one of {sorted(MESH_FILE_TYPES)}, "
@@ -114,11 +125,15 @@ def mesh_file(data: bytes, filename: str, *, max_vertices: int,
     return _load(data, file_type, suffix)
 
 
-def _load(data: bytes, file_type: str, suffix: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    from drape.geometry.mesh_io import obj_uv_corners, read_trimesh
+def _load(data: bytes, file_type: str, suffix: str) -> MeshFile:
+    from drape.geometry.mesh_io import obj_uv_corners, read_trimesh, read_trimesh_parts
 
+    parts = None
     try:
-        mesh = read_trimesh(io.BytesIO(data), file_type=file_type)
+        if file_type == "glb":  # the checked copy: triangle meshes only, each placed one a part
+            mesh, parts = read_trimesh_parts(io.BytesIO(data), file_type)
+        else:
+            mesh = read_trimesh(io.BytesIO(data), file_type=file_type)
         v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
         uv = getattr(mesh.visual, "uv", None)  # a GLB's TEXCOORD_0 (trimesh turns it to OBJ's convention)
     except Exception as exc:  # trimesh raises many kinds on broken files
@@ -135,7 +150,7 @@ def _load(data: bytes, file_type: str, suffix: str) -> tuple[np.ndarray, np.ndar
     elif uv is not None and np.shape(uv) == (len(v), 2) and f.min() >= 0 and f.max() < len(v):
         corners = np.asarray(uv, np.float32)[f]
         corners = corners if np.isfinite(corners).all() else None
-    return v, f, corners
+    return MeshFile(v, f, corners, parts)
 
 
 def _bad(detail: str) -> NoReturn:

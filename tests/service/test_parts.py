@@ -52,6 +52,37 @@ def test_rig_names_the_parts_in_file_order(http, upload):
     assert r.json()["num_vertices"] == n_pants + n_shirt
 
 
+def test_a_glbs_meshes_are_the_rigs_parts_named_by_their_nodes(http):
+    """A GLB with two placed meshes (a shirt and trousers): the rig answers each as a part named by its node,
+    in the order the vertices were read (trimesh's, which the answer's vertex ranges follow), each range holding
+    that garment's vertices where the file placed them (GLB uploads reported no parts)."""
+    import trimesh
+
+    shirt = generate_outfit("tshirt", vertices=600, seed=31)
+    pants = generate_outfit("trousers", vertices=600, seed=32)
+    scene = trimesh.Scene()
+    scene.add_geometry(trimesh.Trimesh(shirt.vertices, shirt.faces, process=False), node_name="shirt_node",
+                       geom_name="shirt_mesh")
+    scene.add_geometry(trimesh.Trimesh(pants.vertices - [0.0, 0.02, 0.0], pants.faces, process=False),
+                       node_name="pants_node", geom_name="pants_mesh", transform=trimesh.transformations.
+                       translation_matrix([0.0, 0.02, 0.0]))
+    data = scene.export(file_type="glb")
+    r = http.post("/v1/outfits/rig", files={"mesh": ("outfit.glb", data)}, headers={"Accept": "application/x-npz"})
+    assert r.status_code == 200, r.text[:300]
+    doc = http.post("/v1/outfits/rig", files={"mesh": ("outfit.glb", data)}).json()
+    parts = doc["parts"]
+    assert sorted(p["name"] for p in parts) == ["pants_node", "shirt_node"], parts
+    assert parts[0]["start"] == 0 and parts[0]["stop"] == parts[1]["start"] and parts[1]["stop"] == doc["num_vertices"]
+    sizes = {p["name"]: p["stop"] - p["start"] for p in parts}
+    assert sizes == {"shirt_node": len(shirt.vertices), "pants_node": len(pants.vertices)}
+    from drape.service.uploads import mesh_file
+
+    read = mesh_file(data, "outfit.glb", max_vertices=10**5, max_faces=10**5)
+    garment = {"shirt_node": shirt.vertices, "pants_node": pants.vertices}  # the node moved the trousers back
+    for p in parts:
+        np.testing.assert_allclose(read.vertices[p["start"]:p["stop"]], garment[p["name"]], atol=1e-6)
+
+
 def test_seams_stay_closed_through_rig_and_animate(server_url, upload, tmp_path):
     data, _, pairs = upload
     path = tmp_path / "outfit.obj"
