@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from threejs_player import BROWSER_JS, THREE_VERSION, run_node
+from threejs_player import THREE_VERSION, page_js, run_node
 
 from drape.assets.body import load_body
 from drape.schemas.gltf import Animation, Skeleton, SkinnedMesh, skinned_glb, split_uv_seams
@@ -87,18 +87,7 @@ def test_the_garment_has_seams_and_asymmetric_v(garment):
     assert written >= len(verts) + 30
 
 
-THREE_JS = BROWSER_JS + r"""
-import http from 'node:http';
-import fs from 'node:fs';
-import path from 'node:path';
-
-const [glbPath, outPath] = process.argv.slice(2);
-const THREE_DIR = path.resolve('node_modules/three');
-const PAGE = `<!doctype html><html><head><meta charset="utf-8"><link rel="icon" href="data:,">
-<script type="importmap">{"imports": {"three": "/three/build/three.module.js",
-  "three/addons/": "/three/examples/jsm/"}}</script></head><body>
-<script type="module">
-import * as THREE from 'three';
+READ_MODULE = r"""import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 window.drapeRead = async () => {
   const data = await (await fetch('/model.glb')).arrayBuffer();
@@ -112,48 +101,17 @@ window.drapeRead = async () => {
                     interleaved: uv.isInterleavedBufferAttribute === true, type: uv.array.constructor.name} : null,
           position: Array.from(g.attributes.position.array), index: g.index ? Array.from(g.index.array) : null};
 };
-window.drapeReady = true;
-</script></body></html>`;
-const TYPES = {'.js': 'text/javascript', '.glb': 'model/gltf-binary'};
-const server = http.createServer((req, res) => {
-  const url = new URL(req.url, 'http://localhost');
-  let file = null;
-  if (url.pathname === '/') { res.writeHead(200, {'content-type': 'text/html'}); res.end(PAGE); return; }
-  if (url.pathname === '/model.glb') file = glbPath;
-  else if (url.pathname.startsWith('/three/')) {
-    file = path.resolve(THREE_DIR, '.' + decodeURIComponent(url.pathname.slice(6)));
-    if (!file.startsWith(THREE_DIR + path.sep)) file = null;
-  }
-  if (!file || !fs.existsSync(file)) { res.writeHead(404); res.end(); return; }
-  res.writeHead(200, {'content-type': TYPES[path.extname(file)] || 'application/octet-stream'});
-  fs.createReadStream(file).pipe(res);
-});
-await new Promise((ok) => server.listen(0, '127.0.0.1', ok));
-const browser = await launch();
-const problems = [];
-try {
-  const page = await browser.newPage();
-  page.on('pageerror', (e) => problems.push('pageerror: ' + e.message));
-  page.on('console', (m) => { if (m.type() === 'error') problems.push('console: ' + m.text()); });
-  page.on('requestfailed', (r) => problems.push('requestfailed: ' + r.url()));
-  await page.goto(`http://127.0.0.1:${server.address().port}/`);
-  await page.waitForFunction(() => window.drapeReady === true, null, {timeout: 60000});
-  const out = await page.evaluate(() => window.drapeRead());
-  out.problems = problems;
-  fs.writeFileSync(outPath, JSON.stringify(out));
-} finally {
-  await browser.close();
-  server.close();
-}
 """
+THREE_JS = page_js(READ_MODULE, "() => window.drapeRead()")
 
 
 def test_threejs_reads_texcoord_0_as_gltf_uv_per_face_corner(garment):
     glb, verts, faces, uv_corners, written = garment
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "model.glb"
+        path, spec = Path(tmp) / "model.glb", Path(tmp) / "spec.json"
         path.write_bytes(glb)
-        out = run_node(THREE_JS, str(path), timeout=180)
+        spec.write_text("{}")
+        out = run_node(THREE_JS, str(path), str(spec), timeout=180)
     assert not out["problems"], out["problems"][:10]
     assert out["revision"] == THREE_VERSION.split(".")[1] and out["skinned"]
     assert out["attributes"][:1] == ["position"] and "uv" in out["attributes"], out["attributes"]

@@ -37,7 +37,7 @@ const launch = () => chromium.launch({{executablePath: {json.dumps(str(CHROMIUM)
   args: {json.dumps(CHROMIUM_ARGS)}}});
 """
 
-PLAYER_JS = BROWSER_JS + r"""
+PAGE_JS = BROWSER_JS + r"""
 import http from 'node:http';
 import fs from 'node:fs';
 import path from 'node:path';
@@ -50,7 +50,52 @@ const PAGE = `<!doctype html><html><head><meta charset="utf-8"><link rel="icon" 
 <script type="importmap">{"imports": {"three": "/three/build/three.module.js",
   "three/addons/": "/three/examples/jsm/"}}</script></head><body>
 <script type="module">
-import * as THREE from 'three';
+@@MODULE@@window.drapeReady = true;
+</script></body></html>`;
+
+const TYPES = {'.js': 'text/javascript', '.glb': 'model/gltf-binary', '.html': 'text/html'};
+const server = http.createServer((req, res) => {
+  const url = new URL(req.url, 'http://localhost');
+  let file = null;
+  if (url.pathname === '/') { res.writeHead(200, {'content-type': 'text/html'}); res.end(PAGE); return; }
+  if (url.pathname === '/model.glb') file = glbPath;
+  else if (url.pathname.startsWith('/three/')) {
+    file = path.resolve(THREE_DIR, '.' + decodeURIComponent(url.pathname.slice(6)));
+    if (!file.startsWith(THREE_DIR + path.sep)) file = null;
+  }
+  if (!file || !fs.existsSync(file)) { res.writeHead(404); res.end(); return; }
+  res.writeHead(200, {'content-type': TYPES[path.extname(file)] || 'application/octet-stream'});
+  fs.createReadStream(file).pipe(res);
+});
+await new Promise((ok) => server.listen(0, '127.0.0.1', ok));
+const browser = await launch();
+const problems = [];
+try {
+  const page = await browser.newPage();
+  page.on('pageerror', (e) => problems.push('pageerror: ' + e.message));
+  page.on('console', (m) => { if (m.type() === 'error') problems.push('console: ' + m.text()); });
+  page.on('requestfailed', (r) => problems.push('requestfailed: ' + r.url()));
+  await page.goto(`http://127.0.0.1:${server.address().port}/`);
+  await page.waitForFunction(() => window.drapeReady === true, null, {timeout: 60000});
+  const out = await page.evaluate(@@CALL@@, spec);
+  out.problems = problems;
+  fs.writeFileSync(outPath, JSON.stringify(out));
+} finally {
+  await browser.close();
+  server.close();
+}
+"""
+
+
+def page_js(module: str, call: str) -> str:
+    """A node ES module (run_node's argv: the GLB's path, a spec JSON's path) serving a page on loopback whose
+    module script is `module` (three.js importable as 'three' and 'three/addons/', the GLB at /model.glb; the
+    page sets window.drapeReady when loaded), then writing what `call` (a JS function of the spec, run in the
+    page) returns, as JSON with `problems` (the page's errors, console errors and failed requests)."""
+    return PAGE_JS.replace("@@MODULE@@", module).replace("@@CALL@@", call)
+
+
+PLAY_MODULE = r"""import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 
 function b64(f64) {
@@ -95,41 +140,8 @@ window.drapePlay = async (spec) => {
   }
   return out;
 };
-window.drapeReady = true;
-</script></body></html>`;
-
-const TYPES = {'.js': 'text/javascript', '.glb': 'model/gltf-binary', '.html': 'text/html'};
-const server = http.createServer((req, res) => {
-  const url = new URL(req.url, 'http://localhost');
-  let file = null;
-  if (url.pathname === '/') { res.writeHead(200, {'content-type': 'text/html'}); res.end(PAGE); return; }
-  if (url.pathname === '/model.glb') file = glbPath;
-  else if (url.pathname.startsWith('/three/')) {
-    file = path.resolve(THREE_DIR, '.' + decodeURIComponent(url.pathname.slice(6)));
-    if (!file.startsWith(THREE_DIR + path.sep)) file = null;
-  }
-  if (!file || !fs.existsSync(file)) { res.writeHead(404); res.end(); return; }
-  res.writeHead(200, {'content-type': TYPES[path.extname(file)] || 'application/octet-stream'});
-  fs.createReadStream(file).pipe(res);
-});
-await new Promise((ok) => server.listen(0, '127.0.0.1', ok));
-const browser = await launch();
-const problems = [];
-try {
-  const page = await browser.newPage();
-  page.on('pageerror', (e) => problems.push('pageerror: ' + e.message));
-  page.on('console', (m) => { if (m.type() === 'error') problems.push('console: ' + m.text()); });
-  page.on('requestfailed', (r) => problems.push('requestfailed: ' + r.url()));
-  await page.goto(`http://127.0.0.1:${server.address().port}/`);
-  await page.waitForFunction(() => window.drapeReady === true, null, {timeout: 60000});
-  const out = await page.evaluate((s) => window.drapePlay(s), spec);
-  out.problems = problems;
-  fs.writeFileSync(outPath, JSON.stringify(out));
-} finally {
-  await browser.close();
-  server.close();
-}
 """
+PLAYER_JS = page_js(PLAY_MODULE, "(s) => window.drapePlay(s)")
 
 
 def _installed_version(package: str) -> str | None:
