@@ -3,10 +3,10 @@ network, the 4-influence refit and the collision fit) at several vertex counts, 
 
 Per size: a generated t-shirt of about that many vertices (seed 3), the engine loaded and its fit frames made
 first; then the peak RSS reset (/proc/self/clear_refs) and one rig timed, in two stages: the network's dense rig
-(`DeePSDModel.rig`) and the served rig on it (`served_rig`). Printed: seconds and peak MB over the RSS before
-each stage (ONNX Runtime keeps its arena after the network's run: the rig's peak is the sum), per 1,000 vertices
-too, and each size's ratio to the smallest's (same run), so the scaling is read
-on a noisy machine. Linux only.
+(`DeePSDModel.rig`) and the served rig on it (`served_rig`). Printed: each stage's seconds, the peak RSS over the
+RSS before the rig (after the network, and over the whole rig), what the process keeps after it, per 1,000
+vertices too, and each size's ratio to the smallest's (same run), so the scaling is read on a noisy machine.
+Linux only.
 
 Run: PYTHONPATH=. .venv/bin/python -m bench.rig_scale [--sizes 6000,12000,24000,48000]   (about 2 min)
 """
@@ -44,10 +44,10 @@ def child(vertices: int) -> dict:
         before, start = _mb("VmRSS"), time.perf_counter()
         dense = engine.model.rig(outfit.vertices, outfit.faces, body)
         out["network_s"], out["network_mb"] = time.perf_counter() - start, _mb("VmHWM") - before
-        Path("/proc/self/clear_refs").write_text("5")
-        before, start = _mb("VmRSS"), time.perf_counter()
+        start = time.perf_counter()
         served_rig(outfit.vertices, dense, body, 4, engine.fit_frames(), engine.collision_frames(), faces=outfit.faces)
-        out["served_s"], out["served_mb"] = time.perf_counter() - start, _mb("VmHWM") - before
+        out["served_s"], out["peak_mb"] = time.perf_counter() - start, _mb("VmHWM") - before
+        out["after_mb"] = _mb("VmRSS") - before
         return out
     finally:
         engine.close()
@@ -67,17 +67,14 @@ def main() -> None:
                              text=True, check=True)
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
     base = rows[0]
-    # ONNX Runtime keeps its arena after the network's run, so the served stage's peak sits on top of it: the
-    # rig's peak over the RSS before it is the sum
-    print("vertices | network s / +MB | served rig s / +MB | rig s, +MB; per 1k vertices | x smallest (s, MB)")
+    print("vertices | network s, +MB peak | served rig s | rig s, +MB peak, +MB kept after | per 1k vertices: s, "
+          "MB peak | x smallest (s, MB)")
+    base_s = base["network_s"] + base["served_s"]
     for r in rows:
         total_s = r["network_s"] + r["served_s"]
-        peak = r["network_mb"] + r["served_mb"]
-        base_s = base["network_s"] + base["served_s"]
-        base_peak = base["network_mb"] + base["served_mb"]
-        print(f"{r['vertices']:>8} | {r['network_s']:.1f} / +{r['network_mb']:.0f} | {r['served_s']:.1f} / "
-              f"+{r['served_mb']:.0f} | {total_s:.1f} s, +{peak:.0f} MB; {1e3 * total_s / r['vertices']:.2f} s, "
-              f"{1e3 * peak / r['vertices']:.0f} MB | {total_s / base_s:.1f}x, {peak / base_peak:.1f}x")
+        print(f"{r['vertices']:>8} | {r['network_s']:.1f}, +{r['network_mb']:.0f} | {r['served_s']:.1f} | "
+              f"{total_s:.1f}, +{r['peak_mb']:.0f}, +{r['after_mb']:.0f} | {1e3 * total_s / r['vertices']:.2f}, "
+              f"{1e3 * r['peak_mb'] / r['vertices']:.0f} | {total_s / base_s:.1f}x, {r['peak_mb'] / base['peak_mb']:.1f}x")
 
 
 if __name__ == "__main__":

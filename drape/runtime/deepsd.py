@@ -105,7 +105,8 @@ class DeePSDModel:
         model_dir = Path(model_dir)
         self.manifest = json.loads((model_dir / "manifest.json").read_text())
         blobs = checked_files(model_dir, self.manifest, ("outfit", "pose"))
-        self.sessions = {name: cpu_session(blob, threads) for name, blob in blobs.items()}
+        # the outfit network's memory grows with the garment (~16 KB a vertex): no arena keeps it after a rig
+        self.sessions = {name: cpu_session(blob, threads, arena=name != "outfit") for name, blob in blobs.items()}
         self.num_keys = int(self.manifest["files"]["pose"]["outputs"][0]["shape"][-1])
         # a model trained with its weights restricted to candidate joints takes them as an input
         self.joint_candidates: dict | None = self.manifest.get("joint_candidates")
