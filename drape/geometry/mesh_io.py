@@ -63,31 +63,50 @@ def without_materials(data: bytes) -> bytes:
 
 
 _RELATIVE_FACE = re.compile(rb"(?m)^[ \t]*f[ \t][^\n]*-")
+# the element lines of an OBJ (v, vt, vn, f and their rest), found in C: blank and comment lines are skipped there,
+# so a file padded with millions of them costs a scan, not a Python object per line
+_ELEMENT = re.compile(rb"(?m)^[ \t]*(vt|vn|v|f)[ \t]([^\n]*)")
+
+
+def _spliced(data: bytes, edits: list[tuple[int, int, bytes]]) -> bytes:
+    """data with each (start, stop, new bytes) span replaced (spans in order, not overlapping)."""
+    out, at = [], 0
+    for start, stop, new in edits:
+        out += [data[at:start], new]
+        at = stop
+    out.append(data[at:])
+    return b"".join(out)
 
 
 def absolute_indices(data: bytes) -> bytes:
     """An OBJ's faces with their relative (negative) indices made absolute: -1 is the last `v` (`vt`, `vn`)
     before the face. trimesh counts them back from the end of the file, which moves every face of an object but
-    the last onto the last object's vertices (faces lost, no error). Files without them come back as they are."""
+    the last onto the last object's vertices (faces lost, no error). Files without them come back as they are.
+    ValueError for a relative index reaching before the first element of its kind (or -0)."""
     if not _RELATIVE_FACE.search(data):
         return data
     counts = {b"v": 0, b"vt": 0, b"vn": 0}
-    out = []
-    for line in data.split(b"\n"):
-        words = line.split()
-        if words and words[0] in counts:
-            counts[words[0]] += 1
-        elif words and words[0] == b"f" and b"-" in line:
-            corners = []
-            for corner in words[1:]:
-                refs = corner.split(b"/")
-                for k, (ref, key) in enumerate(zip(refs, (b"v", b"vt", b"vn"), strict=False)):
-                    if ref.startswith(b"-") and ref[1:].isdigit() and len(ref) <= 19:  # longer: left for the reader
-                        refs[k] = str(counts[key] + 1 + int(ref)).encode()
-                corners.append(b"/".join(refs))
-            line = b" ".join([b"f", *corners]) + (b"\r" if line.endswith(b"\r") else b"")
-        out.append(line)
-    return b"\n".join(out)
+    edits = []
+    for m in _ELEMENT.finditer(data):
+        key, rest = m.group(1), m.group(2)
+        if key != b"f":
+            counts[key] += 1
+            continue
+        if b"-" not in rest:
+            continue
+        corners = []
+        for corner in rest.split():
+            refs = corner.split(b"/")
+            for k, (ref, kind) in enumerate(zip(refs, (b"v", b"vt", b"vn"), strict=False)):
+                if ref.startswith(b"-") and ref[1:].isdigit() and len(ref) <= 19:  # longer: left for the reader
+                    absolute = counts[kind] + 1 + int(ref)
+                    if absolute < 1 or int(ref) == 0:
+                        raise ValueError(f"a face's relative index {ref.decode()} reaches before the first "
+                                         f"'{kind.decode()}' line ({counts[kind]} come before it)")
+                    refs[k] = str(absolute).encode()
+            corners.append(b"/".join(refs))
+        edits.append((m.start(2), m.end(2), b" ".join(corners) + (b"\r" if rest.endswith(b"\r") else b"")))
+    return _spliced(data, edits)
 
 
 def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -172,86 +191,97 @@ def rewrite_obj(data: bytes, vertices: np.ndarray, normal_turn: np.ndarray | Non
     un-posed), so the `vn` lines and the faces' normal indices are left out (a DCC tool smooths them again).
     -> (the new bytes, what became of the normals: "turned", "dropped" or "none in the file").
 
-    ValueError when the file's `v` lines are not N (a line continued with a backslash, or another mesh).
+    ValueError when the file's `v` lines are not N (a line continued with a backslash, or another mesh), or a
+    `vn` line is not three numbers.
     """
-    text = data.decode("utf-8", "surrogateescape")
-    lines = text.split("\n")
-    count = sum(1 for line in lines if line.split(None, 1)[:1] == ["v"])
-    if count != len(vertices) or "\\\n" in text or "\\\r\n" in text:
+    if b"\\\n" in data or b"\\\r\n" in data:
+        raise ValueError("the OBJ continues lines with a backslash; its v lines are not the vertices read")
+    count = sum(1 for m in _ELEMENT.finditer(data) if m.group(1) == b"v")
+    if count != len(vertices):
         raise ValueError(f"the OBJ's v lines ({count}) are not the {len(vertices)} vertices read from it")
     turn = None if normal_turn is None else np.linalg.inv(np.asarray(normal_turn, np.float64)).T
     has_normals = False
-    out, i = [], 0
-    for line in lines:
-        end = "\r" if line.endswith("\r") else ""
-        words = line.rstrip("\r").split()
-        key = words[0] if words else ""
-        if key == "v":
+    edits: list[tuple[int, int, bytes]] = []
+    i = 0
+    for m in _ELEMENT.finditer(data):
+        key, rest = m.group(1), m.group(2)
+        end = b"\r" if rest.endswith(b"\r") else b""
+        words = rest.split()
+        if key == b"v":
             x, y, z = (float(c) for c in vertices[i])
-            out.append(" ".join([f"v {x:.9g} {y:.9g} {z:.9g}", *words[4:]]) + end)
+            edits.append((m.start(), m.end(), b" ".join([f"v {x:.9g} {y:.9g} {z:.9g}".encode(), *words[3:]]) + end))
             i += 1
-        elif key == "vn":
+        elif key == b"vn":
             has_normals = True
             if turn is None:
+                edits.append((m.start(), min(m.end() + 1, len(data)), b""))  # the line and its newline
                 continue
-            n = turn @ np.array([float(c) for c in words[1:4]])
+            try:
+                n = turn @ np.array([float(c) for c in words[:3]], np.float64).reshape(3)
+            except ValueError:
+                raise ValueError(f"a vn line is not three numbers: {rest[:40]!r}") from None
             n /= max(float(np.linalg.norm(n)), 1e-12)
-            out.append(f"vn {n[0]:.7g} {n[1]:.7g} {n[2]:.7g}" + end)
-        elif key == "f" and turn is None:
-            corners = [c.split("/") for c in words[1:]]
-            out.append(" ".join(["f", *("/".join(c[:2]).rstrip("/") for c in corners)]) + end)
-        else:
-            out.append(line)
+            edits.append((m.start(), m.end(), f"vn {n[0]:.7g} {n[1]:.7g} {n[2]:.7g}".encode() + end))
+        elif key == b"f" and turn is None:
+            corners = [c.split(b"/") for c in words]
+            edits.append((m.start(), m.end(), b" ".join([b"f", *(b"/".join(c[:2]).rstrip(b"/") for c in corners)])
+                          + end))
     said = "none in the file" if not has_normals else "turned" if turn is not None else "dropped"
-    return "\n".join(out).encode("utf-8", "surrogateescape"), said
+    return _spliced(data, edits), said
 
 
-def obj_uv_corners(data: bytes, faces: np.ndarray) -> np.ndarray | None:
+def obj_uv_corners(data: bytes, faces: np.ndarray, max_uvs: int | None = None) -> np.ndarray | None:
     """The texture coordinates of an OBJ's face corners, as `faces` (F, 3) (the triangles `load_mesh` read from
-    it: polygons fanned from their first corner) -> (F, 3, 2) float32 (OBJ's convention: v up from the image's
-    bottom), or None: the file has no `vt`, a face without them, an index out of range, or triangles that do not
-    match `faces`.
+    it, in the file's order: polygons fanned from their first corner) -> (F, 3, 2) float32 (OBJ's convention: v
+    up from the image's bottom), or None: the file has no `vt` (or more than max_uvs), a face without them, an
+    index out of range (0 included), a value that is not a finite number, or triangles that do not match
+    `faces`.
 
     Read here because trimesh's reader, keeping the file's vertex order, drops them. A vertex on a UV seam has
-    one texture coordinate per face around it: corners, not vertices."""
-    text = data.replace(b"\r\n", b"\n").replace(b"\\\n", b"")
-    if b"vt" not in text:
+    one texture coordinate per face around it: corners, not vertices. Memory: 16 bytes a `vt`, 48 a triangle."""
+    from array import array
+
+    if b"vt" not in data or (max_uvs is not None and data.count(b"vt") > max_uvs):
         return None
-    uvs: list[tuple[float, float]] = []
-    count = 0  # v lines so far (negative indices count back from here)
-    by_triangle: dict[tuple[int, int, int], tuple[int, int, int]] = {}
+    if b"\\\n" in data or b"\\\r\n" in data:
+        data = data.replace(b"\\\r\n", b"").replace(b"\\\n", b"")
+    uvs, tri_v, tri_t = array("d"), array("q"), array("q")
+    count = 0  # v lines so far (relative indices count back from here)
     try:
-        for line in text.split(b"\n"):
-            words = line.split()
-            if not words:
-                continue
-            key = words[0]
+        for m in _ELEMENT.finditer(data):
+            key = m.group(1)
             if key == b"v":
                 count += 1
             elif key == b"vt":
-                uvs.append((float(words[1]), float(words[2]) if len(words) > 2 else 0.0))
+                words = m.group(2).split()
+                uvs.extend((float(words[0]), float(words[1]) if len(words) > 1 else 0.0))
             elif key == b"f":
                 corners = []
-                for c in words[1:]:
+                for c in m.group(2).split():
                     ids = c.split(b"/")
                     if len(ids) < 2 or not ids[1]:
                         return None  # a face without texture coordinates
                     v, t = int(ids[0]), int(ids[1])
-                    corners.append((v - 1 if v > 0 else count + v, t - 1 if t > 0 else len(uvs) + t))
+                    if v == 0 or t == 0:
+                        return None
+                    corners.append((v - 1 if v > 0 else count + v, t - 1 if t > 0 else len(uvs) // 2 + t))
                 for a, b in zip(corners[1:-1], corners[2:], strict=True):
-                    tri = (corners[0], a, b)
-                    for r in range(3):  # every rotation: trimesh may start a triangle at another corner
-                        rot = tri[r:] + tri[:r]
-                        by_triangle.setdefault((rot[0][0], rot[1][0], rot[2][0]),
-                                               (rot[0][1], rot[1][1], rot[2][1]))
+                    tri_v.extend((corners[0][0], a[0], b[0]))
+                    tri_t.extend((corners[0][1], a[1], b[1]))
     except (ValueError, IndexError):
         return None
-    table = np.asarray(uvs, np.float64).reshape(-1, 2)
-    try:
-        refs = np.array([by_triangle[(int(a), int(b), int(c))] for a, b, c in np.asarray(faces)], np.int64)
-    except KeyError:
+    file_v = np.frombuffer(tri_v, np.int64).reshape(-1, 3)
+    file_t = np.frombuffer(tri_t, np.int64).reshape(-1, 3)
+    faces = np.asarray(faces, np.int64)
+    if file_v.shape != faces.shape or len(faces) == 0:
         return None
-    if refs.size == 0 or refs.min() < 0 or refs.max() >= len(table):
+    refs = np.full(faces.shape, -1, np.int64)
+    for r in range(3):  # trimesh may start a fanned triangle at another corner: the rotation that matches
+        rolled = np.roll(file_v, -r, axis=1)
+        match = (rolled == faces).all(axis=1) & (refs[:, 0] < 0)
+        refs[match] = np.roll(file_t, -r, axis=1)[match]
+    table = np.frombuffer(uvs, np.float64).reshape(-1, 2)
+    if refs.min() < 0 or refs.max() >= len(table):
         return None
     corners_uv = table[refs].astype(np.float32)
     return corners_uv if np.isfinite(corners_uv).all() else None

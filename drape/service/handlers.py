@@ -87,6 +87,7 @@ def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "",
         raise InvalidInput(f"indices must lie in [0, {len(v) - 1}], got [{f.min()}, {f.max()}]", f"{pre}faces")
     if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])):
         raise InvalidInput("a face repeats a vertex index", f"{pre}faces")
+    _check_valence(f, len(v), settings.max_vertices, f"{pre}faces")
     area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
     if not np.any(area > 1e-12):
         size = float(np.ptp(v, axis=0).max())
@@ -95,6 +96,26 @@ def check_mesh(vertices: Any, faces: Any, settings: Settings, field: str = "",
                                "in metres is 0.05-3 m across)", f"{pre}vertices")
         raise InvalidInput("every face has zero area (degenerate mesh)", f"{pre}faces")
     return v.astype(np.float32), f.astype(np.int32)
+
+
+VALENCE_BUDGET = 100  # sum over vertices of (vertices joined to it)^2, per vertex of the service's limit
+
+
+def _check_valence(faces: np.ndarray, num_vertices: int, max_vertices: int, field: str) -> None:
+    """A 422 when the vertices are joined to too many others: the refinement's sparse solve (fit's push-out,
+    refine) fills in about the square of a vertex's valence. Cloth has 6-8 a vertex (a 100k-vertex garment
+    ~40 a vertex summed); an 11,000-corner polygon fanned from one vertex took a fit to 4 GB. The budget,
+    VALENCE_BUDGET x max_vertices, keeps a 2,000-corner fan (~2 s, ~200 MB)."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    e = np.unique(e[:, 0].astype(np.int64) * num_vertices + e[:, 1])
+    valence = np.bincount(np.concatenate([e // num_vertices, e % num_vertices]), minlength=num_vertices)
+    total = int((valence.astype(np.int64) ** 2).sum())
+    if total > VALENCE_BUDGET * max_vertices:
+        worst = int(valence.argmax())
+        raise InvalidInput(f"vertex {worst} is joined to {int(valence[worst])} others (a polygon of many corners "
+                           f"fanned from one vertex?): the squared valences sum to {total}, over the "
+                           f"{VALENCE_BUDGET * max_vertices} the refinement's solve is sized for; triangulate such "
+                           "polygons evenly", field)
 
 
 def check_body(name: str | None, field: str = "body") -> str:
@@ -320,7 +341,9 @@ def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str
     with computing_on(body_name):
         diagnostics = check_on_body(v, body_name, f"{field}.vertices" if field else "vertices")
         diagnostics["warnings"] += body_scale_warnings(engine, body_name)
-        uv = uv_corners if uv_corners is not None and np.shape(uv_corners) == (len(f), 3, 2) else None
+        uv = None  # -0.0 read as 0.0: the same UVs, one outfit_id
+        if uv_corners is not None and np.shape(uv_corners) == (len(f), 3, 2):
+            uv = np.asarray(uv_corners, np.float32) + np.float32(0.0)
         outfit = engine.rig(v, f, body_name, check_influences(influences), uv_corners=uv)
     return replace(outfit, diagnostics=diagnostics, fit=None if fitted is None else fit_answer(fitted, f),
                    parts=parts)

@@ -22,6 +22,8 @@ from drape.schemas import WARNINGS_HEADER
 
 __all__ = ["WARNINGS_HEADER", "WarningsHeader", "warn"]
 MAX_WARNINGS = 16  # sentences kept per answer; the header stays small
+MAX_SENTENCE = 400  # characters kept of a sentence (one may quote a file's text: a probe put 200 KB in the header,
+# which httpx refused to read)
 
 _current: ContextVar[list[str] | None] = ContextVar("drape_warnings", default=None)
 
@@ -29,6 +31,8 @@ _current: ContextVar[list[str] | None] = ContextVar("drape_warnings", default=No
 def warn(sentence: str) -> None:
     """Add a sentence to the current request's answer (outside a request, e.g. the CLI: nothing)."""
     notes = _current.get()
+    if len(sentence) > MAX_SENTENCE:
+        sentence = sentence[:MAX_SENTENCE - 3] + "..."
     if notes is not None and sentence not in notes and len(notes) < MAX_WARNINGS:
         notes.append(sentence)
 

@@ -112,9 +112,10 @@ def mesh_file(data: bytes, filename: str, *, max_vertices: int, max_faces: int) 
         elif suffix == ".gltf":
             data, file_type = _checked_gltf(data, max_vertices, max_faces), "glb"
         elif suffix == ".obj":
+            _check_line_breaks(data)
             data = without_materials(data)
             _check_obj(data, max_vertices, max_faces)
-            data = absolute_indices(data)  # after the counts are bounded: it reads the face lines one by one
+            data = absolute_indices(data)  # after the counts are bounded (it rewrites the face lines)
         else:
             _check_ply(data, max_vertices, max_faces)
     except DrapeError:
@@ -122,10 +123,22 @@ def mesh_file(data: bytes, filename: str, *, max_vertices: int, max_faces: int) 
     except Exception as exc:  # a check tripping on a broken file reads as the broken file
         raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: {exc})",
                              FIELD) from exc
-    return _load(data, file_type, suffix)
+    return _load(data, file_type, suffix, max_uvs=max_vertices + 3 * max_faces)
 
 
-def _load(data: bytes, file_type: str, suffix: str) -> MeshFile:
+# what str.splitlines (trimesh's OBJ reader) breaks lines at besides LF and CR: a `v` line holding 10 million
+# vertices separated by vertical tabs counted as one vertex here and built 4 GB there
+_OTHER_LINE_BREAKS = re.compile(rb"[\x0b\x0c\x1c\x1d\x1e]|\xc2\x85|\xe2\x80[\xa8\xa9]")
+
+
+def _check_line_breaks(data: bytes) -> None:
+    found = _OTHER_LINE_BREAKS.search(data)
+    if found:
+        _bad(f"the OBJ holds a line break other than LF or CRLF ({found.group(0)!r} at byte {found.start()}): "
+             "its lines would be counted otherwise than read")
+
+
+def _load(data: bytes, file_type: str, suffix: str, max_uvs: int) -> MeshFile:
     from drape.geometry.mesh_io import obj_uv_corners, read_trimesh, read_trimesh_parts
 
     parts = None
@@ -146,7 +159,10 @@ def _load(data: bytes, file_type: str, suffix: str) -> MeshFile:
                              "not (N, 3) and (F, 3)", FIELD)
     corners = None
     if suffix == ".obj":
-        corners = obj_uv_corners(data, f)
+        corners = obj_uv_corners(data, f, max_uvs)
+        if corners is None and re.search(rb"(?m)^[ \t]*vt[ \t]", data):
+            warn(f"{FIELD}: the file's texture coordinates do not map onto its faces (a face without them, an "
+                 "index out of range, a value that is not a finite number): the answer has none")
     elif uv is not None and np.shape(uv) == (len(v), 2) and f.min() >= 0 and f.max() < len(v):
         corners = np.asarray(uv, np.float32)[f]
         corners = corners if np.isfinite(corners).all() else None

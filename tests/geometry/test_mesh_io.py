@@ -113,7 +113,8 @@ def test_relative_indices_count_back_from_the_face_not_from_the_end_of_the_file(
     path.write_bytes(RELATIVE_OBJ)
     v, f = load_mesh(path)
     assert f.tolist() == [[0, 1, 2], [3, 4, 5]]
-    uploaded_v, uploaded_f, uv = mesh_file(RELATIVE_OBJ, "rel.obj", max_vertices=100, max_faces=100)
+    read = mesh_file(RELATIVE_OBJ, "rel.obj", max_vertices=100, max_faces=100)
+    uploaded_v, uploaded_f, uv = read.vertices, read.faces, read.uv_corners
     assert uploaded_f.tolist() == f.tolist() and np.array_equal(uploaded_v, v)
     assert uv is not None and uv[1].tolist() == [[0, 0.5], [1, 0.5], [0, 1]]
     assert np.array_equal(obj_uv_corners(RELATIVE_OBJ, f), uv)
@@ -138,3 +139,39 @@ def test_a_relative_index_too_long_for_an_integer_is_a_malformed_file_not_a_cras
     data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -" + b"9" * 5000 + b"\n"
     with pytest.raises(MalformedInput):
         mesh_file(data, "huge.obj", max_vertices=100, max_faces=100)
+
+
+def test_obj_text_passes_stay_bounded_on_a_file_padded_with_blank_lines():
+    """A probe padded an OBJ with 60 million blank lines and one relative face: the passes that split the file
+    into lines held 5 GB and the server was killed. They find the element lines in C now: a 4-million-line
+    padding costs a few times the file's bytes."""
+    import tracemalloc
+
+    from drape.geometry.mesh_io import absolute_indices, obj_uv_corners
+
+    pad = b"\n" * 4_000_000 + b"# c\n" * 500_000
+    data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n" + pad + b"f -3/-3 -2/-2 -1/-1\n"
+    tracemalloc.start()
+    absolute = absolute_indices(data)
+    uv = obj_uv_corners(absolute, np.array([[0, 1, 2]]))
+    moved, _ = rewrite_obj(absolute, np.ones((3, 3)))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert absolute.endswith(b"f 1/1 2/2 3/3\n") and uv is not None and uv[0].tolist() == [[0, 0], [1, 0], [0, 1]]
+    assert moved.startswith(b"v 1 1 1\nv 1 1 1\nv 1 1 1\n") and len(moved) == len(absolute)
+    assert peak < 6 * len(data), peak
+
+
+def test_relative_or_zero_indices_that_name_no_element_are_refused_not_guessed():
+    """`f -1 -2 -5` after 3 vertices reached before the file's start and became trimesh's -1 (the file's last
+    vertex, another object's); `-0` became the next vertex; a `vt` index 0 took the next `vt`."""
+    from drape.geometry.mesh_io import absolute_indices, obj_uv_corners
+
+    with pytest.raises(ValueError, match="reaches before the first 'v'"):
+        absolute_indices(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -5\nv 0 0 1\n")
+    with pytest.raises(ValueError, match="-0"):
+        absolute_indices(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -0\n")
+    assert obj_uv_corners(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/0 2/0 3/0\nvt 0.25 0.75\n", np.array([[0, 1, 2]])) is None
+    ok = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n"
+    assert obj_uv_corners(ok, np.array([[0, 1, 2]])) is not None
+    assert obj_uv_corners(ok, np.array([[0, 1, 2]]), max_uvs=2) is None  # more vt lines than asked for

@@ -193,3 +193,37 @@ def test_a_fit_answers_an_uploaded_obj_as_the_same_file_moved(http, foreign):
                           headers={"Accept": "model/obj"})
         (Path(d) / "plain.obj").write_bytes(plain.content)
         np.testing.assert_allclose(load_mesh(Path(d) / "plain.obj")[0], doc["vertices"], atol=1e-6)
+
+
+def test_files_a_probe_grew_past_4_gb_are_refused_early(http):
+    """Three uploads killed a server at 4 GB: a `v` line of 10 million vertices split by vertical tabs (counted as
+    one vertex, read as many), an 11,000-corner polygon fanned from one vertex (the push-out's sparse solve fills
+    in the square of its valence), and 60 million blank lines (the OBJ passes split the file into lines; pinned
+    in tests/geometry/test_mesh_io.py). Each is now a 4xx before the work."""
+    o = generate_outfit("tshirt", vertices=500, seed=8)
+    lines = "".join(f"v {a} {b} {c}\n" for a, b, c in o.vertices)
+    faces = "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in o.faces)
+    vt = ("v " + "0 0 0\x0b" * 1000 + "1 1 1\n" + lines + faces).encode()
+    problem(http.post("/v1/outfits/fit", files={"mesh": ("a.obj", vt)}), 400, "mesh", "line break other than LF")
+    n = len(o.vertices)
+    ring = 2000  # the tests' service takes 3,000 vertices: its budget is 300,000
+    angle = np.linspace(0, 2 * np.pi, ring, endpoint=False)
+    circle = np.stack([0.3 * np.cos(angle), np.full(ring, 1.3), 0.3 * np.sin(angle)], 1)
+    fan = lines + "".join(f"v {a} {b} {c}\n" for a, b, c in circle) + faces
+    fan += "f " + " ".join(str(n + 1 + k) for k in range(ring)) + "\n"
+    problem(http.post("/v1/outfits/fit", files={"mesh": ("fan.obj", fan.encode())}), 422, "mesh.faces",
+            f"joined to {ring - 1} others")
+
+
+def test_a_warning_sentence_is_cut_to_a_readable_length(http):
+    """A file's text can reach a warning (a fit answered as OBJ that cannot be kept line for line quotes why):
+    a 200 KB `vn` value made a header httpx could not read. Each sentence is cut at MAX_SENTENCE characters."""
+    from drape.service.notices import MAX_SENTENCE
+
+    o = generate_outfit("tshirt", vertices=500, seed=8)
+    obj = ("".join(f"v {a} {b} {c}\n" for a, b, c in o.vertices) + "vn nan(" + "A" * 200_000 + ") 0 1\n"
+           + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in o.faces)).encode()
+    r = http.post("/v1/outfits/fit", files={"mesh": ("shirt.obj", obj)}, headers={"Accept": "model/obj"})
+    assert r.status_code == 200, r.text[:300]
+    said = json.loads(r.headers["Drape-Warnings"])
+    assert said and all(len(s) <= MAX_SENTENCE for s in said) and "vn line is not three numbers" in said[0], said
