@@ -166,6 +166,9 @@ def _load(data: bytes, file_type: str, suffix: str, max_uvs: int) -> MeshFile:
     elif uv is not None and np.shape(uv) == (len(v), 2) and f.min() >= 0 and f.max() < len(v):
         corners = np.asarray(uv, np.float32)[f]
         corners = corners if np.isfinite(corners).all() else None
+    if corners is None and file_type == "glb" and b"TEXCOORD_0" in data:  # kept for some primitives, not all
+        warn(f"{FIELD}: texture coordinates are on some of the file's meshes only (or not finite): the answer has "
+             "none")
     return MeshFile(v, f, corners, parts)
 
 
@@ -447,6 +450,8 @@ def _meshes(tree: dict[str, Any], accessors: list[_Accessor]) -> list[_Mesh]:
                 tex_acc = accessors[_index(texcoord, len(accessors), f"{where}.attributes.TEXCOORD_0")]
                 if (tex_acc.view is None or tex_acc.kind != "VEC2" or tex_acc.component != 5126
                         or tex_acc.count != position.count):
+                    warn(f"{FIELD}: {where}.attributes.TEXCOORD_0 is not float VEC2, one per vertex: left out "
+                         "(the answer has no texture coordinates for it)")
                     texcoord = None
             prims.append((attributes["POSITION"], indices, texcoord))
         out.append(_Mesh(vertices, faces, prims))

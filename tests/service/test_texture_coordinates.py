@@ -113,3 +113,26 @@ def test_a_real_garments_uvs_survive_fit_and_rig(http):
     _same_corners(r.content, np.asarray(doc["vertices"]), f, uv)
     assert json.loads(fitted.text.splitlines()[0][len("# drape fit report: "):])["inside_after"] <= 0.001
     assert io.BytesIO(r.content).getbuffer().nbytes > 0
+
+
+def test_uvs_left_out_are_said(http, textured):
+    """A GLB whose meshes carry texture coordinates on one of two meshes (trimesh then reads none), and an OBJ
+    whose faces do not all name a `vt`: 200, no TEXCOORD_0 in the rig's GLB, and a Drape-Warnings sentence."""
+    import trimesh
+
+    data, v, f, uv = textured
+    per_vertex = np.zeros((len(v), 2), np.float32)
+    per_vertex[f.reshape(-1)] = uv.reshape(-1, 2)
+    scene = trimesh.Scene()
+    scene.add_geometry(trimesh.Trimesh(v, f, process=False, visual=trimesh.visual.TextureVisuals(uv=per_vertex)),
+                       node_name="with_uv")
+    scene.add_geometry(trimesh.Trimesh(v + [0.0, 0.0, 0.01], f, process=False), node_name="without")
+    import re
+
+    no_vt = re.sub(rb"(?m)^f ([^\n]*)$", lambda m: b"f " + re.sub(rb"/\d+", b"", m.group(1)), data, count=1)
+    assert no_vt != data
+    for name, body in (("two.glb", scene.export(file_type="glb")), ("cut.obj", no_vt)):
+        r = http.post("/v1/outfits/rig", files={"mesh": (name, body)}, headers={"Accept": GLB})
+        assert r.status_code == 200, (name, r.text[:300])
+        assert GlbPlayer(r.content).doc.meshes[0].primitives[0].attributes.TEXCOORD_0 is None, name
+        assert "texture coordinates" in r.headers.get("Drape-Warnings", ""), (name, r.headers)
