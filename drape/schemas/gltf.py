@@ -200,6 +200,24 @@ def _add_skeleton(w: _Writer, skeleton: Skeleton) -> list[int]:
     return [base + k for k in range(len(skeleton.joint_names))]
 
 
+def smooth_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals (N, 3) float32, unit length, of a mesh at rest; vertices at the same place (a
+    UV seam's copies, a file's own seams) share one, so shading is smooth across seams. A vertex in no face (or
+    only degenerate ones) gets +Y (glTF asks every NORMAL to be unit length)."""
+    v = np.asarray(vertices, np.float32)
+    f = np.asarray(faces, np.int64)
+    _, place = np.unique(v, axis=0, return_inverse=True)
+    place = place.reshape(-1)
+    area_normal = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]).astype(np.float64)
+    summed = np.zeros((int(place.max(initial=-1)) + 1, 3))
+    for k in range(3):
+        np.add.at(summed, place[f[:, k]], area_normal)
+    n = summed[place]
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    out = np.where(length > 1e-20, n / np.maximum(length, 1e-300), [0.0, 1.0, 0.0])
+    return out.astype(np.float32)
+
+
 def _seams_split(mesh: SkinnedMesh) -> tuple[SkinnedMesh, np.ndarray | None, np.ndarray | None]:
     """-> (the mesh as written: with uv_corners, one vertex per (vertex, uv) pair, vertices, weights and targets
     copied; the written vertices' uv (C, 2) or None; their source vertices (C,) or None)."""
@@ -217,6 +235,8 @@ def _add_skinned_mesh(w: _Writer, mesh: SkinnedMesh, skin: int, extra_targets: l
     (OBJ's convention) as TEXCOORD_0 (glTF's: v from the image's top). -> node."""
     v = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
     attrs = gl.Attributes(POSITION=w.accessor(v, gl.VEC3, target=gl.ARRAY_BUFFER, bounds=True))
+    # rest normals, skinned by the engine as the positions are (without them a viewer shades the garment flat)
+    attrs.NORMAL = w.accessor(smooth_normals(v, mesh.faces), gl.VEC3, target=gl.ARRAY_BUFFER)
     if uv is not None:
         gl_uv = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]).astype(np.float32)
         attrs.TEXCOORD_0 = w.accessor(gl_uv, gl.VEC2, target=gl.ARRAY_BUFFER)

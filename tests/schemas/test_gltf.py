@@ -114,6 +114,12 @@ def test_texture_coordinates_split_seams_and_play_back_as_the_mesh_without_them(
     want = linear_blend_skinning(rest, weights, transforms) + world
     for t in range(4):
         assert np.abs(player.positions("outfit", t) - want[t][source]).max() < 1e-5, t
+    # rest normals (a viewer shades a mesh without them flat): unit length, one per place, so a seam's copies
+    # share theirs (their side: tests/service/test_texture_coordinates.py, on a garment)
+    normal = player.accessor(prim.attributes.NORMAL)
+    assert normal.shape == (len(source), 3) and np.allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-6)
+    copies = source[:-1] == source[1:]  # adjacent copies of one vertex
+    assert copies.any() and np.allclose(normal[:-1][copies], normal[1:][copies])
 
 
 def test_a_vertex_animation_replays_its_stream_dense_and_sparse():

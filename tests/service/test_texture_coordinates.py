@@ -63,6 +63,15 @@ def test_an_objs_uvs_come_back_in_the_rig_glb_and_in_animates(http, textured):
     report = validate(r.content)
     assert report["errors"] == 0, report["messages"]
     _same_corners(r.content, v, f, uv)
+    import trimesh  # the rest normals go out too, on the outer side (trimesh's vertex normals of the file's mesh)
+
+    player = GlbPlayer(r.content)
+    prim = player.doc.meshes[0].primitives[0]
+    written = player.accessor(prim.indices).reshape(-1, 3)
+    normal = player.accessor(prim.attributes.NORMAL)[written]  # (F, 3, 3) per corner
+    theirs = trimesh.Trimesh(v, f, process=False).vertex_normals[f]
+    agree = np.einsum("fkc,fkc->fk", normal, theirs)
+    assert np.median(agree) > 0.95 and (agree > 0).mean() > 0.95, np.percentile(agree, [5, 50])
     assert len(GlbPlayer(r.content).accessor(
         GlbPlayer(r.content).doc.meshes[0].primitives[0].attributes.POSITION)) > len(v)  # the seam's copies
     rig = http.post("/v1/outfits/rig", files={"mesh": ("shirt.obj", data)}, headers={"Accept": NPZ})
