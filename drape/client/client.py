@@ -229,15 +229,6 @@ def _warn_for(response: httpx.Response) -> None:
         warnings.warn(f"drape: {sentence}", DrapeWarning, stacklevel=4)
 
 
-def _warn_rig(rig: RigResult) -> None:
-    """What an animate that rigs on the way would have said of its outfit (the service's `outfit:` warnings),
-    from the rig's diagnostics and fit report, as DrapeWarnings: animate rigs a file path (or an outfit sent
-    with a motion file) through rig first, whose answer carries them in its body."""
-    said = list(rig.diagnostics.get("warnings", [])) + (list(rig.fit.report.get("warnings", [])) if rig.fit else [])
-    for sentence in said:
-        warnings.warn(f"drape: outfit: {sentence}", DrapeWarning, stacklevel=4)
-
-
 def _raise_for(response: httpx.Response) -> None:
     """DrapeAPIError for an error answer: its problem details, or (an answer that is not a problem: a proxy's
     HTML page, other JSON) the reason phrase as title and the start of the body as detail. A successful answer's
@@ -765,8 +756,7 @@ class Client(_Base):
         if needs_rig or (arrays is not None and _motion_file(motion) is not None):
             rig = self.rig(outfit, body=body or "neutral", influences=4 if influences is None else influences,
                            fit=fit)
-            _warn_rig(rig)
-            outfit_id = rig.outfit_id
+            outfit_id = rig.outfit_id  # what the rig warned of was raised with its answer
             body, arrays, fit = None, None, False
         return _animate_request(outfit_id, arrays, motion, body, influences, fit, refine)
 
@@ -1098,7 +1088,6 @@ class AsyncClient(_Base):
         if needs_rig or (arrays is not None and _motion_file(motion) is not None):
             rig = await self.rig(outfit, body=body or "neutral",
                                  influences=4 if influences is None else influences, fit=fit)
-            _warn_rig(rig)
             outfit_id, body, arrays, fit = rig.outfit_id, None, None, False
         return _animate_request(outfit_id, arrays, motion, body, influences, fit, refine)
 

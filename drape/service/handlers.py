@@ -280,9 +280,12 @@ def fit(settings: Settings, vertices: Any, faces: Any, body: str | None, units: 
     if np.abs(v).max() * scale > 100.0:
         raise InvalidInput(f"coordinates beyond 100 m in {units_ or infer_units(v)}", f"{pre}vertices")
     try:
-        return fit_garment(v, f, held_body(body_name), units=units_, up=up_, pose=pose_)
+        result = fit_garment(v, f, held_body(body_name), units=units_, up=up_, pose=pose_)
     except FitError as exc:
         raise InvalidInput(str(exc), "pose" if exc.argument == "pose" else f"{pre}{exc.argument}") from None
+    for sentence in result.report.get("warnings", []):  # in the answer's body too; the header in every format
+        warn(f"{field or 'vertices'}: {sentence}")
+    return result
 
 
 def body_scale_warnings(engine: Engine, body: str) -> list[str]:
@@ -306,8 +309,6 @@ def fit_obj(result: FitResult, faces: np.ndarray, source: tuple[str, bytes] | No
     also said (the Drape-Warnings header)."""
     from drape.geometry.mesh_io import rewrite_obj
 
-    for sentence in result.report.get("warnings", []):
-        warn(f"report: {sentence}")
     head = f"# drape fit report: {json.dumps(result.report)}\n".encode()
     if source is not None and source[0].lower().endswith(".obj"):
         turn = result.transform[:3, :3] if result.report.get("pose") == "t" else None
@@ -341,6 +342,8 @@ def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str
     with computing_on(body_name):
         diagnostics = check_on_body(v, body_name, f"{field}.vertices" if field else "vertices")
         diagnostics["warnings"] += body_scale_warnings(engine, body_name)
+        for sentence in diagnostics["warnings"]:  # in the answer's diagnostics too; the header in every format
+            warn(f"{field or 'vertices'}: {sentence}")
         uv = None  # -0.0 read as 0.0: the same UVs, one outfit_id
         if uv_corners is not None and np.shape(uv_corners) == (len(f), 3, 2):
             uv = np.asarray(uv_corners, np.float32) + np.float32(0.0)
@@ -441,8 +444,7 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
         said: list[str] = []  # what a rig answer's diagnostics and a fit's report would say: the answer's warnings
         if request.get("fit"):
             fitted = fit(settings, outfit_in["vertices"], outfit_in["faces"], request.get("body"), field="outfit")
-            outfit_in = {**outfit_in, "vertices": fitted.vertices}
-            said += fitted.report.get("warnings", [])
+            outfit_in = {**outfit_in, "vertices": fitted.vertices}  # its warnings said by fit
         v, f = check_mesh(outfit_in["vertices"], outfit_in["faces"], settings, "outfit")
         body = check_body(request.get("body"))
         influences = check_influences(request.get("influences"))

@@ -59,6 +59,10 @@ def test_fit_takes_a_mesh_file_and_an_npz(http, foreign, tmp_path):
     assert wrong.status_code == 200, wrong.text[:300]
     assert [w for w in wrong.json()["report"]["warnings"] if "in cm" in w and "its size says m" in w], \
         wrong.json()["report"]["warnings"]
+    # and in the Drape-Warnings header, as every answer that did as asked and found something wrong (a JSON
+    # or npz fit said them in its report only: the client raised nothing)
+    header = json.loads(wrong.headers["Drape-Warnings"])
+    assert header == [f"vertices: {w}" for w in wrong.json()["report"]["warnings"]], header
     buf = io.BytesIO()
     np.savez(buf, vertices=v, faces=f, body=np.array("male"), pose=np.array("t"))
     r2 = http.post("/v1/outfits/fit", content=buf.getvalue(), headers={"Content-Type": NPZ})

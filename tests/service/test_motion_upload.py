@@ -285,4 +285,4 @@ def test_an_uploads_import_warnings_travel_in_the_answer(http, outfit_id, server
         centre = o.vertices.mean(0)
         client.animate(outfit=((o.vertices - centre) * 0.8 + centre, o.faces), motion=drape.client.MotionFile(take))
         told = [str(w.message) for w in caught if w.category is drape.DrapeWarning]
-        assert [t for t in told if t.startswith("drape: outfit: ") and "inside the body at rest" in t], told
+        assert [t for t in told if t.startswith("drape: vertices: ") and "inside the body at rest" in t], told
