@@ -734,6 +734,8 @@ def _export_glb(args: argparse.Namespace) -> None:
     faces, fps = _glb_faces_fps(args.stream, z, v.shape[0], v.shape[1])
     Path(args.out).write_bytes(vertex_animation_glb(v, faces, fps, name=name))
     print(f"{args.out}: {len(v)} frames x {v.shape[1]} vertices at {fps:g} fps")
+    print("a vertex animation: positions only (a stream carries no texture coordinates or normals); the rig's GLB "
+          "keeps the garment file's UVs: POST /v1/outfits/animate (or rig) with Accept: model/gltf-binary")
 
 
 def _eval_deepsd(args: argparse.Namespace) -> None:
