@@ -30,9 +30,6 @@ def read_trimesh(source: str | BinaryIO, file_type: str | None = None):  # noqa:
                                                   maintain_order=True))
 
 
-_MATERIAL_LINES = re.compile(rb"(?m)^[ \t]*(?:usemtl|mtllib)\b[^\n]*")
-
-
 def read_trimesh_parts(source: BinaryIO, file_type: str):  # noqa: ANN201 (a trimesh.Trimesh, parts)
     """A scene file (glTF) read as `read_trimesh` reads it (its meshes placed and concatenated, nothing merged),
     with the named parts: [{"name", "start", "stop"}] vertex ranges of the concatenated mesh, one per placed mesh
@@ -52,6 +49,9 @@ def read_trimesh_parts(source: BinaryIO, file_type: str):  # noqa: ANN201 (a tri
     parts = [{"name": str(p.metadata.get("node") or p.metadata.get("name") or "")[:200], "start": int(start),
               "stop": int(stop)} for p, start, stop in zip(pieces, [0, *stops[:-1]], stops, strict=True)]
     return trimesh.util.concatenate(pieces), parts
+
+
+_MATERIAL_LINES = re.compile(rb"(?m)^[ \t]*(?:usemtl|mtllib)\b[^\n]*")
 
 
 def without_materials(data: bytes) -> bytes:
@@ -176,9 +176,15 @@ def _save_obj_parts(path: Path, vertices: np.ndarray, faces: np.ndarray, parts: 
     lines = []
     for k, (name, start, stop) in enumerate(parts):
         lines.append(f"o {name}")
-        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices[start:stop].tolist())
-        lines.extend(f"f {a} {b} {c}" for a, b, c in (faces[owner[:, 0] == k] + 1).tolist())
+        lines += obj_lines(vertices[start:stop], faces[owner[:, 0] == k])
     path.write_text("\n".join(lines) + "\n")
+
+
+def obj_lines(vertices: np.ndarray, faces: np.ndarray) -> list[str]:
+    """A mesh's OBJ `v` lines (vertices (N, 3), 9 significant digits: float32 read back exactly) then its `f`
+    lines (faces (F, 3), 0-based indices written 1-based as they are)."""
+    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(vertices, np.float64).tolist()]
+    return lines + [f"f {a} {b} {c}" for a, b, c in (np.asarray(faces, np.int64) + 1).tolist()]
 
 
 def rewrite_obj(data: bytes, vertices: np.ndarray, normal_turn: np.ndarray | None = None) -> tuple[bytes, str]:

@@ -302,12 +302,22 @@ def body_scale_warnings(engine: Engine, body: str) -> list[str]:
             "the body when posed (refine: true removes it)"]
 
 
+def placement_diagnostics(engine: Engine, vertices: np.ndarray, body: str, field: str, said_as: str) -> dict:
+    """A rig's `diagnostics`: where the mesh sits on the body at rest (`check_on_body`, its 422 naming `field`)
+    with the body-scale warning added; each warning also said in the answer's Drape-Warnings as `said_as: ...`."""
+    diagnostics = check_on_body(vertices, body, field)
+    diagnostics["warnings"] += body_scale_warnings(engine, body)
+    for sentence in diagnostics["warnings"]:
+        warn(f"{said_as}: {sentence}")
+    return diagnostics
+
+
 def fit_obj(result: FitResult, faces: np.ndarray, source: tuple[str, bytes] | None) -> bytes:
     """The fitted garment as an OBJ: an uploaded OBJ (source: (file name, bytes)) with its vertices moved and every
     other line kept (UVs, materials, objects; normals turned with the fit, or left out after an un-posing:
     drape.geometry.mesh_io.rewrite_obj), else plain v/f lines; the report as a first comment line, its warnings
     also said (the Drape-Warnings header)."""
-    from drape.geometry.mesh_io import rewrite_obj
+    from drape.geometry.mesh_io import obj_lines, rewrite_obj
 
     head = f"# drape fit report: {json.dumps(result.report)}\n".encode()
     if source is not None and source[0].lower().endswith(".obj"):
@@ -317,9 +327,7 @@ def fit_obj(result: FitResult, faces: np.ndarray, source: tuple[str, bytes] | No
         except ValueError as exc:  # its v lines are not the vertices read: plain lines, below, and said
             warn(f"mesh: the OBJ could not be written back line for line ({exc}): answered as plain v and f lines, "
                  "without its texture coordinates, normals and materials")
-    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(result.vertices, np.float64).tolist()]
-    lines += [f"f {a} {b} {c}" for a, b, c in (np.asarray(faces, np.int64) + 1).tolist()]
-    return head + ("\n".join(lines) + "\n").encode()
+    return head + ("\n".join(obj_lines(result.vertices, faces)) + "\n").encode()
 
 
 def fit_answer(result: FitResult, faces: np.ndarray) -> dict:
@@ -340,10 +348,8 @@ def rig(engine: Engine, settings: Settings, vertices: Any, faces: Any, body: str
     v, f = check_mesh(vertices if fitted is None else fitted.vertices, faces, settings, field)
     body_name = check_body(body)
     with computing_on(body_name):
-        diagnostics = check_on_body(v, body_name, f"{field}.vertices" if field else "vertices")
-        diagnostics["warnings"] += body_scale_warnings(engine, body_name)
-        for sentence in diagnostics["warnings"]:  # in the answer's diagnostics too; the header in every format
-            warn(f"{field or 'vertices'}: {sentence}")
+        diagnostics = placement_diagnostics(engine, v, body_name, f"{field}.vertices" if field else "vertices",
+                                            field or "vertices")
         uv = None  # -0.0 read as 0.0: the same UVs, one outfit_id
         if uv_corners is not None and np.shape(uv_corners) == (len(f), 3, 2):
             uv = np.asarray(uv_corners, np.float32) + np.float32(0.0)
@@ -441,7 +447,6 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
         check_answer_size(len(poses), len(outfit.vertices), max_posed, "motion")
     else:  # every cheap check before the rig
         assert outfit_in is not None
-        said: list[str] = []  # what a rig answer's diagnostics and a fit's report would say: the answer's warnings
         if request.get("fit"):
             fitted = fit(settings, outfit_in["vertices"], outfit_in["faces"], request.get("body"), field="outfit")
             outfit_in = {**outfit_in, "vertices": fitted.vertices}  # its warnings said by fit
@@ -451,10 +456,8 @@ def plan_animation(engine: Engine, settings: Settings, request: dict, max_posed:
         poses, trans, fps = check_motion(request["motion"], settings)
         check_answer_size(len(poses), len(v), max_posed, "motion")
         with computing_on(body):
-            said += check_on_body(v, body, "outfit.vertices")["warnings"] + body_scale_warnings(engine, body)
+            placement_diagnostics(engine, v, body, "outfit.vertices", "outfit")  # what a rig answer would say
             outfit = engine.rig(v, f, body, influences)
-        for sentence in said:
-            warn(f"outfit: {sentence}")
     return AnimationPlan(outfit, poses, trans, fps, check_refine(request.get("refine")), held_body(outfit.body))
 
 
