@@ -252,17 +252,18 @@ def _form_flag(parts: dict[str, Any], name: str) -> bool | None:
 
 
 def _form_mesh(parts: dict[str, Any], settings: Settings) -> tuple[np.ndarray, np.ndarray]:
-    read = _form_mesh_file(parts, settings)
+    read = _form_mesh_file(parts, settings, uv=False)  # the fit: its OBJ answer keeps the file's own lines
     return read.vertices, read.faces
 
 
-def _form_mesh_file(parts: dict[str, Any], settings: Settings) -> uploads.MeshFile:
-    """The form's mesh file, read (uploads.MeshFile: vertices, faces, texture coordinates, a GLB's parts)."""
+def _form_mesh_file(parts: dict[str, Any], settings: Settings, uv: bool = True) -> uploads.MeshFile:
+    """The form's mesh file, read (uploads.MeshFile: vertices, faces, texture coordinates unless uv is False, a
+    GLB's parts)."""
     mesh = parts.get("mesh")
     if mesh is None or mesh.filename is None:
         raise InvalidInput("a mesh file is required", "mesh")
     return uploads.mesh_file(mesh.data, mesh.filename, max_vertices=settings.max_vertices,
-                             max_faces=settings.max_faces)
+                             max_faces=settings.max_faces, uv=uv)
 
 
 def _form_mesh_parts(parts: dict[str, Any], read: uploads.MeshFile) -> list[dict] | None:

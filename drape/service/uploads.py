@@ -81,7 +81,7 @@ def mesh_from_file(data: bytes, filename: str, *, max_vertices: int,
     files, are a MalformedInput); see the module docstring for what is checked before trimesh sees
     the file, and which domain error answers what.
     """
-    read = mesh_file(data, filename, max_vertices=max_vertices, max_faces=max_faces)
+    read = mesh_file(data, filename, max_vertices=max_vertices, max_faces=max_faces, uv=False)
     return read.vertices, read.faces
 
 
@@ -99,8 +99,9 @@ class MeshFile:
     parts: list[dict] | None = None
 
 
-def mesh_file(data: bytes, filename: str, *, max_vertices: int, max_faces: int) -> MeshFile:
-    """`mesh_from_file` with the file's texture coordinates and, for a GLB/glTF, its parts (MeshFile)."""
+def mesh_file(data: bytes, filename: str, *, max_vertices: int, max_faces: int, uv: bool = True) -> MeshFile:
+    """`mesh_from_file` with the file's texture coordinates (uv False: not read, for a caller that does not use
+    them) and, for a GLB/glTF, its parts (MeshFile)."""
     suffix = "." + filename.rsplit(".", 1)[-1].lower() if "." in filename else ""
     if suffix not in MESH_FILE_TYPES:
         raise InvalidInput(f"file name must end in one of {sorted(MESH_FILE_TYPES)}, "
@@ -123,7 +124,7 @@ def mesh_file(data: bytes, filename: str, *, max_vertices: int, max_faces: int) 
     except Exception as exc:  # a check tripping on a broken file reads as the broken file
         raise MalformedInput(f"could not read the {suffix} file ({type(exc).__name__}: {exc})",
                              FIELD) from exc
-    return _load(data, file_type, suffix, max_uvs=max_vertices + 3 * max_faces)
+    return _load(data, file_type, suffix, max_uvs=max_vertices + 3 * max_faces if uv else 0)
 
 
 # what str.splitlines (trimesh's OBJ reader) breaks lines at besides LF and CR: a `v` line holding 10 million
@@ -139,6 +140,7 @@ def _check_line_breaks(data: bytes) -> None:
 
 
 def _load(data: bytes, file_type: str, suffix: str, max_uvs: int) -> MeshFile:
+    """The checked file read by trimesh -> MeshFile; max_uvs: texture coordinates read at most (0: none)."""
     from drape.geometry.mesh_io import obj_uv_corners, read_trimesh, read_trimesh_parts
 
     parts = None
@@ -158,6 +160,8 @@ def _load(data: bytes, file_type: str, suffix: str, max_uvs: int) -> MeshFile:
         raise MalformedInput(f"the {suffix} file reads as vertices {v.shape} and faces {f.shape}, "
                              "not (N, 3) and (F, 3)", FIELD)
     corners = None
+    if not max_uvs:
+        return MeshFile(v, f, None, parts)
     if suffix == ".obj":
         corners = obj_uv_corners(data, f, max_uvs)
         if corners is None and re.search(rb"(?m)^[ \t]*vt[ \t]", data):
